@@ -1,0 +1,77 @@
+"""Helpers shared by the command modules: parsing vectors, loading robots, printing."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from kincal.errors import KincalError
+from kincal.robots.files import load_robot
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def parse_vector(text: str, option: str, length: int | None = None) -> np.ndarray:
+    """Parse ``"1, 2.5, -3"`` into a float array; one-line error naming the option."""
+    parts = [p for p in text.replace(";", ",").split(",") if p.strip()]
+    try:
+        v = np.array([float(p) for p in parts])
+    except ValueError:
+        bad = next(p for p in parts if not _is_float(p))
+        raise KincalError(f"option {option}: {bad.strip()!r} is not a number") from None
+    if not np.all(np.isfinite(v)):
+        raise KincalError(f"option {option}: values must be finite")
+    if length is not None and v.size != length:
+        raise KincalError(f"option {option}: expected {length} comma-separated values, "
+                          f"got {v.size}")
+    return v
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def robot_arg(spec: str, base_link: str | None = None, tip_link: str | None = None) -> Any:
+    """Load ROBOT (library name, YAML or URDF path) for a command."""
+    return load_robot(spec, base_link=base_link, tip_link=tip_link)
+
+
+def joint_vector(robot: Any, text: str, deg: bool, option: str = "--q") -> np.ndarray:
+    """Joint values from the command line; ``--deg`` converts revolute joints only."""
+    q = parse_vector(text, option, robot.n)
+    if deg:
+        rev = np.array([j.kind == "revolute" for j in robot.joints])
+        q = np.where(rev, np.deg2rad(q), q)
+    return q
+
+
+def matrix_table(M: np.ndarray, title: str, row_labels: list[str] | None = None,
+                 col_labels: list[str] | None = None, digits: int = 6) -> Table:
+    """A rich table showing a matrix with optional labels."""
+    t = Table(title=title, show_header=col_labels is not None)
+    if row_labels is not None:
+        t.add_column("")
+    for c in col_labels or [""] * M.shape[1]:
+        t.add_column(c, justify="right")
+    for i, row in enumerate(M):
+        cells = [f"{v: .{digits}f}" for v in row]
+        t.add_row(*(([row_labels[i]] if row_labels else []) + cells))
+    return t
+
+
+def fmt_value(value: float, unit: str) -> str:
+    """Human display of a parameter value: metres as mm, radians with degrees."""
+    if unit == "m":
+        return f"{value * 1e3:.4f} mm"
+    if unit == "rad":
+        return f"{value:.6f} rad ({math.degrees(value):.4f}°)"
+    return f"{value:g} {unit}"

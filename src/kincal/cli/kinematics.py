@@ -1,0 +1,135 @@
+"""Kinematics commands: ``robots``, ``show``, ``fk``, ``jacobian``."""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from kincal.cli.app import app
+from kincal.cli.common import console, fmt_value, joint_vector, matrix_table, robot_arg
+from kincal.io import write_json
+from kincal.robots.files import library_dir, library_names, read_robot_yaml
+
+RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
+                                         "path to a YAML robot file or a URDF file.")]
+BaseLink = Annotated[str | None, typer.Option("--base-link", help="URDF only: first link of "
+                                              "the chain (default: the URDF root).")]
+TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link of the "
+                                             "chain (default: the single leaf).")]
+JsonOut = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
+                                             "to this path ('-' for stdout).")]
+QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: rad for revolute, "
+                                   "m for prismatic joints (see --deg).")]
+DegOpt = Annotated[bool, typer.Option("--deg", help="Revolute joint values are in degrees "
+                                      "(prismatic stay in metres).")]
+
+
+def _is_fivebar(robot: object) -> bool:
+    return type(robot).__name__ == "FiveBar"
+
+
+@app.command()
+def robots() -> None:
+    """List the built-in robots with their joints and the source of their numbers."""
+    t = Table(title="Built-in robots (use the name wherever ROBOT is asked)")
+    for c in ("name", "joints", "convention", "description", "source"):
+        t.add_column(c, overflow="fold")
+    for name in library_names():
+        r = read_robot_yaml(library_dir() / f"{name}.yaml")
+        if _is_fivebar(r):
+            kinds, conv = "five-bar (2 actuated)", "fivebar"
+        else:
+            kinds = "".join("R" if j.kind == "revolute" else "P" for j in r.joints)
+            conv = r.meta.get("convention", "")
+        src = str(r.meta.get("source", "")) if hasattr(r, "meta") else ""
+        desc = str(r.meta.get("description", "")) if hasattr(r, "meta") else ""
+        t.add_row(name, kinds, conv, desc, src[:90] + ("…" if len(src) > 90 else ""))
+    console.print(t)
+
+
+@app.command()
+def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
+         json_out: JsonOut = None) -> None:
+    """Show a robot's joints and its named parameters with units."""
+    r = robot_arg(robot, base_link, tip_link)
+    if _is_fivebar(r):
+        from kincal.cli.fivebar import show_fivebar
+
+        show_fivebar(r, console)
+        return
+    jt = Table(title=f"{r.name}: {r.n} joints ({r.meta.get('convention', '')})")
+    for c in ("#", "joint", "type", "lower", "upper"):
+        jt.add_column(c, justify="right" if c in ("#", "lower", "upper") else "left")
+    for i, j in enumerate(r.joints, start=1):
+        lims = (j.lower, j.upper)
+        if j.kind == "revolute":
+            lo, hi = (f"{math.degrees(v):.1f}°" if math.isfinite(v) else "-" for v in lims)
+        else:
+            lo, hi = (f"{v * 1e3:.1f} mm" if math.isfinite(v) else "-" for v in lims)
+        jt.add_row(str(i), j.name, j.kind, lo, hi)
+    console.print(jt)
+    pt = Table(title=f"{r.name}: {r.num_params} parameters (SI inside; shown in mm and deg)")
+    for c in ("parameter", "value", "unit", "role"):
+        pt.add_column(c, justify="right" if c == "value" else "left")
+    for name, v, u, role in zip(r.param_names, r.param_values, r.param_units, r.param_roles,
+                                strict=True):
+        pt.add_row(name, fmt_value(float(v), u), u, role)
+    console.print(pt)
+    if "source" in r.meta:
+        console.print(f"[dim]source: {r.meta['source']}[/dim]")
+    if json_out:
+        write_json(json_out, {"name": r.name, "joints": [
+            {"name": j.name, "type": j.kind, "lower": j.lower if math.isfinite(j.lower) else None,
+             "upper": j.upper if math.isfinite(j.upper) else None} for j in r.joints],
+            "parameters": [{"name": n, "value": float(v), "unit": u, "role": ro} for n, v, u, ro
+                           in zip(r.param_names, r.param_values, r.param_units, r.param_roles,
+                                  strict=True)]})
+
+
+@app.command()
+def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, base_link: BaseLink = None,
+       tip_link: TipLink = None, json_out: JsonOut = None) -> None:
+    """Forward kinematics: the tool pose T(q) in the base frame (metres)."""
+    r = robot_arg(robot, base_link, tip_link)
+    if _is_fivebar(r):
+        from kincal.cli.fivebar import fk_fivebar
+
+        fk_fivebar(r, joint_vector(r, q, deg), json_out)
+        return
+    T = r.fk(joint_vector(r, q, deg))
+    if json_out != "-":
+        console.print(matrix_table(T, f"{r.name}: T(q) \\[m]", digits=6))
+        from kincal.spatial import matrix_to_rpy
+
+        rpy = np.degrees(matrix_to_rpy(T[:3, :3]))
+        console.print(f"position \\[mm]: {np.round(T[:3, 3] * 1e3, 4).tolist()}   "
+                      f"rpy \\[deg]: {np.round(rpy, 4).tolist()}")
+    if json_out:
+        write_json(json_out, {"T": T.tolist(), "units": {"length": "m"}})
+
+
+@app.command()
+def jacobian(robot: RobotArg, q: QOpt, deg: DegOpt = False,
+             frame: Annotated[str, typer.Option(help="base: velocities in the base frame; "
+                                                "tool: in the tool frame.")] = "base",
+             base_link: BaseLink = None, tip_link: TipLink = None,
+             json_out: JsonOut = None) -> None:
+    """Geometric Jacobian: rows vx vy vz [m/s per unit] and wx wy wz [rad/s per unit]."""
+    r = robot_arg(robot, base_link, tip_link)
+    J = r.jacobian(joint_vector(r, q, deg), frame=frame)  # type: ignore[arg-type]
+    if json_out != "-":
+        console.print(matrix_table(J, f"{r.name}: geometric Jacobian ({frame} frame)",
+                                   ["vx", "vy", "vz", "wx", "wy", "wz"], list(r.joint_names)))
+        s = np.linalg.svd(J, compute_uv=False)
+        cond = s[0] / s[-1] if s[-1] > 0 else math.inf
+        console.print(f"singular values: {np.round(s, 6).tolist()}   condition number: {cond:.4g}")
+    if json_out:
+        write_json(json_out, {"J": J.tolist(), "frame": frame,
+                              "rows": ["vx", "vy", "vz", "wx", "wy", "wz"],
+                              "columns": list(r.joint_names)})
+
+

@@ -1,0 +1,227 @@
+"""SE(3) / SO(3) helpers, batched over a leading axis.
+
+Conventions (used everywhere in kincal):
+
+* A homogeneous transform is a ``(4, 4)`` array, a batch is ``(N, 4, 4)``.
+* Roll-pitch-yaw (URDF ``rpy``, extrinsic X-Y-Z = intrinsic Z-Y-X):
+  ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``, stored as ``(roll, pitch, yaw)`` [rad].
+* Euler ZYZ: ``R = Rz(phi) @ Ry(theta) @ Rz(psi)``, stored as ``(phi, theta, psi)`` [rad].
+* A pose error / twist is a 6-vector ``[dp; dphi]``: translation [m] then a small
+  rotation vector [rad], both expressed in the base frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kincal.errors import KincalError
+
+Array = NDArray[np.float64]
+
+
+def rotx(angle: ArrayLike) -> Array:
+    """Rotation about x by ``angle`` [rad]; scalar -> (3, 3), (N,) -> (N, 3, 3)."""
+    a = np.asarray(angle, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1),
+                     np.stack([z, s, c], -1)], -2)
+
+
+def roty(angle: ArrayLike) -> Array:
+    """Rotation about y by ``angle`` [rad]; scalar -> (3, 3), (N,) -> (N, 3, 3)."""
+    a = np.asarray(angle, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1),
+                     np.stack([-s, z, c], -1)], -2)
+
+
+def rotz(angle: ArrayLike) -> Array:
+    """Rotation about z by ``angle`` [rad]; scalar -> (3, 3), (N,) -> (N, 3, 3)."""
+    a = np.asarray(angle, dtype=float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1),
+                     np.stack([z, z, o], -1)], -2)
+
+
+def homogeneous(R: ArrayLike, p: ArrayLike) -> Array:
+    """Build ``[[R, p], [0, 1]]`` from rotations (..., 3, 3) and positions (..., 3)."""
+    R = np.asarray(R, dtype=float)
+    p = np.asarray(p, dtype=float)
+    shape = np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
+    T = np.zeros(shape + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = p
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def inverse(T: ArrayLike) -> Array:
+    """Inverse of homogeneous transforms: ``[[R^T, -R^T p], [0, 1]]``."""
+    T = np.asarray(T, dtype=float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return homogeneous(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def skew(v: ArrayLike) -> Array:
+    """Cross-product matrix ``[v]x`` with ``[v]x w = v x w``; (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def rpy_to_matrix(rpy: ArrayLike) -> Array:
+    """``R = Rz(yaw) Ry(pitch) Rx(roll)`` from ``(roll, pitch, yaw)`` [rad]; (..., 3)."""
+    rpy = np.asarray(rpy, dtype=float)
+    return rotz(rpy[..., 2]) @ roty(rpy[..., 1]) @ rotx(rpy[..., 0])
+
+
+def matrix_to_rpy(R: ArrayLike) -> Array:
+    """Inverse of :func:`rpy_to_matrix`; pitch in [-pi/2, pi/2].
+
+    ``pitch = atan2(-R31, sqrt(R11^2 + R21^2))``, ``yaw = atan2(R21, R11)``,
+    ``roll = atan2(R32, R33)``.  At pitch = +-pi/2 (gimbal lock) roll is set to 0
+    and yaw absorbs the whole rotation about the vertical.
+    """
+    R = np.asarray(R, dtype=float)
+    pitch = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
+    cp = np.hypot(R[..., 0, 0], R[..., 1, 0])
+    lock = cp < 1e-12
+    yaw = np.where(lock, np.arctan2(-R[..., 0, 1], R[..., 1, 1]),
+                   np.arctan2(R[..., 1, 0], R[..., 0, 0]))
+    roll = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
+    return np.stack([roll, pitch, yaw], -1)
+
+
+def zyz_to_matrix(zyz: ArrayLike) -> Array:
+    """``R = Rz(phi) Ry(theta) Rz(psi)`` from ``(phi, theta, psi)`` [rad]; (..., 3)."""
+    e = np.asarray(zyz, dtype=float)
+    return rotz(e[..., 0]) @ roty(e[..., 1]) @ rotz(e[..., 2])
+
+
+def matrix_to_zyz(R: ArrayLike) -> Array:
+    """Inverse of :func:`zyz_to_matrix` with theta in [0, pi].
+
+    ``theta = atan2(sqrt(R13^2 + R23^2), R33)``, ``phi = atan2(R23, R13)``,
+    ``psi = atan2(R32, -R31)``.  At theta = 0 or pi, psi is set to 0.
+    """
+    R = np.asarray(R, dtype=float)
+    st = np.hypot(R[..., 0, 2], R[..., 1, 2])
+    theta = np.arctan2(st, R[..., 2, 2])
+    lock = st < 1e-12
+    phi = np.where(lock, np.arctan2(R[..., 1, 0], R[..., 0, 0]) * np.sign(R[..., 2, 2] + 0.5),
+                   np.arctan2(R[..., 1, 2], R[..., 0, 2]))
+    psi = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], -R[..., 2, 0]))
+    # In the theta = pi lock, Rz(phi) Ry(pi) = [[-c, s, ..],[s, c, ..]]: phi = atan2(R21, -R11)
+    phi = np.where(lock & (R[..., 2, 2] < 0), np.arctan2(R[..., 1, 0], -R[..., 0, 0]), phi)
+    return np.stack([phi, theta, psi], -1)
+
+
+def log_so3(R: ArrayLike) -> Array:
+    """Rotation vector ``omega`` (axis * angle, [rad]) with ``exp([omega]x) = R``.
+
+    Uses the skew part for small angles and the symmetric part near pi so it is
+    accurate over the whole range [0, pi].
+    """
+    R = np.asarray(R, dtype=float)
+    tr = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(tr)
+    w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
+                  R[..., 1, 0] - R[..., 0, 1]], -1) / 2.0
+    s = np.sin(angle)
+    small = angle < 1e-6
+    with np.errstate(invalid="ignore", divide="ignore"):
+        factor = np.where(small, 1.0 + angle**2 / 6.0, angle / np.where(small, 1.0, s))
+    out = w * factor[..., None]
+    near_pi = angle > np.pi - 1e-3
+    if np.any(near_pi):
+        B = (R[near_pi] + np.eye(3)) / 2.0  # = a a^T for angle pi
+        diag = np.diagonal(B, axis1=-2, axis2=-1)
+        k = np.argmax(diag, axis=-1)
+        idx = np.arange(B.shape[0])
+        axis = B[idx, :, k] / np.sqrt(np.maximum(diag[idx, k], 1e-300))[:, None]
+        # fix the sign with the (small) skew part
+        sign = np.where(np.einsum("ij,ij->i", axis, w[near_pi]) < 0, -1.0, 1.0)
+        axis = axis * sign[:, None]
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        out = np.array(out)
+        out[near_pi] = axis * angle[near_pi][:, None]
+    return out
+
+
+def exp_so3(omega: ArrayLike) -> Array:
+    """Rodrigues: ``R = I + sin(t)/t [w]x + (1 - cos(t))/t^2 [w]x^2`` with t = |w|."""
+    w = np.asarray(omega, dtype=float)
+    t = np.linalg.norm(w, axis=-1)
+    K = skew(w)
+    small = t < 1e-8
+    ts = np.where(small, 1.0, t)
+    a = np.where(small, 1.0 - t**2 / 6.0, np.sin(ts) / ts)
+    b = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def pose_error(T_target: ArrayLike, T_actual: ArrayLike) -> Array:
+    """6-vector error ``[p_t - p_a; log(R_t R_a^T)]`` in the base frame, (..., 6).
+
+    Zero when the poses coincide; to first order equals the geometric-Jacobian
+    twist that moves ``T_actual`` onto ``T_target``.
+    """
+    Tt = np.asarray(T_target, dtype=float)
+    Ta = np.asarray(T_actual, dtype=float)
+    dp = Tt[..., :3, 3] - Ta[..., :3, 3]
+    dR = Tt[..., :3, :3] @ np.swapaxes(Ta[..., :3, :3], -1, -2)
+    return np.concatenate([dp, log_so3(dR)], -1)
+
+
+def xyzrpy_to_matrix(v: ArrayLike) -> Array:
+    """Homogeneous transform ``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` from (..., 6)."""
+    v = np.asarray(v, dtype=float)
+    return homogeneous(rpy_to_matrix(v[..., 3:6]), v[..., :3])
+
+
+def matrix_to_xyzrpy(T: ArrayLike) -> Array:
+    """Inverse of :func:`xyzrpy_to_matrix`: (..., 4, 4) -> (..., 6) [m, rad]."""
+    T = np.asarray(T, dtype=float)
+    return np.concatenate([T[..., :3, 3], matrix_to_rpy(T[..., :3, :3])], -1)
+
+
+def rate_matrix(angles: ArrayLike, representation: str) -> Array:
+    """Matrix ``E(phi)`` with ``omega = E(phi) phi_dot`` (angular velocity in the base frame).
+
+    * ``"rpy"``, angles ``(roll, pitch, yaw)``:
+      ``E = [[cy cp, -sy, 0], [sy cp, cy, 0], [-sp, 0, 1]]`` (columns: roll, pitch, yaw rates).
+    * ``"zyz"``, angles ``(phi, theta, psi)``:
+      ``E = [[0, -s_phi, c_phi s_theta], [0, c_phi, s_phi s_theta], [1, 0, c_theta]]``.
+
+    Singular (det E = 0) at pitch = +-pi/2 (rpy) or theta = 0, pi (zyz).
+    """
+    a = np.asarray(angles, dtype=float)
+    z, o = np.zeros(a.shape[:-1]), np.ones(a.shape[:-1])
+    if representation == "rpy":
+        cp, sp = np.cos(a[..., 1]), np.sin(a[..., 1])
+        cy, sy = np.cos(a[..., 2]), np.sin(a[..., 2])
+        rows = [[cy * cp, -sy, z], [sy * cp, cy, z], [-sp, z, o]]
+    elif representation == "zyz":
+        cf, sf = np.cos(a[..., 0]), np.sin(a[..., 0])
+        ct, st = np.cos(a[..., 1]), np.sin(a[..., 1])
+        rows = [[z, -sf, cf * st], [z, cf, sf * st], [o, z, ct]]
+    else:
+        raise KincalError(f"unknown orientation representation {representation!r}; "
+                          "use 'rpy' or 'zyz'")
+    return np.stack([np.stack(r, -1) for r in rows], -2)
+
+
+def matrix_to_angles(R: ArrayLike, representation: str) -> Array:
+    """Minimal orientation angles of ``R`` for ``representation`` in {"rpy", "zyz"}."""
+    if representation == "rpy":
+        return matrix_to_rpy(R)
+    if representation == "zyz":
+        return matrix_to_zyz(R)
+    raise KincalError(f"unknown orientation representation {representation!r}; "
+                      "use 'rpy' or 'zyz'")
