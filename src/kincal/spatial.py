@@ -84,18 +84,18 @@ def rpy_to_matrix(rpy: ArrayLike) -> Array:
 def matrix_to_rpy(R: ArrayLike) -> Array:
     """Inverse of :func:`rpy_to_matrix`; pitch in [-pi/2, pi/2].
 
-    ``pitch = atan2(-R31, sqrt(R11^2 + R21^2))``, ``yaw = atan2(R21, R11)``,
-    ``roll = atan2(R32, R33)``.  At pitch = +-pi/2 (gimbal lock) roll is set to 0
-    and yaw absorbs the whole rotation about the vertical.
+    ``yaw = atan2(R21, R11)``; then ``M = Rz(-yaw) R = Ry(pitch) Rx(roll)`` gives
+    ``pitch = atan2(-R31, M11)`` and ``roll = atan2(-M23, M22)``.  Removing yaw first
+    keeps full accuracy near gimbal lock (pitch = +-pi/2), where yaw = 0 and roll
+    absorbs the rotation about the vertical.
     """
     R = np.asarray(R, dtype=float)
-    pitch = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
-    cp = np.hypot(R[..., 0, 0], R[..., 1, 0])
-    lock = cp < 1e-12
-    yaw = np.where(lock, np.arctan2(-R[..., 0, 1], R[..., 1, 1]),
-                   np.arctan2(R[..., 1, 0], R[..., 0, 0]))
-    roll = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
-    return np.stack([roll, pitch, yaw], -1)
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    m00 = cy * R[..., 0, 0] + sy * R[..., 1, 0]
+    m11 = -sy * R[..., 0, 1] + cy * R[..., 1, 1]
+    m12 = -sy * R[..., 0, 2] + cy * R[..., 1, 2]
+    return np.stack([np.arctan2(-m12, m11), np.arctan2(-R[..., 2, 0], m00), yaw], -1)
 
 
 def zyz_to_matrix(zyz: ArrayLike) -> Array:
@@ -114,43 +114,43 @@ def matrix_to_zyz(R: ArrayLike) -> Array:
     st = np.hypot(R[..., 0, 2], R[..., 1, 2])
     theta = np.arctan2(st, R[..., 2, 2])
     lock = st < 1e-12
-    phi = np.where(lock, np.arctan2(R[..., 1, 0], R[..., 0, 0]) * np.sign(R[..., 2, 2] + 0.5),
+    # In the locks psi = 0: theta = 0 gives Rz(phi) (phi = atan2(R21, R11)); theta = pi
+    # gives Rz(phi) Ry(pi) = [[-c, -s, 0], [-s, c, 0], [0, 0, -1]] (phi = atan2(-R21, -R11)).
+    flip = np.where(R[..., 2, 2] < 0, -1.0, 1.0)
+    phi = np.where(lock, np.arctan2(flip * R[..., 1, 0], flip * R[..., 0, 0]),
                    np.arctan2(R[..., 1, 2], R[..., 0, 2]))
     psi = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], -R[..., 2, 0]))
-    # In the theta = pi lock, Rz(phi) Ry(pi) = [[-c, s, ..],[s, c, ..]]: phi = atan2(R21, -R11)
-    phi = np.where(lock & (R[..., 2, 2] < 0), np.arctan2(R[..., 1, 0], -R[..., 0, 0]), phi)
     return np.stack([phi, theta, psi], -1)
 
 
 def log_so3(R: ArrayLike) -> Array:
     """Rotation vector ``omega`` (axis * angle, [rad]) with ``exp([omega]x) = R``.
 
-    Uses the skew part for small angles and the symmetric part near pi so it is
-    accurate over the whole range [0, pi].
+    ``w = vee(R - R^T) / 2 = sin(t) a`` and ``cos(t) = (tr R - 1) / 2`` give
+    ``t = atan2(|w|, cos t)`` accurately over [0, pi].  Away from pi,
+    ``omega = t w / sin t``.  Near pi (where ``|w|`` carries no direction) the axis
+    comes from the symmetric part: ``(R + R^T)/2 - cos(t) I = (1 - cos t) a a^T``,
+    its sign from ``w``.
     """
     R = np.asarray(R, dtype=float)
-    tr = np.clip((np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(tr)
     w = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
                   R[..., 1, 0] - R[..., 0, 1]], -1) / 2.0
-    s = np.sin(angle)
-    small = angle < 1e-6
-    with np.errstate(invalid="ignore", divide="ignore"):
-        factor = np.where(small, 1.0 + angle**2 / 6.0, angle / np.where(small, 1.0, s))
-    out = w * factor[..., None]
-    near_pi = angle > np.pi - 1e-3
+    s = np.linalg.norm(w, axis=-1)
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    angle = np.arctan2(s, c)
+    small = s < 1e-12
+    factor = np.where(small, 1.0 + angle**2 / 6.0, angle / np.where(small, 1.0, s))
+    out = np.array(w * factor[..., None])
+    near_pi = c < -0.99
     if np.any(near_pi):
-        B = (R[near_pi] + np.eye(3)) / 2.0  # = a a^T for angle pi
-        diag = np.diagonal(B, axis1=-2, axis2=-1)
-        k = np.argmax(diag, axis=-1)
-        idx = np.arange(B.shape[0])
-        axis = B[idx, :, k] / np.sqrt(np.maximum(diag[idx, k], 1e-300))[:, None]
-        # fix the sign with the (small) skew part
-        sign = np.where(np.einsum("ij,ij->i", axis, w[near_pi]) < 0, -1.0, 1.0)
-        axis = axis * sign[:, None]
-        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-        out = np.array(out)
-        out[near_pi] = axis * angle[near_pi][:, None]
+        Rn, cn, wn, tn = R[near_pi], c[near_pi], w[near_pi], angle[near_pi]
+        S = (Rn + np.swapaxes(Rn, -1, -2)) / 2.0 - cn[:, None, None] * np.eye(3)
+        S /= (1.0 - cn)[:, None, None]                       # = a a^T
+        k = np.argmax(np.diagonal(S, axis1=-2, axis2=-1), axis=-1)
+        idx = np.arange(S.shape[0])
+        axis = S[idx, :, k] / np.sqrt(S[idx, k, k])[:, None]
+        sign = np.where(np.einsum("ij,ij->i", axis, wn) < 0, -1.0, 1.0)
+        out[near_pi] = axis * (sign * tn)[:, None]
     return out
 
 
