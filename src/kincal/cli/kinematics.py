@@ -7,6 +7,7 @@ from typing import Annotated
 
 import numpy as np
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
@@ -47,7 +48,7 @@ def robots() -> None:
             conv = r.meta.get("convention", "")
         src = str(r.meta.get("source", "")) if hasattr(r, "meta") else ""
         desc = str(r.meta.get("description", "")) if hasattr(r, "meta") else ""
-        t.add_row(name, kinds, conv, desc, src[:90] + ("…" if len(src) > 90 else ""))
+        t.add_row(name, kinds, conv, escape(desc), escape(src[:90] + ("…" if len(src) > 90 else "")))
     console.print(t)
 
 
@@ -80,7 +81,7 @@ def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
         pt.add_row(name, fmt_value(float(v), u), u, role)
     console.print(pt)
     if "source" in r.meta:
-        console.print(f"[dim]source: {r.meta['source']}[/dim]")
+        console.print(f"[dim]source: {escape(str(r.meta['source']))}[/dim]")
     if json_out:
         write_json(json_out, {"name": r.name, "joints": [
             {"name": j.name, "type": j.kind, "lower": j.lower if math.isfinite(j.lower) else None,

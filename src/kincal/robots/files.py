@@ -315,13 +315,14 @@ def _limits_out(lo: float, hi: float) -> list[float] | None:
     return None if not (math.isfinite(lo) and math.isfinite(hi)) else [float(lo), float(hi)]
 
 
-def robot_to_dict(robot: Robot) -> dict[str, Any]:
+def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
     """The YAML document of a robot, in SI units (m, rad), in its own convention.
 
-    DH robots are written as DH tables; every other serial robot (URDF-derived
-    included) as an explicit ``ets`` chain, so the file carries every parameter.
+    DH robots are written as DH tables (unless ``as_ets``); every other serial robot
+    (URDF-derived included) as an explicit ``ets`` chain, so the file carries every
+    parameter.
     """
-    conv = robot.meta.get("convention", "ets")
+    conv = "ets" if as_ets else robot.meta.get("convention", "ets")
     doc: dict[str, Any] = {"name": robot.name}
     for key in ("description", "source", "notes"):
         if key in robot.meta:
