@@ -48,7 +48,8 @@ def robots() -> None:
             conv = r.meta.get("convention", "")
         src = str(r.meta.get("source", "")) if hasattr(r, "meta") else ""
         desc = str(r.meta.get("description", "")) if hasattr(r, "meta") else ""
-        t.add_row(name, kinds, conv, escape(desc), escape(src[:90] + ("…" if len(src) > 90 else "")))
+        short = src[:90] + ("…" if len(src) > 90 else "")
+        t.add_row(name, kinds, conv, escape(desc), escape(short))
     console.print(t)
 
 
