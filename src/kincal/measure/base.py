@@ -27,8 +27,13 @@ from numpy.typing import NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
+from kincal.spatial import homogeneous, rpy_to_matrix
 
 Array = NDArray[np.float64]
+
+#: Field order of a 6-parameter frame, as in the robot's ``base.*`` / ``tool.*``:
+#: ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``.
+FRAME_FIELDS = ("x", "y", "z", "rz", "ry", "rx")
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,58 @@ class ParamSpec:
     @staticmethod
     def empty() -> ParamSpec:
         return ParamSpec((), np.zeros(0), (), ())
+
+    @staticmethod
+    def frame(prefix: str, values: Array | None = None, role: str = "instrument") -> ParamSpec:
+        """The six parameters ``{prefix}.x .y .z .rz .ry .rx`` of a frame (:data:`FRAME_FIELDS`)."""
+        v = np.zeros(6) if values is None else np.asarray(values, dtype=float)
+        return ParamSpec(tuple(f"{prefix}.{f}" for f in FRAME_FIELDS), v,
+                         ("m", "m", "m", "rad", "rad", "rad"), (role,) * 6)
+
+    @staticmethod
+    def point(prefix: str, values: Array | None = None, role: str = "tool_point") -> ParamSpec:
+        """The three parameters ``{prefix}.x .y .z`` of a point [m]."""
+        v = np.zeros(3) if values is None else np.asarray(values, dtype=float)
+        return ParamSpec(tuple(f"{prefix}.{f}" for f in "xyz"), v, ("m",) * 3, (role,) * 3)
+
+    def __add__(self, other: ParamSpec) -> ParamSpec:
+        return ParamSpec(self.names + other.names, np.concatenate([self.values, other.values]),
+                         self.units + other.units, self.roles + other.roles)
+
+
+# --------------------------------------------------------------------------- frame helpers
+def frame_matrix(values: Array) -> Array:
+    """``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` from ``(x, y, z, rz, ry, rx)`` [m, rad].
+
+    Note the order: parameters follow :data:`FRAME_FIELDS`, unlike
+    :func:`kincal.spatial.xyzrpy_to_matrix` which takes ``(x, y, z, roll, pitch, yaw)``.
+    """
+    v = np.asarray(values, dtype=float)
+    return homogeneous(rpy_to_matrix(v[..., [5, 4, 3]]), v[..., :3])
+
+
+def frame_values(T: Array) -> Array:
+    """Inverse of :func:`frame_matrix`: (4, 4) -> ``(x, y, z, rz, ry, rx)``."""
+    from kincal.spatial import matrix_to_rpy
+
+    rpy = matrix_to_rpy(np.asarray(T)[..., :3, :3])
+    return np.concatenate([np.asarray(T)[..., :3, 3], rpy[..., ::-1]], -1)
+
+
+def frame_rotation_axes(values: Array) -> Array:
+    """Columns ``d omega / d(rz, ry, rx)`` of a frame's rotation, in its parent frame: (3, 3).
+
+    With ``R = Rz(rz) Ry(ry) Rx(rx)``, ``dR = [omega]x R`` and
+    ``omega = e_z drz + Rz(rz) e_y dry + Rz(rz) Ry(ry) e_x drx``, i.e. the columns are
+    ``[0, 0, 1]``, ``[-sin rz, cos rz, 0]`` and
+    ``[cos rz cos ry, sin rz cos ry, -sin ry]`` (dimensionless, rad/rad).
+    """
+    v = np.asarray(values, dtype=float)
+    cz, sz = np.cos(v[3]), np.sin(v[3])
+    cy, sy = np.cos(v[4]), np.sin(v[4])
+    return np.array([[0.0, -sz, cz * cy],
+                     [0.0, cz, sz * cy],
+                     [1.0, 0.0, -sy]])
 
 
 class MeasurementModel(ABC):
@@ -155,6 +212,44 @@ class StackedProblem:
             hint = f"; did you mean {', '.join(close)}?" if close else ""
             raise KincalError(f"no parameter named {name!r} in this problem{hint}") from None
 
+    @property
+    def block_names(self) -> tuple[str, ...]:
+        return tuple(b.name for b in self.blocks)
+
+    def block(self, name: str) -> MeasurementModel:
+        """The block called ``name``."""
+        for b in self.blocks:
+            if b.name == name:
+                return b
+        raise KincalError(f"no measurement block named {name!r}; blocks: "
+                          f"{', '.join(self.block_names)}")
+
+    def block_slice(self, name: str) -> slice:
+        """The slice of ``theta`` holding block ``name``'s parameters."""
+        return self.slices[self.block_names.index(self.block(name).name)]
+
+    def owners(self) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """For every stacked residual: (index of its block, row within that block)."""
+        bi = [np.full(len(b.residual_owner()), i, dtype=np.intp)
+              for i, b in enumerate(self.blocks)]
+        rows = [np.asarray(b.residual_owner(), dtype=np.intp) for b in self.blocks]
+        return np.concatenate(bi), np.concatenate(rows)
+
+    def measurement_ids(self) -> NDArray[np.intp]:
+        """A unique integer per (block, row) for every residual, 0 .. num_measurements - 1.
+
+        Residuals with the same id belong to one physical measurement (the three
+        coordinates of a point, the six of a pose).
+        """
+        bi, rows = self.owners()
+        _, ids = np.unique(np.stack([bi, rows], 1), axis=0, return_inverse=True)
+        return ids.reshape(-1).astype(np.intp)
+
+    def errors(self, theta: Array) -> dict[str, dict[str, Array]]:
+        """Physical errors of every block at ``theta``: ``{block name: block.errors(...)}``."""
+        robot, extras = self.split(theta)
+        return {b.name: b.errors(robot, e) for b, e in zip(self.blocks, extras, strict=True)}
+
     def residuals(self, theta: Array) -> Array:
         """Stacked whitened residuals r(theta): (M,)."""
         robot, extras = self.split(theta)
@@ -211,3 +306,38 @@ def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProb
         theta.append(np.asarray(b.initial_guess(robot), dtype=float).reshape(-1))
     prob = StackedProblem(robot, list(blocks), tuple(names), tuple(units), tuple(roles), slices)
     return prob, np.concatenate(theta)
+
+
+# --------------------------------------------------------------------------- linear algebra
+def svd_thin(A: Array) -> tuple[Array, Array, Array]:
+    """Thin SVD ``A = U diag(S) V^T`` of a tall (M, p) matrix through its QR factor.
+
+    ``A = Q R``, ``R = U_r S V^T``, ``U = Q U_r``.  Same result as
+    ``numpy.linalg.svd(A, full_matrices=False)`` but LAPACK's tall SVD is slow when
+    the BLAS threads compete for few cores; the QR + small SVD path is not.
+    """
+    A = np.asarray(A, dtype=float)
+    M, p = A.shape
+    if M < p or p == 0:
+        return np.linalg.svd(A, full_matrices=False)
+    Q, R = np.linalg.qr(A, mode="reduced")
+    Ur, S, Vt = np.linalg.svd(R)
+    return Q @ Ur, S, Vt
+
+
+def singular_values(A: Array) -> Array:
+    """Singular values of ``A`` (descending), via the R factor for tall matrices."""
+    A = np.asarray(A, dtype=float)
+    if A.size == 0:
+        return np.zeros(0)
+    if A.shape[0] > A.shape[1]:
+        A = np.linalg.qr(A, mode="r")
+    return np.linalg.svd(A, compute_uv=False)
+
+
+def lstsq(A: Array, b: Array, rcond: float = 1e-10) -> Array:
+    """Minimum-norm least-squares solution of ``A x = b`` (singular values below
+    ``rcond * S_max`` are treated as zero), via :func:`svd_thin`."""
+    U, S, Vt = svd_thin(A)
+    keep = S > rcond * (S[0] if S.size else 0.0)
+    return Vt[keep].T @ ((U[:, keep].T @ b) / S[keep])

@@ -1,0 +1,661 @@
+"""Estimating the parameters: iterative least squares and Levenberg-Marquardt, in stages.
+
+:func:`calibrate` minimises the stacked whitened residuals of
+:func:`kincal.measure.base.stack`,
+
+    theta_hat = argmin 1/2 sum_i w_i r_i(theta)^2,      r = (model - observed) / sigma,
+
+over the *estimated* parameters (the identifiable base set of the candidates; every
+other parameter is held at its initial value: the robot's nominal value, or the
+block's closed-form initial guess).
+
+Methods (each step solves the linearised problem with the SVD of ``J D^-1``, ``D`` the
+column norms, so the step is the same in any units):
+
+* ``"gauss-newton"``: exactly the lecture's iterative linearised least squares,
+  ``dphi = pinv(Phi) dr``, ``phi <- phi + dphi``, recompute ``Phi``, iterate;
+* ``"lm"`` (default): Levenberg-Marquardt with Marquardt's column scaling,
+  ``(J^T J + lambda D^2) dx = -J^T r``; ``lambda`` adapted from the gain ratio
+  ``rho = actual / predicted reduction``: a step is accepted when ``rho > 1e-4``;
+  ``lambda / 10`` when ``rho > 0.75``, ``lambda * 2`` when ``rho < 0.25``; a rejected
+  step multiplies ``lambda`` by 2, 4, 8 ... (starting value ``1e-3 S_max^2``).
+
+Stopping (per stage): the step is small, ``|dx_j| <= tol_step (1 + |x_j|)`` for
+every estimated ``j`` (parameters in m / rad); or the relative cost change is below
+``tol_cost``; or ``max_iter`` iterations.
+
+Robust losses (``"huber"``, ``"cauchy"``) are iteratively reweighted least squares
+per *measurement* (all residuals of one point / pose share a weight): with
+``e_i = sqrt(mean_k r_ik^2)`` the RMS whitened residual of measurement ``i`` and
+``c = loss_scale * s``, ``s`` a robust scale (the median of ``e_i`` divided by its
+value for Gaussian noise, so ``s ~ 1`` when the stated sigmas are right),
+Huber ``w = min(1, c / e)``, Cauchy ``w = 1 / (1 + (e / c)^2)``.  Measurements whose
+final weight is below 0.5 are reported as outliers ``(block, row)``.
+
+Uncertainty: ``Cov = sigma0^2 (J^T J)^-1`` over the estimated parameters at the
+solution (weighted ``J``).  By default ``sigma0^2 = sum w r^2 / (M - p)`` (the
+a-posteriori variance factor: honest even when the stated sigmas are only nominal);
+``trust_sigma=True`` uses ``sigma0 = 1`` (the Cramér-Rao bound of the stated noise).
+
+Parameter selection: ``free=None`` (automatic) makes every robot and block
+parameter a candidate; ``free`` lists names or glob patterns (``theta_offset[*]``,
+``tracker.*``; brackets are literal, only ``*`` and ``?`` are wildcards); ``fixed``
+removes names.  Stages: ``["offsets", "all"]`` first estimates the encoder offsets
+and the block parameters, then the automatic (or ``free``) set; a stage may also be
+a list of names / patterns; ``"registration"`` estimates block parameters only.  In
+every stage :func:`~kincal.identify.identifiability.analyze` keeps the identifiable
+base set of the stage's candidates and names the rest.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+from kincal.errors import IdentifiabilityError, KincalError
+from kincal.identify.identifiability import IdentifiabilityReport, analyze
+from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
+from kincal.measure.base import MeasurementModel, StackedProblem, stack, svd_thin
+from kincal.robots.chain import Robot
+
+Array = NDArray[np.float64]
+
+__all__ = ["calibrate", "Calibration", "CalibrationResult", "IterationRecord", "match_names",
+           "METHODS", "LOSSES"]
+
+METHODS = ("lm", "gauss-newton")
+LOSSES = ("linear", "huber", "cauchy")
+STAGE_KEYWORDS = ("all", "offsets", "registration")
+OUTLIER_WEIGHT = 0.5
+
+
+# --------------------------------------------------------------------------- names
+def _regex(pattern: str) -> re.Pattern[str]:
+    return re.compile(re.escape(pattern).replace(r"\*", ".*").replace(r"\?", ".") + r"\Z")
+
+
+def match_names(names: Sequence[str], patterns: str | Iterable[str]) -> list[int]:
+    """Indices of ``names`` matched by any of ``patterns`` (names or globs), in order.
+
+    Only ``*`` and ``?`` are wildcards (``theta_offset[*]`` matches ``theta_offset[3]``).
+    A pattern matching nothing raises a :class:`KincalError` naming close matches.
+    """
+    names = list(names)
+    if isinstance(patterns, str):
+        patterns = [patterns]
+    hit = np.zeros(len(names), dtype=bool)
+    for p in patterns:
+        if p in names:
+            hit[names.index(p)] = True
+            continue
+        rx = _regex(p)
+        found = [i for i, n in enumerate(names) if rx.match(n)]
+        if not found:
+            close = difflib.get_close_matches(p, names, n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise KincalError(f"no parameter matches {p!r}{hint}")
+        hit[found] = True
+    return [int(i) for i in np.flatnonzero(hit)]
+
+
+def _stage_candidates(spec: str | Sequence[str], prob: StackedProblem,
+                      free: Sequence[int]) -> list[int]:
+    if isinstance(spec, str) and spec in STAGE_KEYWORDS:
+        if spec == "all":
+            return list(free)
+        blocks = list(range(prob.num_robot, len(prob.names)))
+        if spec == "registration":
+            return blocks
+        return [i for i in range(prob.num_robot) if prob.roles[i] == "offset"] + blocks
+    return match_names(prob.names, spec)
+
+
+def _stage_label(spec: str | Sequence[str]) -> str:
+    if isinstance(spec, str):
+        return spec
+    text = ",".join(spec)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+# --------------------------------------------------------------------------- records
+@dataclass
+class IterationRecord:
+    """One iteration of the solver.
+
+    Attributes:
+        stage: the stage's label (``"all"``, ``"offsets"`` ...).
+        iteration: 0 for the starting point of the stage, then 1, 2 ...
+        theta: the full parameter vector after the iteration (over ``problem.names``).
+        cost: ``1/2 sum w r^2`` (whitened, robust-weighted).
+        rms: RMS of the whitened residuals (dimensionless; ~1 at the noise floor).
+        step: largest scaled step ``|dx_j| / (1 + |x_j|)`` of the iteration.
+        damping: Levenberg-Marquardt ``lambda`` (0 for Gauss-Newton).
+    """
+
+    stage: str
+    iteration: int
+    theta: Array
+    cost: float
+    rms: float
+    step: float = 0.0
+    damping: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"stage": self.stage, "iteration": self.iteration, "cost": float(self.cost),
+                "rms": float(self.rms), "step": float(self.step),
+                "damping": float(self.damping)}
+
+
+@dataclass
+class CalibrationResult:
+    """The outcome of :func:`calibrate` (shaped like scipy's ``OptimizeResult``).
+
+    Attributes:
+        robot: the calibrated robot.
+        robot_initial: the robot the calibration started from.
+        problem: the stacked problem (blocks, names, units, roles).
+        theta0, theta: initial and final values over ``names`` [m / rad].
+        names: every parameter of the problem (robot, then blocks).
+        estimated: names estimated in the final stage (the identifiable base set).
+        identifiability: the analysis of the final stage's candidates.
+        std: standard error per name; 0.0 for parameters not estimated.
+        covariance: (p, p) over ``estimated``; ``sigma0^2 (J^T J)^-1``.
+        correlation: (p, p) over ``estimated``.
+        sigma0: the variance factor used (a posteriori unless ``trust_sigma``).
+        residuals: final whitened residuals (M,).
+        weights: final robust weight per residual (1 for ``loss="linear"``).
+        outliers: ``(block name, row)`` of measurements with a small robust weight.
+        history: one :class:`IterationRecord` per iteration, all stages.
+        stages: ``(label, estimated names)`` per stage.
+        converged, iterations, message: as in scipy.
+    """
+
+    robot: Robot
+    robot_initial: Robot
+    problem: StackedProblem
+    theta0: Array
+    theta: Array
+    names: tuple[str, ...]
+    estimated: list[str]
+    identifiability: IdentifiabilityReport
+    std: Array
+    covariance: Array
+    correlation: Array
+    sigma0: float
+    residuals: Array
+    weights: Array
+    outliers: list[tuple[str, int]]
+    history: list[IterationRecord]
+    converged: bool
+    iterations: int
+    message: str
+    stages: list[tuple[str, list[str]]] = field(default_factory=list)
+    method: str = "lm"
+    loss: str = "linear"
+
+    # ------------------------------------------------------------------ access
+    @property
+    def params(self) -> dict[str, float]:
+        """``{name: value}`` of every parameter after calibration [m / rad]."""
+        return dict(zip(self.names, self.theta.tolist(), strict=True))
+
+    @property
+    def x(self) -> Array:
+        """The estimated parameters' values (scipy-style), in ``estimated`` order."""
+        return np.array([self.theta[self.names.index(n)] for n in self.estimated])
+
+    @property
+    def cost(self) -> float:
+        return float(self.history[-1].cost) if self.history else float("nan")
+
+    def block_values(self, name: str) -> dict[str, float]:
+        """``{parameter name: value}`` of measurement block ``name``'s parameters."""
+        sl = self.problem.block_slice(name)
+        return dict(zip(self.names[sl], self.theta[sl].tolist(), strict=True))
+
+    def extras(self) -> dict[str, float]:
+        """All measurement-block parameter values ``{name: value}`` (frames, markers)."""
+        k = self.problem.num_robot
+        return dict(zip(self.names[k:], self.theta[k:].tolist(), strict=True))
+
+    def errors(self) -> dict[str, dict[str, Array]]:
+        """Physical errors of every training block at the solution (``position_m`` ...)."""
+        return self.problem.errors(self.theta)
+
+    def rms(self) -> dict[str, float]:
+        """RMS of each physical error kind over all training blocks, e.g. ``rms_position_m``."""
+        acc: dict[str, list[Array]] = {}
+        for errs in self.errors().values():
+            for k, v in errs.items():
+                acc.setdefault(k, []).append(np.ravel(v))
+        return {f"rms_{k}": float(np.sqrt(np.mean(np.concatenate(v) ** 2)))
+                for k, v in acc.items()}
+
+    # ------------------------------------------------------------------ output
+    def _status(self, name: str) -> str:
+        if name in self.estimated:
+            return "estimated"
+        rep = self.identifiability
+        if name in rep.unobservable:
+            return "unobservable"
+        if name in rep.dependent:
+            deps = rep.dependent[name]
+            return "dependent on " + (", ".join(deps[:2]) + (" ..." if len(deps) > 2 else "")
+                                      if deps else "the base set")
+        return "fixed"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able result: parameters (SI units; ``std`` null when not estimated) and
+        diagnostics."""
+        est = set(self.estimated)
+        ident = set(self.identifiability.identifiable)
+        params = []
+        for i, n in enumerate(self.names):
+            params.append({
+                "name": n, "unit": self.problem.units[i], "role": self.problem.roles[i],
+                "nominal": float(self.theta0[i]), "estimate": float(self.theta[i]),
+                "std": float(self.std[i]) if n in est else None,
+                "identifiable": n in ident, "estimated": n in est,
+                "status": self._status(n),
+            })
+        return {
+            "parameters": params,
+            "identifiable_count": len(self.identifiability.identifiable),
+            "estimated_count": len(self.estimated),
+            "converged": bool(self.converged),
+            "iterations": int(self.iterations),
+            "message": self.message,
+            "method": self.method,
+            "loss": self.loss,
+            "sigma0": float(self.sigma0),
+            "rms": self.rms(),
+            "outliers": [{"block": b, "row": int(r)} for b, r in self.outliers],
+            "stages": [{"stage": s, "estimated": list(n)} for s, n in self.stages],
+            "history": [h.to_dict() for h in self.history],
+            "identifiability": self.identifiability.to_dict(),
+        }
+
+    def summary(self, all_parameters: bool = False) -> str:
+        """A plain-text table: value changes and standard errors in mm / deg.
+
+        Lists the estimated parameters (and, with ``all_parameters``, every other one
+        with the reason it was held).
+        """
+        lines = [repr(self), ""]
+        head = f"{'parameter':<34}{'unit':>5}{'initial':>13}{'estimate':>13}{'change':>11}" \
+               f"{'std':>10}  status"
+        lines += [head, "-" * len(head)]
+        for i, n in enumerate(self.names):
+            if not all_parameters and n not in self.estimated:
+                continue
+            unit = self.problem.units[i]
+            f, u = (1e3, "mm") if unit == "m" else (np.degrees(1.0), "deg") \
+                if unit == "rad" else (1.0, unit)
+            std = f"{self.std[i] * f:10.4f}" if n in self.estimated else f"{'-':>10}"
+            lines.append(f"{n:<34}{u:>5}{self.theta0[i] * f:13.5f}{self.theta[i] * f:13.5f}"
+                         f"{(self.theta[i] - self.theta0[i]) * f:11.5f}{std}  "
+                         f"{self._status(n)}")
+        held = self.identifiability.describe()
+        if held:
+            lines += ["", "Not identifiable from these measurements:"]
+            lines += [f"  - {s}" for s in held]
+        r = self.rms()
+        if r:
+            lines += ["", "Training errors: " + ", ".join(
+                f"{k[4:]} RMS {v * 1e3:.4f} mm" if k.endswith("_m")
+                else f"{k[4:]} RMS {np.degrees(v):.5f} deg" for k, v in r.items())]
+        if self.outliers:
+            lines.append(f"Outliers ({len(self.outliers)}): "
+                         + ", ".join(f"{b}[{r}]" for b, r in self.outliers[:20]))
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        rms = self.rms()
+        pos = f", rms_position={rms['rms_position_m'] * 1e3:.4g} mm" \
+            if "rms_position_m" in rms else ""
+        return (f"CalibrationResult(converged={self.converged}, iterations={self.iterations}, "
+                f"estimated={len(self.estimated)} of {len(self.names)}, "
+                f"sigma0={self.sigma0:.4g}{pos}, message={self.message!r})")
+
+
+# --------------------------------------------------------------------------- robust weights
+def _robust_weights(r: Array, ids: Array, dims: Array, loss: str, loss_scale: float) -> Array:
+    """Per-residual IRLS weights from per-measurement RMS whitened residuals."""
+    if loss == "linear":
+        return np.ones_like(r)
+    sq = np.bincount(ids, weights=r * r, minlength=len(dims))
+    e = np.sqrt(sq / dims)
+    # Gaussian reference: median of sqrt(chi2_d / d)
+    ref = np.sqrt(stats.chi2.ppf(0.5, dims) / dims)
+    s = float(np.median(e / ref))
+    if not np.isfinite(s) or s <= 0:
+        return np.ones_like(r)
+    c = loss_scale * s
+    with np.errstate(divide="ignore"):
+        if loss == "huber":
+            w = np.where(e <= c, 1.0, c / np.maximum(e, 1e-300))
+        else:
+            w = 1.0 / (1.0 + (e / c) ** 2)
+    return w[ids]
+
+
+# --------------------------------------------------------------------------- the loop
+@dataclass
+class _State:
+    theta: Array
+    r: Array
+    J: Array
+    w: Array
+    cost: float
+
+
+def _scaled_step(dx: Array, x: Array) -> float:
+    return float(np.max(np.abs(dx) / (1.0 + np.abs(x)))) if dx.size else 0.0
+
+
+def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
+               loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
+               ids: Array, dims: Array, history: list[IterationRecord],
+               progress: Callable[[IterationRecord], Any] | None
+               ) -> tuple[Array, bool, int, str]:
+    """Iterate one stage to convergence; returns (theta, converged, iterations, message)."""
+    r, J = prob.residuals_and_jacobian(theta)
+    w = _robust_weights(r, ids, dims, loss, loss_scale)
+
+    def cost_of(res: Array, wt: Array) -> float:
+        return 0.5 * float(np.sum(wt * res * res))
+
+    def record(it: int, step: float, lam: float) -> None:
+        rec = IterationRecord(label, it, theta.copy(), cost_of(r, w),
+                              float(np.sqrt(np.mean(r * r))) if r.size else 0.0, step, lam)
+        history.append(rec)
+        if progress is not None:
+            progress(rec)
+
+    record(0, 0.0, 0.0)
+    if not est:
+        return theta, True, 0, f"stage {label!r}: nothing to estimate"
+    lam, nu = -1.0, 2.0
+    Dmax = np.zeros(len(est))
+    for it in range(1, max_iter + 1):
+        sw = np.sqrt(w)
+        rw = sw * r
+        Jw = J[:, est] * sw[:, None]
+        D = np.linalg.norm(Jw, axis=0)
+        Dmax = np.maximum(Dmax, D)
+        Ds = np.where(Dmax > 0, Dmax, 1.0)
+        U, S, Vt = svd_thin(Jw / Ds)
+        g = U.T @ rw
+        cost = cost_of(r, w)
+        if not np.isfinite(cost):
+            return theta, False, it - 1, f"stage {label!r}: the residuals are not finite"
+        if method == "gauss-newton":
+            keep = S > S[0] * 1e-12
+            z = -Vt[keep].T @ (g[keep] / S[keep])
+            dx = z / Ds
+            new = theta.copy()
+            new[est] += dx
+            r_new = prob.residuals(new)
+            c_new = cost_of(r_new, w)
+            if not np.isfinite(c_new):
+                return theta, False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
+                                              "(non-finite residuals); try method='lm'")
+            step = _scaled_step(dx, theta[est])
+            theta = new
+            r, J = prob.residuals_and_jacobian(theta)
+            w = _robust_weights(r, ids, dims, loss, loss_scale)
+            record(it, step, 0.0)
+            if step <= tol_step:
+                return theta, True, it, f"stage {label!r}: step below tol_step"
+            if abs(cost - c_new) <= tol_cost * max(cost, 1e-300):
+                return theta, True, it, f"stage {label!r}: cost change below tol_cost"
+            continue
+        # Levenberg-Marquardt
+        if lam < 0:
+            lam = 1e-3 * float(S[0] ** 2) if S.size else 1e-3
+            good = False
+        S2 = S * S
+        # After a very successful step, first try the undamped Gauss-Newton step: in a
+        # long curved valley (a weakly determined direction) it saves many iterations.
+        try_gn = good
+        for _ in range(60):
+            lam_k = 0.0 if try_gn else lam
+            keep = S > S[0] * 1e-12
+            f = np.where(keep, S / np.where(keep, S2 + lam_k, 1.0), 0.0)
+            dx = -(Vt.T @ (f * g)) / Ds
+            pred = 0.5 * float(np.sum(g * g) - np.sum(np.where(keep, g * lam_k / (S2 + lam_k),
+                                                                g) ** 2))
+            new = theta.copy()
+            new[est] += dx
+            r_new = prob.residuals(new)
+            c_new = cost_of(r_new, w)
+            rho = (cost - c_new) / pred if pred > 0 else (0.0 if c_new > cost else 1.0)
+            if try_gn:
+                try_gn = False
+                if np.isfinite(c_new) and rho > 0.25:
+                    good = rho > 0.75
+                    break
+                continue
+            if np.isfinite(c_new) and rho > 1e-4:
+                good = rho > 0.75
+                # Marquardt's rule with a fast decrease: a weakly determined direction
+                # (small singular value) is only reached once lambda is below it.
+                if rho > 0.75:
+                    lam = max(lam / 10.0, 1e-300)
+                elif rho < 0.25:
+                    lam *= 2.0
+                nu = 2.0
+                break
+            lam *= nu
+            nu *= 2.0
+            if pred <= 1e-30 * max(cost, 1e-300) or lam > 1e30:
+                record(it, 0.0, lam)
+                return theta, True, it, (f"stage {label!r}: no further decrease possible "
+                                         "(at a minimum to machine precision)")
+        else:
+            return theta, False, it, f"stage {label!r}: the damping did not find a descent step"
+        step = _scaled_step(dx, theta[est])
+        theta = new
+        r, J = prob.residuals_and_jacobian(theta)
+        w_old = w
+        w = _robust_weights(r, ids, dims, loss, loss_scale)
+        record(it, step, lam)
+        if step <= tol_step:
+            return theta, True, it, f"stage {label!r}: step below tol_step"
+        if cost - c_new <= tol_cost * max(cost, 1e-300) and np.allclose(w, w_old, atol=1e-6):
+            return theta, True, it, f"stage {label!r}: cost change below tol_cost"
+        if c_new == 0.0:
+            return theta, True, it, f"stage {label!r}: zero residual"
+    return theta, False, max_iter, f"stage {label!r}: max_iter={max_iter} reached"
+
+
+def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
+              free: Sequence[str] | str | None = None, fixed: Sequence[str] | str = (),
+              method: str = "lm", stages: Sequence[str | Sequence[str]] | None = None,
+              loss: str = "linear", loss_scale: float = 3.0, max_iter: int = 100,
+              tol_step: float = 1e-10, tol_cost: float = 1e-14,
+              progress: Callable[[IterationRecord], Any] | None = None, *,
+              trust_sigma: bool = False, tol_rank: float | None = None,
+              initial: dict[str, float] | None = None) -> CalibrationResult:
+    """Calibrate ``robot`` from measurement ``blocks``.
+
+    Args:
+        robot: the nominal robot (initial values of its parameters).
+        blocks: one or more :class:`~kincal.measure.base.MeasurementModel`.
+        free: ``None`` = automatic (all parameters are candidates, the identifiable
+            base set is estimated); or names / glob patterns of the candidates.
+        fixed: names / patterns removed from the candidates.
+        method: ``"lm"`` (Levenberg-Marquardt, default) or ``"gauss-newton"``.
+        stages: e.g. ``["offsets", "all"]``; each entry a keyword (``all``,
+            ``offsets``, ``registration``) or a list of names / patterns.
+        loss: ``"linear"``, ``"huber"`` or ``"cauchy"`` (IRLS per measurement).
+        loss_scale: robust threshold in units of the robust residual scale.
+        max_iter, tol_step, tol_cost: stopping rules per stage (see module docstring).
+        progress: called with every :class:`IterationRecord`.
+        trust_sigma: use ``sigma0 = 1`` for the covariance instead of the a-posteriori
+            estimate.
+        tol_rank: tolerance of the identifiability analysis (default 1e-8).
+        initial: starting values ``{name: value}`` overriding nominal / closed-form
+            initial guesses.
+
+    Returns:
+        A :class:`CalibrationResult`.  Parameters that cannot be identified are never
+        estimated: they keep their initial value, ``std`` 0 and are named with the
+        reason in ``result.identifiability``.
+    """
+    if method not in METHODS:
+        raise KincalError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
+    if loss not in LOSSES:
+        raise KincalError(f"unknown loss {loss!r}; use one of {', '.join(LOSSES)}")
+    if isinstance(blocks, MeasurementModel):
+        blocks = [blocks]
+    prob, theta0 = stack(robot, list(blocks))
+    if initial:
+        for k, v in initial.items():
+            theta0[prob.index(k)] = float(v)
+    names = prob.names
+    cand = list(range(len(names))) if free is None else match_names(names, free)
+    fixed_idx = set(match_names(names, fixed)) if fixed else set()
+    cand = [i for i in cand if i not in fixed_idx]
+    specs: list[str | Sequence[str]] = list(stages) if stages else ["all"]
+    ids = prob.measurement_ids()
+    dims = np.bincount(ids).astype(float)
+    history: list[IterationRecord] = []
+    theta = theta0.copy()
+    stage_info: list[tuple[str, list[str]]] = []
+    messages: list[str] = []
+    converged = True
+    total_it = 0
+    report: IdentifiabilityReport | None = None
+    est: list[int] = []
+    for spec in specs:
+        label = _stage_label(spec)
+        stage_cand = [i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
+        r, J = prob.residuals_and_jacobian(theta)
+        w = _robust_weights(r, ids, dims, loss, loss_scale)
+        Jw = J * np.sqrt(w)[:, None]
+        report = analyze(Jw[:, stage_cand], [names[i] for i in stage_cand], tol=tol_rank,
+                         roles=[prob.roles[i] for i in stage_cand])
+        est = [names.index(n) for n in report.identifiable]
+        est.sort()
+        stage_info.append((label, [names[i] for i in est]))
+        theta, ok, its, msg = _run_stage(prob, theta, est, label, method, loss, loss_scale,
+                                         max_iter, tol_step, tol_cost, ids, dims, history,
+                                         progress)
+        total_it += its
+        # The base set was chosen at the stage's start.  If, at the solution, some
+        # estimated parameters have become dependent (e.g. nominal axes that are exactly
+        # aligned hide a direction that the moved model has), re-select there and rerun.
+        for _ in range(3):
+            r, J = prob.residuals_and_jacobian(theta)
+            w = _robust_weights(r, ids, dims, loss, loss_scale)
+            Jw = J * np.sqrt(w)[:, None]
+            check = analyze(Jw[:, est], [names[i] for i in est], tol=tol_rank,
+                            roles=[prob.roles[i] for i in est])
+            if check.rank == len(est):
+                break
+            report = analyze(Jw[:, stage_cand], [names[i] for i in stage_cand], tol=tol_rank,
+                             roles=[prob.roles[i] for i in stage_cand])
+            est = sorted(names.index(n) for n in report.identifiable)
+            stage_info[-1] = (label, [names[i] for i in est])
+            messages.append(f"stage {label!r}: {len(check.not_identifiable)} parameter(s) "
+                            "became dependent at the solution; re-selected the base set")
+            theta, ok, its, msg = _run_stage(prob, theta, est, label, method, loss,
+                                             loss_scale, max_iter, tol_step, tol_cost, ids,
+                                             dims, history, progress)
+            total_it += its
+        converged &= ok
+        messages.append(msg)
+    assert report is not None
+    # final statistics over the last stage's estimated set
+    r, J = prob.residuals_and_jacobian(theta)
+    w = _robust_weights(r, ids, dims, loss, loss_scale)
+    Jw = J[:, est] * np.sqrt(w)[:, None]
+    dof = len(r) - len(est)
+    if trust_sigma:
+        sigma0 = 1.0
+    elif dof > 0:
+        sigma0 = float(np.sqrt(np.sum(w * r * r) / dof))
+    else:
+        sigma0 = 1.0
+        messages.append("no redundancy (measurements <= parameters): sigma0 set to 1")
+    std = np.zeros(len(names))
+    cov = corr = np.zeros((0, 0))
+    if est:
+        try:
+            cov = sigma0**2 * inverse_normal_matrix(Jw)
+        except IdentifiabilityError:
+            # still dependent after re-selection: report only the independent subset
+            check = analyze(Jw, [names[i] for i in est], tol=tol_rank,
+                            roles=[prob.roles[i] for i in est])
+            keep = [k for k, i in enumerate(est) if names[i] in set(check.identifiable)]
+            messages.append("the estimated set is rank deficient at the solution; "
+                            f"{len(est) - len(keep)} parameter(s) have no standard error: "
+                            + ", ".join(check.not_identifiable[:6]))
+            est = [est[k] for k in keep]
+            Jw = Jw[:, keep]
+            converged = False
+            cov = sigma0**2 * inverse_normal_matrix(Jw)
+        std[est] = standard_errors(cov)
+        corr = correlation(cov)
+    wm = np.ones(len(dims))
+    wm[ids] = w
+    outliers = []
+    if loss != "linear":
+        bnames = prob.block_names
+        bi, rows = prob.owners()
+        first = np.unique(ids, return_index=True)[1]
+        outliers = [(bnames[bi[first[m]]], int(rows[first[m]]))
+                    for m in np.flatnonzero(wm < OUTLIER_WEIGHT)]
+    held = [n for n in report.not_identifiable]
+    if free is not None and held:
+        messages.append(f"{len(held)} requested parameter(s) not identifiable, held at their "
+                        f"initial values: {', '.join(held[:8])}{' ...' if len(held) > 8 else ''}")
+    robot_cal, _ = prob.split(theta)
+    return CalibrationResult(
+        robot=robot_cal, robot_initial=robot, problem=prob, theta0=theta0, theta=theta,
+        names=names, estimated=[names[i] for i in est], identifiability=report, std=std,
+        covariance=cov, correlation=corr, sigma0=sigma0, residuals=r, weights=w,
+        outliers=outliers, history=history, converged=bool(converged), iterations=total_it,
+        message="; ".join(messages), stages=stage_info, method=method, loss=loss)
+
+
+class Calibration:
+    """scikit-learn-style estimator around :func:`calibrate`.
+
+    Example::
+
+        result = Calibration(robot, stages=["offsets", "all"]).fit([tracker_block])
+        print(result.summary())
+
+    After :meth:`fit`, ``result_`` holds the :class:`CalibrationResult`.
+    """
+
+    def __init__(self, robot: Robot, free: Sequence[str] | str | None = None,
+                 method: str = "lm", stages: Sequence[str | Sequence[str]] | None = None,
+                 loss: str = "linear", **options: Any) -> None:
+        self.robot = robot
+        self.free = free
+        self.method = method
+        self.stages = stages
+        self.loss = loss
+        self.options = options
+        self.result_: CalibrationResult | None = None
+
+    def fit(self, blocks: MeasurementModel | Sequence[MeasurementModel]) -> CalibrationResult:
+        """Run the calibration on ``blocks`` and return (and keep) the result."""
+        self.result_ = calibrate(self.robot, blocks, free=self.free, method=self.method,
+                                 stages=self.stages, loss=self.loss, **self.options)
+        return self.result_
+
+    def __repr__(self) -> str:
+        opts = "".join(f", {k}={v!r}" for k, v in self.options.items())
+        return (f"Calibration({self.robot.name!r}, free={self.free!r}, method={self.method!r}, "
+                f"stages={self.stages!r}, loss={self.loss!r}{opts})")

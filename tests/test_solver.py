@@ -1,0 +1,226 @@
+"""The solver: exact recovery from noise-free data, methods, stages, selection, robust
+losses, rank-deficient requests, result objects."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from kincal.errors import KincalError
+from kincal.identify.identifiability import analyze
+from kincal.identify.solver import Calibration, CalibrationResult, calibrate, match_names
+from kincal.measure.base import stack
+from kincal.measure.simulate import (
+    instrument_values,
+    perturb_robot,
+    random_configurations,
+    simulate_poses,
+    simulate_positions,
+)
+from kincal.robots.dh import DHLink, dh_links, from_dh
+from kincal.robots.files import load_robot
+
+INSTRUMENT = [1.5, 0.4, -0.2, 0.1, -0.15, 2.0]
+MARKER = [0.03, -0.02, 0.06]
+TARGET = [0.01, 0.02, 0.05, 0.2, -0.1, 0.3]
+
+
+def puma():
+    return from_dh(dh_links(load_robot("puma560")), name="puma560", tool=[0.0, 0.0, 0.08, 0, 0, 0])
+
+
+def stanford():
+    links = [DHLink(d=0.412, alpha=-np.pi / 2, lower=-2.8, upper=2.8),
+             DHLink(d=0.154, alpha=np.pi / 2, lower=-2.8, upper=2.8),
+             DHLink(theta_offset=-np.pi / 2, joint="prismatic", lower=0.3, upper=0.9),
+             DHLink(alpha=-np.pi / 2, lower=-2.8, upper=2.8),
+             DHLink(alpha=np.pi / 2, lower=-2.0, upper=2.0),
+             DHLink(d=0.263, lower=-2.8, upper=2.8)]
+    return from_dh(links, name="stanford", tool=[0.0, 0.0, 0.05, 0, 0, 0])
+
+
+def make_block(true, q, rng, kind, noise=0.0):
+    if kind == "pose":
+        return simulate_poses(true, q, rng, noise, noise, INSTRUMENT, TARGET)
+    return simulate_positions(true, q, rng, noise, INSTRUMENT, MARKER)
+
+
+def base_set(robot, kind, q, rng):
+    """The robot parameters the automatic selection will estimate (analysed at nominal)."""
+    prob, theta = stack(robot, [make_block(robot, q, rng, kind)])
+    _, J = prob.residuals_and_jacobian(theta)
+    rep = analyze(J, prob.names, roles=prob.roles)
+    return [n for n in rep.identifiable if n in robot.param_names]
+
+
+def truth_of(true, kind):
+    inst = instrument_values(INSTRUMENT)
+    tail = instrument_values(TARGET) if kind == "pose" else np.asarray(MARKER)
+    return dict(true.params()), np.concatenate([inst, tail])
+
+
+@pytest.mark.parametrize("robot_fn,kind", [(puma, "pose"), (puma, "position"),
+                                           (stanford, "position"), (stanford, "pose")])
+@pytest.mark.parametrize("method", ["lm", "gauss-newton"])
+def test_noise_free_recovery(robot_fn, kind, method):
+    rng = np.random.default_rng(7)
+    robot = robot_fn()
+    q = random_configurations(robot, 40, rng)
+    names = base_set(robot, kind, q, rng)
+    true = perturb_robot(robot, rng, names=names)
+    res = calibrate(robot, [make_block(true, q, rng, kind)], method=method)
+    assert res.converged, res.message
+    assert sorted(n for n in res.estimated if n in robot.param_names) == sorted(names)
+    tp, tb = truth_of(true, kind)
+    err = {n: abs(res.params[n] - tp[n]) for n in names}
+    blk = res.theta[robot.num_params:]
+    err.update({n: abs(v) for n, v in zip(res.names[robot.num_params:], blk - tb, strict=True)})
+    worst = max(err, key=err.get)
+    print(f"\n{robot.name} {kind} {method}: {len(res.estimated)} estimated in "
+          f"{res.iterations} iterations, worst error {worst} {err[worst]:.2e}")
+    assert err[worst] < 1e-9, f"{worst} off by {err[worst]:.2e}"
+    # the calibrated robot reproduces the true one wherever the data can see it
+    q2 = random_configurations(robot, 20, rng)
+    check = make_block(true, q2, rng, kind)
+    e = check.errors(res.robot, blk)["position_m"]
+    assert e.max() < 1e-9
+
+
+def test_gauss_newton_is_the_lecture_iteration():
+    """First GN step = pinv(Phi) dr with Phi, dr at the starting point (lecture 000)."""
+    rng = np.random.default_rng(8)
+    robot = puma()
+    q = random_configurations(robot, 30, rng)
+    true = perturb_robot(robot, rng, names=base_set(robot, "pose", q, rng))
+    blk = make_block(true, q, rng, "pose")
+    res = calibrate(robot, [blk], method="gauss-newton", max_iter=1)
+    prob, theta0 = stack(robot, [blk])
+    r, J = prob.residuals_and_jacobian(theta0)
+    est = [prob.names.index(n) for n in res.estimated]
+    dphi = -np.linalg.pinv(J[:, est]) @ r
+    assert np.allclose(res.history[1].theta[est] - theta0[est], dphi, rtol=1e-8, atol=1e-14)
+
+
+def test_lm_and_gauss_newton_agree_with_noise():
+    rng = np.random.default_rng(9)
+    robot = puma()
+    q = random_configurations(robot, 40, rng)
+    true = perturb_robot(robot, rng)
+    blk = make_block(true, q, rng, "position", noise=2e-5)
+    a = calibrate(robot, [blk], method="lm")
+    b = calibrate(robot, [blk], method="gauss-newton")
+    assert a.converged and b.converged
+    assert a.estimated == b.estimated
+    diff = np.abs(a.theta - b.theta)
+    # both stop when the step is below tol_step = 1e-10 (1 + |x|): they agree to that
+    # level, a thousandth of the statistical uncertainty
+    assert np.all(diff <= 1e-3 * a.std + 1e-9)
+    assert np.max(diff[a.std > 0] / a.std[a.std > 0]) < 1e-3
+    assert a.sigma0 == pytest.approx(b.sigma0, rel=1e-9)
+    assert 0.7 < a.sigma0 < 1.3                        # the stated sigma is the true noise
+
+
+def test_free_fixed_stages_and_progress():
+    rng = np.random.default_rng(10)
+    robot = puma()
+    q = random_configurations(robot, 30, rng)
+    true = perturb_robot(robot, rng)
+    blk = make_block(true, q, rng, "position", noise=1e-5)
+    seen = []
+    res = calibrate(robot, [blk], free=["theta_offset[*]", "tracker.*"], fixed=["tracker.marker.z"],
+                    stages=["offsets", "all"], progress=seen.append)
+    assert "tracker.marker.z" not in res.estimated and "a[2]" not in res.estimated
+    allowed = {res.names[i] for i in match_names(res.names, ["theta_offset[*]", "tracker.*"])}
+    assert set(res.estimated) <= allowed
+    assert [s for s, _ in res.stages] == ["offsets", "all"]
+    assert {h.stage for h in res.history} == {"offsets", "all"}
+    assert len(seen) == len(res.history) and seen[0].iteration == 0
+    # theta_offset[1] was requested but is not identifiable with a free tracker frame
+    assert "theta_offset[1]" in res.identifiability.dependent
+    assert "not identifiable" in res.message
+    with pytest.raises(KincalError, match="did you mean"):
+        calibrate(robot, [blk], free=["theta_ofset[2]"])
+    with pytest.raises(KincalError, match="unknown method"):
+        calibrate(robot, [blk], method="newton")
+    assert match_names(["theta_offset[1]", "d[1]", "theta_offset[2]"], "theta_offset[*]") == [0, 2]
+
+
+def test_rank_deficient_request_is_named_and_held():
+    """free= everything from position data: no NaN, no wild numbers, dependents named."""
+    rng = np.random.default_rng(11)
+    robot = puma()
+    q = random_configurations(robot, 30, rng)
+    true = perturb_robot(robot, rng)
+    blk = make_block(true, q, rng, "position", noise=1e-5)
+    res = calibrate(robot, [blk], free=["*"])
+    assert res.converged
+    assert np.all(np.isfinite(res.theta)) and np.all(np.isfinite(res.std))
+    assert np.all(np.isfinite(res.covariance))
+    rep = res.identifiability
+    held = rep.not_identifiable
+    assert {"d[3]", "base.x", "tool.x", "theta_offset[1]"} <= set(held)
+    assert rep.dependent["d[3]"] == ["d[2]"]
+    for n in held:
+        i = res.names.index(n)
+        assert res.theta[i] == res.theta0[i] and res.std[i] == 0.0
+        assert n not in res.estimated
+    # every estimate moved by a plausible amount (the true errors are ~1 mm / 0.1 deg)
+    moved = np.abs(res.theta - res.theta0)[: robot.num_params]
+    assert moved.max() < 0.05
+    d = res.to_dict()
+    json.dumps(d)
+    by = {p["name"]: p for p in d["parameters"]}
+    assert by["d[3]"]["std"] is None and by["d[3]"]["identifiable"] is False
+    assert by["a[2]"]["estimated"] is True and by["a[2]"]["std"] > 0
+    assert d["identifiable_count"] == len(rep.identifiable)
+    text = res.summary(all_parameters=True)
+    assert "d[3]" in text and "dependent on d[2]" in text
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_robust_losses_flag_outliers(loss):
+    rng = np.random.default_rng(12)
+    robot = puma()
+    q = random_configurations(robot, 50, rng)
+    true = perturb_robot(robot, rng)
+    blk = make_block(true, q, rng, "position", noise=1e-5)
+    bad = [3, 17, 31]
+    blk.positions[bad] += np.array([4e-3, -3e-3, 5e-3])        # 5 mm gross errors
+    blk._y[bad, 0] = blk.positions[bad]
+    clean = calibrate(robot, [blk], loss=loss)
+    assert sorted(r for _, r in clean.outliers) == bad
+    assert all(b == "tracker" for b, _ in clean.outliers)
+    plain = calibrate(robot, [blk])
+    assert plain.outliers == []
+    # robust fit: the other measurements are fitted at the noise level
+    e = clean.errors()["tracker"]["position_m"]
+    good = np.setdiff1d(np.arange(50), bad)
+    assert np.sqrt(np.mean(e[good] ** 2)) < 4 * np.sqrt(3) * 1e-5
+    assert np.sqrt(np.mean(plain.errors()["tracker"]["position_m"][good] ** 2)) > 1e-4
+
+
+def test_result_objects_and_estimator():
+    rng = np.random.default_rng(13)
+    robot = puma()
+    q = random_configurations(robot, 25, rng)
+    blk = make_block(perturb_robot(robot, rng), q, rng, "pose", noise=1e-5)
+    est = Calibration(robot, stages=["offsets", "all"])
+    assert "Calibration('puma560'" in repr(est)
+    res = est.fit(blk)
+    assert isinstance(res, CalibrationResult) and est.result_ is res
+    assert repr(res).startswith("CalibrationResult(converged=True")
+    assert set(res.block_values("tracker")) == set(res.names[robot.num_params:])
+    assert res.correlation.shape == (len(res.estimated),) * 2
+    assert np.allclose(np.diag(res.correlation), 1.0)
+    assert res.robot.num_params == robot.num_params and res.robot_initial is robot
+    assert res.residuals.shape == (25 * 6,)
+    rms = res.rms()
+    assert set(rms) == {"rms_position_m", "rms_orientation_rad"}
+    assert rms["rms_position_m"] < 5e-5
+    d = res.to_dict()
+    assert {"parameters", "identifiable_count", "converged", "iterations", "sigma0", "history",
+            "identifiability"} <= set(d)
+    json.dumps(d)
+    assert "estimated" in res.summary()
