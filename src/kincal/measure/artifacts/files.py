@@ -1,0 +1,402 @@
+"""Artifact measurement files: one CSV per block (or per placement), and plain socket files.
+
+Format (see also :mod:`kincal.measure.files` for the shared rules: units in every
+numeric header, joint columns named after the robot's joints, one error line naming
+file / line / column)::
+
+    # kincal measurements: instrument=cross-bar; length_mm=300; probe=length; probe_length_mm=100
+    placement,point,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg
+    1,A,12.5,-40.1,...
+    1,B,...
+
+* ``placement`` (text, optional): the artifact placement of the row; without it the
+  whole file is one placement named after the file (one CSV per placement).
+* ``point`` (text; ``socket`` is accepted too): the socket the probe was seated in
+  (A, B, C, D for the cross-bar; A, B for the ball-bar; hole_0, hole_1 for the
+  two-socket tool; any label of a geometry YAML).  Several rows with the same
+  placement and point are seatings of one socket (coincidence).
+* Tags on line 1 (all but ``instrument`` optional; lengths and angles carry their unit
+  in the key):
+
+  ================================  ===================================================
+  ``length_<u>``                    the built-in artifact's length (|AC| = |BD|, |AB|)
+  ``length_std_<u>``                its uncertainty (default 0)
+  ``angle_std_<u>``                 uncertainty of the cross's right angle (default 0)
+  ``geometry=FILE.yaml``            instead: a geometry YAML, relative to the CSV
+  ``probe=tool|length|vector``      the probe tip (default ``tool``)
+  ``probe_length_<u>``              ``probe=length``: its length along flange z
+  ``probe_x_<u> probe_y_<u> ...``   ``probe=vector``: the tip in the end frame
+  ``estimate_probe=true|false``     identify the tip (default false)
+  ``sockets=eliminate|parameters``  socket points eliminated or as parameters
+  ``joint_std_<u>``                 encoder noise per joint (default 0)
+  ``point_std_<u>``                 seating repeatability (default 0.01 mm when
+                                    ``joint_std`` is 0, else 0)
+  ================================  ===================================================
+
+:func:`read_socket_files` reads the plain headerless files of
+``shared/data/panda_two_socket`` (one file per socket, one configuration per row,
+joint values in the unit the caller names: radians there).
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.errors import KincalError, MeasurementFileError
+from kincal.io import atomic_write_text
+from kincal.measure.artifacts.geometry import (
+    ArtifactGeometry,
+    read_geometry,
+    write_geometry,
+)
+from kincal.measure.artifacts.model import ArtifactMeasurement
+from kincal.measure.artifacts.probe import Probe
+from kincal.measure.files import UNITS, joint_columns, read_table, split_unit
+
+Array = NDArray[np.float64]
+
+TEXT_COLUMNS = ("placement", "point", "socket")
+DEFAULT_POINT_STD = 1e-5
+
+
+# --------------------------------------------------------------------------- tags
+def _tag_values(tags: Mapping[str, str], src: str) -> dict[str, tuple[float, str]]:
+    """Numeric tags with a unit suffix: ``{"length": (0.3, "length")}`` in SI."""
+    out: dict[str, tuple[float, str]] = {}
+    for key, text in tags.items():
+        base, unit = split_unit(key)
+        if unit is None:
+            continue
+        try:
+            v = float(text)
+        except ValueError:
+            raise MeasurementFileError(f"line 1: {key}={text!r} is not a number",
+                                       source=src) from None
+        if not np.isfinite(v):
+            raise MeasurementFileError(f"line 1: {key} is not finite", source=src)
+        out[base] = (v * UNITS[unit][1], UNITS[unit][0])
+    return out
+
+
+def _get(values: Mapping[str, tuple[float, str]], key: str, dim: str, src: str,
+         default: float | None = None) -> float:
+    if key not in values:
+        if default is None:
+            raise MeasurementFileError(f"line 1: missing tag {key}_<unit> (e.g. {key}_"
+                                       f"{'mm' if dim == 'length' else 'deg'}=...)",
+                                       source=src)
+        return default
+    v, d = values[key]
+    if d != dim:
+        raise MeasurementFileError(f"line 1: tag {key} needs a {dim} unit", source=src)
+    return v
+
+
+def _bool(tags: Mapping[str, str], key: str, src: str) -> bool:
+    v = tags.get(key, "false").strip().lower()
+    if v not in ("true", "false", "yes", "no", "1", "0"):
+        raise MeasurementFileError(f"line 1: {key}={v!r} is not true or false", source=src)
+    return v in ("true", "yes", "1")
+
+
+def geometry_from_tags(tags: Mapping[str, str], path: str | Path) -> ArtifactGeometry:
+    """The artifact geometry named by a file's tags (built-in + length, or a YAML)."""
+    src = str(path)
+    if "geometry" in tags:
+        return read_geometry(Path(path).parent / tags["geometry"])
+    kind = tags.get("instrument", "")
+    vals = _tag_values(tags, src)
+    try:
+        return ArtifactGeometry.builtin(kind, _get(vals, "length", "length", src),
+                                        _get(vals, "length_std", "length", src, 0.0),
+                                        _get(vals, "angle_std", "angle", src, 0.0))
+    except MeasurementFileError:
+        raise
+    except KincalError as exc:
+        raise MeasurementFileError(f"line 1: {exc}", source=src) from None
+
+
+def probe_from_tags(tags: Mapping[str, str], path: str | Path) -> Probe:
+    """The probe described by a file's tags (default: the robot's tool origin)."""
+    src = str(path)
+    mode = tags.get("probe", "tool")
+    vals = _tag_values(tags, src)
+    est = _bool(tags, "estimate_probe", src)
+    try:
+        if mode == "tool":
+            if est:
+                raise MeasurementFileError("line 1: probe=tool has nothing to estimate; use "
+                                           "probe=length or probe=vector", source=src)
+            return Probe.tool()
+        if mode == "length":
+            return Probe.length(_get(vals, "probe_length", "length", src), est)
+        if mode == "vector":
+            return Probe.vector([_get(vals, f"probe_{c}", "length", src) for c in "xyz"], est)
+    except MeasurementFileError:
+        raise
+    except KincalError as exc:
+        raise MeasurementFileError(f"line 1: {exc}", source=src) from None
+    raise MeasurementFileError(f"line 1: probe={mode!r} is not tool, length or vector",
+                               source=src)
+
+
+# --------------------------------------------------------------------------- reading
+def _text_columns(path: str | Path, lines: NDArray[np.intp]) -> dict[str, list[str]]:
+    """The text columns (placement, point / socket) of the data rows at ``lines``."""
+    text = Path(path).read_text(encoding="utf-8-sig").splitlines()
+    body = [(i + 1, ln) for i, ln in enumerate(text)
+            if ln.strip() and not ln.lstrip().startswith("#")]
+    header = [c.strip() for c in next(csv.reader([body[0][1]]))]
+    rows = dict(body[1:])
+    out: dict[str, list[str]] = {}
+    for name in TEXT_COLUMNS:
+        if name in header:
+            k = header.index(name)
+            vals = []
+            for ln in lines:
+                v = next(csv.reader([rows[int(ln)]]))[k].strip()
+                if not v:
+                    raise MeasurementFileError(f"line {int(ln)}: column {k + 1} ({name}) is "
+                                               "empty", source=str(path))
+                vals.append(v)
+            out[name] = vals
+    return out
+
+
+def read_artifact(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
+                  ignore: Sequence[str] = (), name: str | None = None,
+                  geometry: ArtifactGeometry | None = None, probe: Probe | None = None,
+                  sockets: str | None = None) -> list[ArtifactMeasurement]:
+    """Read an artifact CSV into one :class:`ArtifactMeasurement` (SI units).
+
+    ``geometry`` / ``probe`` / ``sockets`` override the file's tags.  ``robot`` gives
+    the joint columns and propagates ``joint_std`` into the weights.
+    """
+    src = str(path)
+    t = read_table(path, robot, (), units, ignore)
+    tags = t.tags
+    text = _text_columns(path, t.lines)
+    point = text.get("point", text.get("socket"))
+    if point is None:
+        raise t.error("no 'point' column (the socket of each row: A, B, C, D ...)")
+    if "point" in text and "socket" in text:
+        raise t.error("both 'point' and 'socket' columns: keep one")
+    placement = text.get("placement", [Path(path).stem] * len(t))
+    geom = geometry or geometry_from_tags(tags, path)
+    for i, so in enumerate(point):
+        if so not in geom.sockets:
+            raise t.error(f"socket {so!r} is not one of the {geom.kind}'s sockets "
+                          f"({', '.join(geom.sockets)})", int(t.lines[i]))
+    prb = probe or probe_from_tags(tags, path)
+    vals = _tag_values(tags, src)
+    joint_std = _get(vals, "joint_std", "angle", src, 0.0)
+    point_std = _get(vals, "point_std", "length", src,
+                     DEFAULT_POINT_STD if joint_std == 0 else 0.0)
+    mode = sockets or tags.get("sockets", "eliminate")
+    try:
+        block = ArtifactMeasurement(t.q, placement, point, geom, prb, mode,
+                                    name or tags.get("name") or geom.kind.replace("-", ""),
+                                    joint_std=joint_std, point_std=point_std, robot=robot)
+    except MeasurementFileError:
+        raise
+    except KincalError as exc:
+        raise MeasurementFileError(str(exc), source=src) from None
+    block.table = t  # type: ignore[attr-defined]
+    return [block]
+
+
+def merge_blocks(blocks: Sequence[ArtifactMeasurement], name: str | None = None
+                 ) -> ArtifactMeasurement:
+    """One block from several (e.g. one CSV per placement) of the same artifact and probe.
+
+    Placement labels must not repeat across the blocks.
+    """
+    if not blocks:
+        raise KincalError("nothing to merge")
+    first = blocks[0]
+    for b in blocks[1:]:
+        if b.geometry != first.geometry or b.probe != first.probe:
+            raise KincalError(f"blocks {first.name!r} and {b.name!r} describe different "
+                              "artifacts or probes; they cannot be merged")
+    seen: set[str] = set()
+    for b in blocks:
+        clash = seen & set(b.placements)
+        if clash:
+            raise KincalError(f"placement {sorted(clash)[0]!r} appears in two blocks")
+        seen |= set(b.placements)
+    return first.replace(
+        q=np.concatenate([b.q for b in blocks]),
+        placement=[p for b in blocks for p in b.placement_labels],
+        socket=[s for b in blocks for s in b.socket_labels],
+        name=name or first.name,
+        joint_std=max(b.joint_std for b in blocks),
+        point_std=max(b.point_std for b in blocks))
+
+
+# --------------------------------------------------------------------------- writing
+def _fmt(v: float) -> str:
+    return f"{v:.15g}"
+
+
+def artifact_tags(block: ArtifactMeasurement, length_unit: str, angle_unit: str,
+                  geometry_file: str | None = None) -> dict[str, str]:
+    """Line-1 tags describing a block (see the module docstring)."""
+    fl, fa = 1.0 / UNITS[length_unit][1], 1.0 / UNITS[angle_unit][1]
+    g = block.geometry
+    tags = {"instrument": g.kind if g.kind != "custom" else "artifact", "name": block.name}
+    if geometry_file:
+        tags["geometry"] = geometry_file
+    else:
+        tags[f"length_{length_unit}"] = _fmt(g.length * fl)
+        if g.distances[0].std:
+            tags[f"length_std_{length_unit}"] = _fmt(g.distances[0].std * fl)
+        if g.perpendiculars and g.perpendiculars[0].std:
+            tags[f"angle_std_{angle_unit}"] = _fmt(g.perpendiculars[0].std * fa)
+    p = block.probe
+    tags["probe"] = p.mode
+    if p.mode == "length":
+        tags[f"probe_length_{length_unit}"] = _fmt(p.value[0] * fl)
+    elif p.mode == "vector":
+        for c, v in zip("xyz", p.value, strict=True):
+            tags[f"probe_{c}_{length_unit}"] = _fmt(v * fl)
+    if p.estimate:
+        tags["estimate_probe"] = "true"
+    tags["sockets"] = block.sockets
+    tags[f"joint_std_{angle_unit}"] = _fmt(block.joint_std * fa)
+    tags[f"point_std_{length_unit}"] = _fmt(block.point_std * fl)
+    return tags
+
+
+def _builtin_like(g: ArtifactGeometry) -> bool:
+    if g.kind == "custom":
+        return False
+    try:
+        ref = ArtifactGeometry.builtin(g.kind, g.length, g.distances[0].std,
+                                       g.perpendiculars[0].std if g.perpendiculars else 0.0)
+    except KincalError:
+        return False
+    return ref == g
+
+
+def write_artifact(blocks: Sequence[ArtifactMeasurement], path: str | Path,
+                   units: Mapping[str, str] | None = None, robot: Any = None) -> None:
+    """Write one artifact block as CSV (atomically); a custom geometry goes to a YAML beside it.
+
+    ``units``: ``{"length": "mm", "angle": "deg"}`` (default SI).
+    """
+    if len(blocks) != 1:
+        raise MeasurementFileError(f"an artifact file holds one block; got {len(blocks)}")
+    b = blocks[0]
+    u = dict(units or {})
+    lu, au = u.get("length", "m"), u.get("angle", "rad")
+    for unit, dim in ((lu, "length"), (au, "angle")):
+        if unit not in UNITS or UNITS[unit][0] != dim:
+            raise MeasurementFileError(f"unknown {dim} unit {unit!r}")
+    gfile = None
+    if not _builtin_like(b.geometry):
+        if str(path) == "-":
+            raise MeasurementFileError("a custom artifact's geometry goes to a YAML beside "
+                                       "the CSV: write to a file, not stdout")
+        gfile = Path(path).stem + ".geometry.yaml"
+        write_geometry(b.geometry, Path(path).parent / gfile, lu, au)
+    tags = artifact_tags(b, lu, au, gfile)
+    cols = joint_columns(robot, b.q.shape[1], au, lu)
+    lines = ["# kincal measurements: " + "; ".join(f"{k}={v}" for k, v in tags.items()),
+             f"# {b.geometry.kind}: sockets {', '.join(b.geometry.sockets)}; "
+             + "; ".join(f"|{d.label}| known" for d in b.geometry.distances)
+             + "".join(f"; {p.a}{p.c} perpendicular to {p.b}{p.d}"
+                       for p in b.geometry.perpendiculars),
+             ",".join(["placement", "point"] + [c for c, _ in cols])]
+    Q = b.q * np.array([f for _, f in cols])
+    for pl, so, row in zip(b.placement_labels, b.socket_labels, Q, strict=True):
+        lines.append(",".join([pl, so] + [_fmt(v) for v in row]))
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------- socket files
+@dataclass(frozen=True)
+class SocketData:
+    """Joint readings from plain per-socket files.
+
+    Attributes:
+        q: (N, n) joint values [rad / m].
+        placement: (N,) placement label of each row.
+        socket: (N,) socket label of each row (the file name without extension).
+    """
+
+    q: Array
+    placement: tuple[str, ...]
+    socket: tuple[str, ...]
+
+
+def read_socket_files(source: str | Path | Sequence[str | Path], angle_unit: str = "rad",
+                      placement: str | None = None, pattern: str = "*.csv") -> SocketData:
+    """Read headerless per-socket files: one file per socket, one configuration per row.
+
+    This is the format of ``shared/data/panda_two_socket`` (MUKCa): comma-separated
+    joint values without a header, ``hole_0.csv`` and ``hole_1.csv`` per placement
+    folder.  Such files carry no units, so the caller states them (``angle_unit``,
+    radians for that data set; every joint is taken as revolute).
+
+    Args:
+        source: a folder (all files matching ``pattern``, sorted) or a list of files.
+        angle_unit: unit of the values (``rad``, ``deg`` ...).
+        placement: the placement label (default: the folder's name).
+        pattern: file pattern inside a folder.
+
+    Returns:
+        :class:`SocketData`; the socket of each row is its file's stem.
+    """
+    if angle_unit not in UNITS or UNITS[angle_unit][0] != "angle":
+        raise MeasurementFileError(f"unknown angle unit {angle_unit!r}")
+    if isinstance(source, str | Path) and Path(source).is_dir():
+        files = sorted(Path(source).glob(pattern))
+        label = placement or Path(source).name
+        if not files:
+            raise MeasurementFileError(f"no files matching {pattern!r}", source=str(source))
+    else:
+        files = [Path(source)] if isinstance(source, str | Path) else [Path(f) for f in source]
+        label = placement or (files[0].parent.name if files else "")
+    qs, sockets = [], []
+    width = None
+    for f in files:
+        try:
+            text = f.read_text(encoding="utf-8-sig")
+        except FileNotFoundError:
+            raise MeasurementFileError("no such socket file", source=str(f)) from None
+        rows = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+        if not rows:
+            raise MeasurementFileError("line 1: no data", source=str(f))
+        try:
+            q = np.array([[float(v) for v in r.split(",")] for r in rows])
+        except ValueError:
+            bad = next(i for i, r in enumerate(rows)
+                       if not all(_is_float(v) for v in r.split(",")))
+            raise MeasurementFileError(f"line {bad + 1}: not comma-separated numbers",
+                                       source=str(f)) from None
+        if q.ndim != 2 or not np.all(np.isfinite(q)):
+            raise MeasurementFileError("rows differ in length or hold non-finite values",
+                                       source=str(f))
+        if width is not None and q.shape[1] != width:
+            raise MeasurementFileError(f"{q.shape[1]} joint values per row; the other files "
+                                       f"have {width}", source=str(f))
+        width = q.shape[1]
+        qs.append(q * UNITS[angle_unit][1])
+        sockets += [f.stem] * len(q)
+    q = np.concatenate(qs)
+    return SocketData(q, (label,) * len(q), tuple(sockets))
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
