@@ -1,0 +1,216 @@
+"""CSV files of the instrument blocks, on top of :mod:`kincal.measure.files`.
+
+The shared rules apply (units in every numeric header, joint columns named after the
+robot's joints, one error line naming file/line/column, ``units``/``ignore``
+options).  The instruments add:
+
+* **text columns** without a unit -- ``station``, ``mode``, ``run``, ``plane`` -- read
+  as labels;
+* **constants on line 1**: a numeric quantity that is the same on every row may be
+  given once as a tag instead of a column, with its unit, e.g.
+  ``# kincal measurements: instrument=range; name=adm; sigma_mm=0.005``;
+* block options as tags (``marker=own|tool``, ``mount=fixed|hand``).
+
+One block per file.  Writers write the units they are asked (default SI) atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.errors import MeasurementFileError
+from kincal.io import atomic_write_text
+from kincal.measure.files import (
+    TAG_PREFIX,
+    UNITS,
+    Field,
+    MeasurementTable,
+    joint_columns,
+    read_table,
+    split_unit,
+)
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class BlockTable:
+    """A parsed instrument file: the shared table plus text columns and line-1 tags."""
+
+    table: MeasurementTable
+    text: dict[str, list[str]]
+
+    @property
+    def q(self) -> Array:
+        return self.table.q
+
+    @property
+    def tags(self) -> dict[str, str]:
+        return self.table.tags
+
+    @property
+    def values(self) -> dict[str, Array]:
+        return self.table.values
+
+    def error(self, row: int, message: str) -> MeasurementFileError:
+        """One-line error naming the file and the line of data row ``row``."""
+        return self.at(int(self.table.lines[row]), message)
+
+    def at(self, line: int, message: str) -> MeasurementFileError:
+        """One-line error naming the file and ``line``."""
+        return MeasurementFileError(f"line {line}: {message}", source=self.table.path)
+
+    def option(self, key: str, default: str, choices: Sequence[str]) -> str:
+        v = self.tags.get(key, default)
+        if v not in choices:
+            raise self.at(1, f"{key}={v!r} is not one of {', '.join(choices)}")
+        return v
+
+
+def _body(path: str | Path) -> list[tuple[int, str]]:
+    text = Path(path).read_text(encoding="utf-8-sig")
+    return [(i + 1, ln) for i, ln in enumerate(text.splitlines())
+            if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def read_block_table(path: str | Path, robot: Any, instrument: str, fields: Sequence[Field],
+                     required: Sequence[str], text: Mapping[str, str | None],
+                     units: Mapping[str, str] | None = None,
+                     ignore: Sequence[str] = ()) -> BlockTable:
+    """Read an instrument file.
+
+    Args:
+        fields: numeric observation columns (base name pattern and dimension).
+        required: numeric bases that must be present (as a column or a line-1 constant).
+        text: text columns ``{name: default}``; ``None`` as default means required.
+    """
+    t = read_table(path, robot, fields, units, ignore)
+    tab = BlockTable(t, {})
+    if t.tags and t.tags.get("instrument") != instrument:
+        raise tab.at(1, f"instrument={t.tags.get('instrument')}, expected {instrument}")
+    for tag, v in t.tags.items():
+        base, unit = split_unit(tag)
+        fld = next((f for f in fields if f.matches(base)), None)
+        if unit is None or fld is None:
+            continue
+        if UNITS[unit][0] != fld.dimension:
+            raise tab.at(1, f"{tag}: unit {unit} is not a {fld.dimension}")
+        if base in t.values:
+            raise tab.at(1, f"{tag} repeats column {t.columns[base]}")
+        try:
+            value = float(v) * UNITS[unit][1]
+        except ValueError:
+            raise tab.at(1, f"{tag}={v!r} is not a number") from None
+        if not np.isfinite(value):
+            raise tab.at(1, f"{tag}={v!r} is not a finite number")
+        t.values[base] = np.full(len(t), value)
+        t.columns[base] = tag
+    body = _body(path)
+    header_line = body[0][0]
+    for base in required:
+        if base not in t.values:
+            fld = next(f for f in fields if f.matches(base))
+            unit = {"length": "mm", "angle": "deg", "pixel": "px"}.get(fld.dimension, "1")
+            raise tab.at(header_line, f"missing column {base!r} (with its unit, e.g. "
+                                      f"{base}_{unit}; or {base}_{unit}=VALUE on line 1)")
+    names = [c.strip() for c in next(csv.reader([body[0][1]]))]
+    rows = list(csv.reader([ln for _, ln in body[1:]]))
+    for key, default in text.items():
+        if key in names:
+            k = names.index(key)
+            vals = [r[k].strip() for r in rows]
+            empty = [i for i, v in enumerate(vals) if not v]
+            if empty:
+                raise tab.error(empty[0], f"column {k + 1} ({key}) is empty")
+            tab.text[key] = vals
+        elif default is None:
+            raise tab.at(header_line, f"missing column {key!r}")
+        else:
+            tab.text[key] = [default] * len(t)
+    sig = t.values.get("sigma")
+    if sig is not None and np.any(sig <= 0):
+        i = int(np.argmax(sig <= 0))
+        raise tab.error(i, f"column {t.columns['sigma']}: a standard deviation must be "
+                           "positive")
+    return tab
+
+
+def write_block_table(path: str | Path, tags: Mapping[str, str], q: Array,
+                      columns: Sequence[tuple[str, Any, str]], units: Mapping[str, str] | None,
+                      robot: Any = None, comments: Sequence[str] = ()) -> None:
+    """Write one block atomically.
+
+    ``columns``: ``(base, values (N,), dimension)`` with dimension ``length``, ``angle``,
+    ``pixel`` (SI values, converted to ``units``) or ``text`` (written as is).
+    """
+    u = dict(units or {})
+    length, angle = u.get("length", "m"), u.get("angle", "rad")
+    for unit, dim in ((angle, "angle"), (length, "length")):
+        if unit not in UNITS or UNITS[unit][0] != dim:
+            raise MeasurementFileError(f"unknown {dim} unit {unit!r}")
+    unit_of = {"length": length, "angle": angle, "pixel": "px"}
+    names: list[str] = []
+    cells: list[list[str]] = []
+    for k, (name, f) in enumerate(joint_columns(robot, q.shape[1], angle, length)):
+        names.append(name)
+        cells.append([repr(float(v)) for v in q[:, k] * f])
+    for base, vals, dim in columns:
+        if dim == "text":
+            names.append(base)
+            cells.append([str(v) for v in vals])
+            continue
+        unit = unit_of[dim]
+        arr = np.asarray(vals, dtype=float).reshape(-1) / UNITS[unit][1]
+        if not np.all(np.isfinite(arr)):
+            raise MeasurementFileError(f"refusing to write non-finite values in {base!r}")
+        names.append(f"{base}_{unit}")
+        cells.append([repr(float(v)) for v in arr])
+    lines = [TAG_PREFIX + " " + "; ".join(f"{k}={v}" for k, v in tags.items())]
+    lines += [f"# {c}" for c in comments]
+    lines.append(",".join(names))
+    lines += [",".join(row) for row in zip(*cells, strict=True)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def one_block(blocks: Sequence[Any], instrument: str) -> Any:
+    """The single block a file holds."""
+    if len(blocks) != 1:
+        raise MeasurementFileError(f"a {instrument} file holds one measurement block; got "
+                                   f"{len(blocks)} (write each to its own file)")
+    return blocks[0]
+
+
+def per_group(tab: BlockTable, idx: NDArray[np.intp], values: Array, what: str) -> Array:
+    """Per-group values (G, k) that must repeat identically on every row of the group."""
+    values = np.asarray(values, dtype=float).reshape(len(idx), -1)
+    G = int(idx.max()) + 1 if idx.size else 0
+    first = np.array([int(np.argmax(idx == g)) for g in range(G)], dtype=np.intp)
+    ref = values[first[idx]]
+    bad = ~np.all(np.isclose(values, ref, rtol=1e-12, atol=0.0), axis=1)
+    if np.any(bad):
+        r = int(np.argmax(bad))
+        raise tab.error(r, f"{what} differs from line {int(tab.table.lines[first[idx[r]]])} "
+                           "of the same group (it must be constant per group)")
+    return values[first]
+
+
+def text_per_group(tab: BlockTable, idx: NDArray[np.intp], values: Sequence[str], what: str
+                   ) -> list[str]:
+    """Per-group text values that must be the same on every row of the group."""
+    G = int(idx.max()) + 1 if len(idx) else 0
+    first = np.array([int(np.argmax(idx == g)) for g in range(G)], dtype=np.intp)
+    arr = np.array(values, dtype=str)
+    bad = arr != arr[first[idx]]
+    if np.any(bad):
+        r = int(np.argmax(bad))
+        f = int(first[idx[r]])
+        raise tab.error(r, f"{what} {str(arr[r])!r} differs from {str(arr[f])!r} on line "
+                           f"{int(tab.table.lines[f])} of the same group")
+    return [str(arr[f]) for f in first]

@@ -1,0 +1,169 @@
+"""Range instruments: distance from a station to the tool point (multilateration).
+
+Measurement equation for row i, seen by station ``k`` at ``s_k`` [m]:
+
+* absolute (time of flight, absolute distance meter, laser tracer)::
+
+      rho_i = |p(q_i) - s_k|
+
+* incremental (laser interferometer: counts the change of distance since it was
+  zeroed, at an unknown starting length ``L0`` [m])::
+
+      rho_i = |p(q_i) - s_k| - L0_{k,run}
+
+  Every beam break restarts the count: give the rows after it a new ``run`` label and
+  they get their own starting length.
+
+``p = p_e + R_e m`` is the tool point (see :mod:`.common`).  Residuals are
+``(rho_pred - rho_obs) / sigma`` [1]; Jacobians ``d rho/dp = u^T``, ``d rho/ds = -u^T``
+with ``u = (p - s)/|p - s|``, ``d rho/d L0 = -1``.
+
+Parameters: ``{name}.{station}.x, y, z`` [m] per station, ``{name}.{station}.L0`` (one run)
+or ``{name}.{station}.L0.{run}`` [m] per incremental run, then ``{name}.marker.x, y, z``
+(``marker="own"``).
+
+What ranges cannot see: with unknown stations, the stations and the robot's base frame
+are seen only relative to each other (the stations take the base frame's place).  With
+surveyed stations (their parameters held), one station leaves the three rotations of the
+robot about it free, two stations the rotation about their common line; three fix the
+base frame.  Even a single unknown station identifies the kinematic chain itself given
+enough well-spread poses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kincal.errors import KincalError
+from kincal.measure.base import ParamSpec
+from kincal.measure.instruments.common import (
+    as_q,
+    as_sigma,
+    check_marker_mode,
+    check_shapes,
+    concat_specs,
+    label_index,
+    label_index_raw,
+)
+from kincal.measure.instruments.pointblock import PointBlock
+from kincal.robots.chain import Robot
+
+Array = NDArray[np.float64]
+MODES = ("absolute", "incremental")
+
+
+class RangeMeasurement(PointBlock):
+    """Distances from one or more stations to the tool point.
+
+    Args:
+        name: block name (parameter prefix).
+        q: (N, n) joint readings [rad / m].
+        station: (N,) station label of each reading.
+        rho: (N,) measured distance [m] (incremental: change since zeroing).
+        sigma: standard deviation [m], scalar or (N,).
+        mode: (N,) ``"absolute"`` or ``"incremental"`` per row (default absolute).
+        run: (N,) run label of incremental rows (a new run after each beam break).
+        marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
+    """
+
+    def __init__(self, name: str, q: ArrayLike, station: Sequence[str], rho: ArrayLike,
+                 sigma: ArrayLike, mode: Sequence[str] | None = None,
+                 run: Sequence[str] | None = None, marker: str = "own") -> None:
+        self.name = name
+        self.q = as_q(q)
+        N = self.q.shape[0]
+        self.obs = np.asarray(rho, dtype=float).reshape(-1, 1)
+        check_shapes("range", name, N, rho=self.obs)
+        self.sigma = as_sigma(sigma, N, name)
+        self.marker = check_marker_mode(marker)
+        self.station_labels = [str(s) for s in station]
+        self.stations, self.station_index = label_index(self.station_labels, "station", name)
+        self.mode = ["absolute"] * N if mode is None else [str(m).strip() for m in mode]
+        self.run = ["0"] * N if run is None else [str(r).strip() for r in run]
+        if len(self.mode) != N or len(self.run) != N or len(self.station_labels) != N:
+            raise KincalError(f"block {name!r}: station, mode and run need one entry per row")
+        for m in self.mode:
+            if m not in MODES:
+                raise KincalError(f"block {name!r}: range mode {m!r} is not 'absolute' or "
+                                  "'incremental'")
+        inc = np.array([m == "incremental" for m in self.mode], dtype=bool)
+        # one starting length per (station, run) of incremental rows
+        self.offset_index = np.full(N, -1, dtype=np.intp)
+        self.offset_names: list[str] = []
+        if np.any(inc):
+            keys = [f"{s}\t{r}" for s, r, i in
+                    zip(self.station_labels, self.run, inc, strict=True) if i]
+            groups, idx = label_index_raw(keys)
+            self.offset_index[inc] = idx
+            stations = [g.split("\t")[0] for g in groups]
+            for g, s in zip(groups, stations, strict=True):
+                r = g.split("\t")[1]
+                single = stations.count(s) == 1
+                self.offset_names.append(f"{name}.{s}.L0" if single else f"{name}.{s}.L0.{r}")
+
+    # ------------------------------------------------------------------ model
+    def own_parameters(self) -> ParamSpec:
+        st = ParamSpec(tuple(f"{self.name}.{s}.{f}" for s in self.stations for f in "xyz"),
+                       np.zeros(3 * len(self.stations)), ("m",) * (3 * len(self.stations)),
+                       ("instrument",) * (3 * len(self.stations)))
+        off = ParamSpec(tuple(self.offset_names), np.zeros(len(self.offset_names)),
+                        ("m",) * len(self.offset_names),
+                        ("instrument",) * len(self.offset_names))
+        return concat_specs([st, off])
+
+    def observe(self, p: Array, own: Array, jacobian: bool
+                ) -> tuple[Array, Array | None, Array | None]:
+        K = len(self.stations)
+        S = own[: 3 * K].reshape(K, 3)
+        L0 = own[3 * K:]
+        d = p - S[self.station_index]
+        rho = np.linalg.norm(d, axis=1)
+        has = self.offset_index >= 0
+        pred = rho - np.where(has, L0[np.maximum(self.offset_index, 0)] if L0.size else 0.0,
+                              0.0)
+        if not jacobian:
+            return pred[:, None], None, None
+        u = d / rho[:, None]
+        N = p.shape[0]
+        dod = np.zeros((N, 1, own.size))
+        cols = 3 * self.station_index[:, None] + np.arange(3)
+        np.put_along_axis(dod[:, 0], cols, -u, axis=1)
+        rows = np.flatnonzero(has)
+        dod[rows, 0, 3 * K + self.offset_index[rows]] = -1.0
+        return pred[:, None], u[:, None, :], dod
+
+    def own_guess(self, robot: Robot, p: Array) -> Array:
+        """Linear multilateration per station.
+
+        ``|p - s|^2 = (rho + L0)^2`` gives ``2 p.s - |s|^2 + 2 rho L0 + L0^2 = |p|^2 - rho^2``,
+        linear in ``s``, ``|s|^2``, and ``L0``, ``L0^2`` per incremental run (treated as
+        independent unknowns), solved by least squares; then refined by Gauss-Newton.
+        """
+        K = len(self.stations)
+        S = np.zeros((K, 3))
+        L0 = np.zeros(len(self.offset_names))
+        rho = self.obs[:, 0]
+        for k in range(K):
+            rows = np.flatnonzero(self.station_index == k)
+            offs = sorted(set(self.offset_index[rows][self.offset_index[rows] >= 0].tolist()))
+            # unknowns: s (3), c = |s|^2, then per run: e_j = L0_j, f_j = L0_j^2 (linearised)
+            A = np.zeros((rows.size, 4 + 2 * len(offs)))
+            A[:, :3] = 2 * p[rows]
+            A[:, 3] = -1.0
+            b = np.sum(p[rows] ** 2, axis=1) - rho[rows] ** 2
+            for j, o in enumerate(offs):
+                sel = self.offset_index[rows] == o
+                A[sel, 4 + 2 * j] = 2 * rho[rows][sel]     # 2 rho L0
+                A[sel, 5 + 2 * j] = 1.0                    # L0^2
+            x = np.linalg.lstsq(A, b, rcond=None)[0]
+            S[k] = x[:3]
+            for j, o in enumerate(offs):
+                L0[o] = x[4 + 2 * j]
+        return np.concatenate([S.reshape(-1), L0])
+
+    def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
+        r = self.evaluate(robot, extra, jacobian=False)[0]
+        return {"range_m": r * self.sigma}
