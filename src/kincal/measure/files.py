@@ -1,0 +1,498 @@
+"""Measurement CSV files with explicit units: reading and writing.
+
+A measurement file is a CSV table, one measurement (robot configuration) per row::
+
+    # kincal measurements: instrument=position; name=tracker
+    # any further comment lines
+    q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm,sigma_mm
+    10.5,-20.25,...
+
+Rules (every violation is one :class:`~kincal.errors.MeasurementFileError` line
+naming the file, the line and the column; nothing is guessed):
+
+* **Units in every header.**  A column is ``BASE_UNIT`` with ``UNIT`` one of
+  :data:`UNITS` (``m mm um cm``, ``rad deg mrad urad arcsec``, ``px``, ``1``).
+  A column without a unit suffix needs its unit from the user (``units``: the CLI's
+  ``--units x1=m,arm_1_joint=rad``; keys are column names or ``*``/``?`` patterns)
+  or, for joint columns only, from the robot file: a URDF fixes joint units to
+  rad / m, so bare URDF joint names (``arm_3_joint``) are read in rad (m for
+  prismatic joints); so does a robot whose ``meta["joint_units"]`` says ``"si"``.
+  A unit must have the right dimension (an angle for a revolute joint or ``rx``, a
+  length for a prismatic joint or ``x``).
+* **Joint columns** are named exactly as the robot's joints (``q1_deg`` for a DH
+  robot, ``arm_3_joint`` for a URDF robot, ``S_rad`` ...); every joint must appear
+  once.
+* **Observation columns** are the instrument's (:class:`Field` patterns): position
+  ``x y z`` or ``x1 y1 z1 x2 ...``, pose ``x y z rx ry rz`` (roll-pitch-yaw,
+  ``R = Rz(rz) Ry(ry) Rx(rx)``), per-row standard deviations ``sigma`` (length)
+  and ``sigma_rot`` (angle).
+* **Other columns.**  A column that is neither a joint nor an observation of the
+  instrument is *ignored only if it does not look like one*: names such as
+  ``q7``, ``x5``, ``rz2``, ``sigma2``, ``joint3`` or a near-miss of a joint name
+  (``arm_8_joint``, ``Arm_3_joint``) are errors (a wrong joint count or a typo must
+  not be dropped silently).  List such a column with ``ignore`` (CLI ``--ignore
+  'x2,y2,z2'``, patterns allowed) to drop it on purpose.  Bookkeeping columns
+  (``pose_id``, ``shipped_row``, ``t_start_robot``, ``marker_std_mm``) are
+  ignored, and the reader reports their names in :attr:`MeasurementTable.ignored`
+  (the CLI prints them).
+* **Values** must be finite numbers: text, empty cells, ``nan`` and ``inf`` are
+  errors naming the line and the column; every row has as many fields as the
+  header.  Blank lines and lines starting with ``#`` are skipped.
+
+Everything is converted to SI (m, rad) at the border.  Writers write whatever
+units they are asked to (default SI) through a temporary file and a rename.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.errors import MeasurementFileError
+from kincal.io import atomic_write_text
+
+Array = NDArray[np.float64]
+
+#: Units a column may carry: ``{suffix: (dimension, factor to SI)}``.
+UNITS: dict[str, tuple[str, float]] = {
+    "m": ("length", 1.0),
+    "mm": ("length", 1e-3),
+    "um": ("length", 1e-6),
+    "cm": ("length", 1e-2),
+    "rad": ("angle", 1.0),
+    "deg": ("angle", math.pi / 180.0),
+    "mrad": ("angle", 1e-3),
+    "urad": ("angle", 1e-6),
+    "arcsec": ("angle", math.pi / 648000.0),
+    "px": ("pixel", 1.0),
+    "1": ("dimensionless", 1.0),
+}
+
+#: First-line tag of a kincal measurement file.
+TAG_PREFIX = "# kincal measurements:"
+
+#: Names that look like joint values or observations: never ignored silently.
+_LOOKS_MEASURED = re.compile(
+    r"(q|j|joint|theta|[xyz]|r[xyz]|roll|pitch|yaw|sigma|sigma_rot|range|distance"
+    r"|azimuth|elevation|bearing|[uv])\d*", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class Field:
+    """An observation column family of an instrument.
+
+    Attributes:
+        pattern: regular expression full-matched against a column's base name
+            (the name without its unit suffix), e.g. ``[xyz]\\d+``.
+        dimension: ``"length"``, ``"angle"``, ``"pixel"`` or ``"dimensionless"``.
+        description: for error messages and documentation.
+    """
+
+    pattern: str
+    dimension: str
+    description: str = ""
+
+    def matches(self, base: str) -> bool:
+        return re.fullmatch(self.pattern, base) is not None
+
+
+@dataclass
+class MeasurementTable:
+    """A parsed measurement file, in SI units.
+
+    Attributes:
+        path: the file.
+        tags: the first-line tags (``instrument``, ``name`` ...), ``{}`` when absent.
+        q: (N, n) joint values [rad / m] in the robot's joint order (n = 0 when the
+            file has no joint columns, e.g. a targets file).
+        values: observation columns by base name (``"x"``, ``"x2"``, ``"rz"``,
+            ``"sigma"``), each (N,) in SI units.
+        units: the unit each used column was read in (``{"x": "mm", "q1": "deg"}``).
+        lines: (N,) file line number of every row (1-based), for messages.
+        ignored: names of the columns that were not read.
+        columns: observation base name -> column header as written in the file.
+    """
+
+    path: str
+    tags: dict[str, str]
+    q: Array
+    values: dict[str, Array]
+    units: dict[str, str]
+    lines: NDArray[np.intp]
+    ignored: list[str] = field(default_factory=list)
+    columns: dict[str, str] = field(default_factory=dict)
+    header_line: int = 1
+
+    def __len__(self) -> int:
+        return int(self.lines.size)
+
+    def has(self, *bases: str) -> bool:
+        return all(b in self.values for b in bases)
+
+    def error(self, message: str, line: int | None = None) -> MeasurementFileError:
+        """A one-line error naming the file and ``line`` (default: the header line)."""
+        line = self.header_line if line is None else line
+        return MeasurementFileError(f"line {line}: {message}", source=self.path)
+
+
+# --------------------------------------------------------------------------- helpers
+def split_unit(name: str) -> tuple[str, str | None]:
+    """``"x1_mm" -> ("x1", "mm")``; ``"arm_3_joint" -> ("arm_3_joint", None)``."""
+    if "_" in name:
+        base, suffix = name.rsplit("_", 1)
+        if suffix in UNITS and base:
+            return base, suffix
+    return name, None
+
+
+def glob_regex(pattern: str) -> re.Pattern[str]:
+    """``*`` and ``?`` wildcards; every other character (``[`` included) is literal."""
+    body = "".join(".*" if c == "*" else "." if c == "?" else re.escape(c) for c in pattern)
+    return re.compile(body + r"\Z")
+
+
+def parse_units_option(text: str | None, option: str = "--units") -> dict[str, str]:
+    """Parse ``"x1=m,y1=m,arm_1_joint=rad"`` into ``{column or pattern: unit}``."""
+    out: dict[str, str] = {}
+    if not text:
+        return out
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        if "=" not in part:
+            raise MeasurementFileError(f"option {option}: {part!r} is not COLUMN=UNIT "
+                                       "(e.g. x1=m,arm_1_joint=rad)")
+        k, v = (s.strip() for s in part.split("=", 1))
+        if v not in UNITS:
+            raise MeasurementFileError(f"option {option}: unknown unit {v!r} for {k!r} "
+                                       f"(known: {', '.join(UNITS)})")
+        out[k] = v
+    return out
+
+
+def parse_list_option(text: str | Sequence[str] | None) -> list[str]:
+    """``"a,b, c"`` (or a list of such strings) -> ``["a", "b", "c"]``."""
+    if not text:
+        return []
+    items = [text] if isinstance(text, str) else list(text)
+    return [p.strip() for s in items for p in s.split(",") if p.strip()]
+
+
+def _robot_joint_units(robot: Any) -> dict[str, str]:
+    """Units a robot file fixes for bare joint columns.
+
+    A URDF fixes rad / m (the URDF standard); a robot whose ``meta["joint_units"]`` is
+    ``"si"`` or a ``{joint: unit}`` mapping declares them.  Otherwise none.
+    """
+    if robot is None:
+        return {}
+    meta = getattr(robot, "meta", {}) or {}
+    declared = meta.get("joint_units")
+    if isinstance(declared, Mapping):
+        return {str(k): str(v) for k, v in declared.items()}
+    if declared == "si" or meta.get("convention") == "urdf":
+        return {j.name: j.unit for j in robot.joints}
+    return {}
+
+
+def _read_lines(path: str | os.PathLike[str]) -> list[str]:
+    src = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise MeasurementFileError("no such measurement file", source=src) from None
+    except UnicodeDecodeError as exc:
+        raise MeasurementFileError(f"not a UTF-8 text file (byte {exc.start})",
+                                   source=src) from None
+    except OSError as exc:
+        raise MeasurementFileError(f"cannot read: {exc.strerror}", source=src) from None
+    if not text.strip():
+        raise MeasurementFileError("line 1: the file is empty", source=src)
+    return text.splitlines()
+
+
+def parse_tags(first_line: str) -> dict[str, str]:
+    """Tags of a ``# kincal measurements: instrument=NAME; name=BLOCK`` line, else ``{}``."""
+    if not first_line.startswith(TAG_PREFIX):
+        return {}
+    tags: dict[str, str] = {}
+    for part in first_line[len(TAG_PREFIX):].split(";"):
+        if "=" in part:
+            k, v = part.split("=", 1)
+            tags[k.strip()] = v.strip()
+    return tags
+
+
+def read_header(path: str | os.PathLike[str]) -> tuple[dict[str, str], list[str], int]:
+    """The tags, the header's column names and the header's line number (1-based)."""
+    lines = _read_lines(path)
+    tags = parse_tags(lines[0])
+    for i, line in enumerate(lines):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        names = [c.strip() for c in next(csv.reader([line]))]
+        return tags, names, i + 1
+    raise MeasurementFileError(f"line {len(lines)}: no header line (only comments)",
+                               source=str(path))
+
+
+# --------------------------------------------------------------------------- reading
+def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field],
+               units: Mapping[str, str] | None = None, ignore: Sequence[str] = (),
+               joints: bool = True) -> MeasurementTable:
+    """Read a measurement CSV into SI arrays, following the rules of this module.
+
+    Args:
+        path: the CSV file.
+        robot: the robot the joint columns belong to (its ``joints``: name, kind).
+        fields: the instrument's observation columns.
+        units: ``{column or pattern: unit}`` for columns whose header has no unit.
+        ignore: column names or ``*``/``?`` patterns to drop on purpose.
+        joints: False for files without joint columns (e.g. target poses).
+
+    Raises:
+        MeasurementFileError: one line naming the file, line and column.
+    """
+    src = str(path)
+    units = dict(units or {})
+    lines = _read_lines(path)
+    tags = parse_tags(lines[0])
+    body = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and
+            not ln.lstrip().startswith("#")]
+    if not body:
+        raise MeasurementFileError(f"line {len(lines)}: no header line (only comments)",
+                                   source=src)
+    header_line, header_text = body[0]
+    names = [c.strip() for c in next(csv.reader([header_text]))]
+
+    def fail(msg: str, line: int = header_line) -> MeasurementFileError:
+        return MeasurementFileError(f"line {line}: {msg}", source=src)
+
+    seen: dict[str, int] = {}
+    for c, name in enumerate(names, start=1):
+        if not name:
+            raise fail(f"column {c} has an empty name")
+        if name in seen:
+            raise fail(f"column {c} ({name}) repeats column {seen[name]}")
+        seen[name] = c
+
+    # --ignore: every pattern must match something (a typo must not pass unnoticed)
+    ignore_rx = [(p, glob_regex(p)) for p in ignore]
+    for p, rx in ignore_rx:
+        if not any(rx.match(n) for n in names):
+            raise fail(f"--ignore {p!r} matches no column (columns: {', '.join(names)})")
+    # --units: every key must match a column
+    unit_rx = [(k, v, glob_regex(k)) for k, v in units.items()]
+    for k, _, rx in unit_rx:
+        if not any(rx.match(n) for n in names):
+            raise fail(f"--units {k!r} matches no column (columns: {', '.join(names)})")
+
+    jnames = [j.name for j in robot.joints] if joints and robot is not None else []
+    jkind = {j.name: j.kind for j in robot.joints} if jnames else {}
+    robot_units = _robot_joint_units(robot) if jnames else {}
+    lower_j = {n.lower(): n for n in jnames}
+
+    used: list[tuple[int, str, str, str]] = []   # (col index, base, unit, role)
+    ignored: list[str] = []
+    bases: dict[str, int] = {}
+    for c, name in enumerate(names):
+        col = c + 1
+        if any(rx.match(name) for _, rx in ignore_rx):
+            ignored.append(name)
+            continue
+        base, unit = split_unit(name)
+        if base not in jnames and name in jnames:       # a joint whose name ends in _m ...
+            base, unit = name, None
+        if base in jnames:
+            role, want = "joint", ("angle" if jkind[base] == "revolute" else "length")
+        else:
+            fld = next((f for f in fields if f.matches(base)), None)
+            if fld is None:
+                if unit is None and "_" in name:
+                    pre, suf = name.rsplit("_", 1)
+                    if _looks_measured(pre, jnames) and suf not in UNITS:
+                        raise fail(f"column {col} ({name}): unknown unit {suf!r} "
+                                   f"(known: {', '.join(UNITS)})")
+                if _looks_measured(base, jnames):
+                    raise fail(f"column {col} ({name}) " + _unexpected(base, jnames, lower_j,
+                                                                      fields))
+                ignored.append(name)
+                continue
+            role, want = "obs", fld.dimension
+        if base in bases:
+            raise fail(f"column {col} ({name}) repeats {base!r} (column {bases[base]})")
+        bases[base] = col
+        given = next((v for k, v, rx in unit_rx if k == name), None)
+        if unit is not None and given is not None and given != unit:
+            raise fail(f"column {col} ({name}) says its unit is {unit}; --units says {given}")
+        if given is None and unit is None:     # patterns only fill in missing units
+            given = next((v for _, v, rx in unit_rx if rx.match(name)), None)
+        unit = unit or given
+        if unit is None and role == "joint":
+            unit = robot_units.get(base)
+        if unit is None:
+            example = f"{base}_{'deg' if want == 'angle' else 'mm' if want == 'length' else 'px'}"
+            raise fail(f"column {col} ({name}) has no unit: name it like {example!r} or pass "
+                       f"--units {name}=UNIT")
+        if UNITS[unit][0] != want:
+            raise fail(f"column {col} ({name}): unit {unit} is {_a(UNITS[unit][0])}, "
+                       f"expected {_a(want)}")
+        used.append((c, base, unit, role))
+
+    if jnames:
+        missing = [j for j in jnames if j not in bases]
+        if missing:
+            have = [b for _, b, _, r in used if r == "joint"]
+            raise fail(f"no column for joint {missing[0]!r}: robot {robot.name!r} has "
+                       f"{len(jnames)} joints ({', '.join(jnames)}), the file has "
+                       f"{len(have)} joint columns ({', '.join(have) or 'none'})")
+
+    data_rows = body[1:]
+    if not data_rows:
+        raise fail("no data rows after the header", line=header_line)
+    rows = list(csv.reader([ln for _, ln in data_rows]))
+    linenos = np.array([ln for ln, _ in data_rows], dtype=np.intp)
+    width = len(names)
+    for (ln, _), r in zip(data_rows, rows, strict=True):
+        if len(r) != width:
+            raise fail(f"{len(r)} values, but the header has {width} columns", line=ln)
+    idx = [c for c, _, _, _ in used]
+    cells = [[r[c] for c in idx] for r in rows]
+    try:
+        arr = np.array(cells, dtype=float).reshape(len(rows), len(idx))
+    except ValueError:
+        arr = None
+    if arr is None:
+        for (ln, _), r in zip(data_rows, cells, strict=True):
+            for k, s in enumerate(r):
+                try:
+                    float(s)
+                except ValueError:
+                    c = idx[k]
+                    what = "is empty" if not s.strip() else f"{s.strip()!r} is not a number"
+                    raise fail(f"column {c + 1} ({names[c]}): {what}", line=ln) from None
+        raise fail("unreadable numbers")  # pragma: no cover
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i, k = np.argwhere(bad)[0]
+        c = idx[k]
+        raise fail(f"column {c + 1} ({names[c]}): {cells[i][k].strip()!r} is not a finite "
+                   "number", line=int(linenos[i]))
+    scale = np.array([UNITS[u][1] for _, _, u, _ in used])
+    arr = arr * scale
+    pos = {b: k for k, (_, b, _, _) in enumerate(used)}
+    q = (np.stack([arr[:, pos[j]] for j in jnames], axis=1) if jnames
+         else np.zeros((len(rows), 0)))
+    values = {b: arr[:, k] for k, (_, b, _, r) in enumerate(used) if r == "obs"}
+    col_names = {b: names[c] for c, b, _, r in used if r == "obs"}
+    return MeasurementTable(src, tags, q, values, {b: u for _, b, u, _ in used}, linenos,
+                            ignored, col_names, header_line)
+
+
+def _a(word: str) -> str:
+    return ("an " if word[0] in "aeiou" else "a ") + word
+
+
+def _looks_measured(base: str, jnames: Sequence[str]) -> bool:
+    if _LOOKS_MEASURED.fullmatch(base):
+        return True
+    low = base.lower()
+    if any(low == j.lower() for j in jnames):
+        return True
+    import difflib
+
+    return bool(jnames) and bool(difflib.get_close_matches(base, jnames, n=1, cutoff=0.85))
+
+
+def _unexpected(base: str, jnames: Sequence[str], lower_j: Mapping[str, str],
+                fields: Sequence[Field]) -> str:
+    if base.lower() in lower_j:
+        return (f"differs from joint {lower_j[base.lower()]!r} only in case; rename it, or "
+                "list it in --ignore")
+    import difflib
+
+    close = difflib.get_close_matches(base, jnames, n=1, cutoff=0.85)
+    if close or re.fullmatch(r"(q|j|joint)\d+", base, re.IGNORECASE):
+        near = f" (closest joint: {close[0]})" if close else ""
+        return (f"looks like a joint column, but the robot has no joint {base!r}{near}; "
+                f"its joints are {', '.join(jnames) or 'none'} (or list it in --ignore)")
+    expected = "; ".join(f.description or f.pattern for f in fields)
+    return (f"looks like a measurement, but this instrument reads only: {expected}; list it "
+            "in --ignore to drop it")
+
+
+# --------------------------------------------------------------------------- writing
+def joint_columns(robot: Any, n: int, angle_unit: str = "rad", length_unit: str = "m"
+                  ) -> list[tuple[str, float]]:
+    """Header names and SI->file factors of the joint columns.
+
+    With a robot: ``{joint name}_{unit}``; without: ``q{i}_{unit}`` assuming revolute.
+    """
+    if robot is not None:
+        out = []
+        for j in robot.joints:
+            u = angle_unit if j.kind == "revolute" else length_unit
+            out.append((f"{j.name}_{u}", 1.0 / UNITS[u][1]))
+        if len(out) != n:
+            raise MeasurementFileError(f"robot {robot.name!r} has {len(out)} joints, the "
+                                       f"measurements {n}")
+        return out
+    return [(f"q{i + 1}_{angle_unit}", 1.0 / UNITS[angle_unit][1]) for i in range(n)]
+
+
+def format_table(columns: Sequence[tuple[str, Array]], tags: Mapping[str, str] | None = None,
+                 comments: Sequence[str] = ()) -> str:
+    """CSV text: optional tag line, ``#`` comments, header, rows (``%.15g``)."""
+    lines: list[str] = []
+    if tags:
+        lines.append(TAG_PREFIX + " " + "; ".join(f"{k}={v}" for k, v in tags.items()))
+    lines += [f"# {c}" for c in comments]
+    lines.append(",".join(name for name, _ in columns))
+    if columns:
+        M = np.column_stack([np.asarray(v, dtype=float).reshape(-1) for _, v in columns])
+        if not np.all(np.isfinite(M)):
+            raise MeasurementFileError("refusing to write non-finite values")
+        fmt = ",".join(["%.15g"] * M.shape[1])
+        lines += [fmt % tuple(row) for row in M.tolist()]
+    return "\n".join(lines) + "\n"
+
+
+def write_table(path: str | os.PathLike[str], q: Array, observations: Sequence[tuple[str, Array,
+                str]], robot: Any = None, tags: Mapping[str, str] | None = None,
+                angle_unit: str = "rad", length_unit: str = "m",
+                comments: Sequence[str] = ()) -> None:
+    """Write a measurement CSV atomically.
+
+    Args:
+        path: output file (``-`` for stdout).
+        q: (N, n) joint values [rad / m].
+        observations: ``(base name, (N,) SI values, dimension)`` per column; the unit
+            suffix is chosen from ``angle_unit`` / ``length_unit`` by dimension
+            (``px`` for pixels, ``1`` for dimensionless).
+        robot: gives the joint column names; without it ``q1 ... qn``.
+        tags: first-line tags, e.g. ``{"instrument": "position", "name": "tracker"}``.
+    """
+    for u, dim in ((angle_unit, "angle"), (length_unit, "length")):
+        if u not in UNITS or UNITS[u][0] != dim:
+            raise MeasurementFileError(f"unknown {dim} unit {u!r}")
+    q = np.asarray(q, dtype=float)
+    cols: list[tuple[str, Array]] = []
+    if q.ndim == 2 and q.shape[1] > 0:
+        for k, (name, f) in enumerate(joint_columns(robot, q.shape[1], angle_unit,
+                                                    length_unit)):
+            cols.append((name, q[:, k] * f))
+    for base, v, dim in observations:
+        u = {"angle": angle_unit, "length": length_unit, "pixel": "px"}.get(dim, "1")
+        cols.append((f"{base}_{u}", np.asarray(v, dtype=float) / UNITS[u][1]))
+    atomic_write_text(path, format_table(cols, tags, comments))
