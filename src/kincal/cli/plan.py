@@ -1,0 +1,409 @@
+"""``kincal plan``: choose calibration poses and predict the accuracy before measuring.
+
+The command builds a candidate set (random configurations within the joint limits,
+a CSV of configurations, or the configurations the instrument's simulator can
+measure), the design Jacobian of the instrument over the identifiable base set,
+selects ``--poses`` of them by an observability criterion
+(:mod:`kincal.identify.design`), compares the design with random poses from the
+same candidates, predicts the parameter uncertainty and the position error after
+calibration over a workspace grid (:mod:`kincal.identify.prediction`), and writes
+the poses as a CSV (``{joint}_{unit}`` columns, e.g. ``q1_rad``) that the
+measurement-file reader reads back, plus an optional HTML report and JSON.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import math
+from dataclasses import dataclass, field
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from kincal.cli.app import app
+from kincal.cli.common import console, err_console, parse_vector, robot_arg
+from kincal.errors import KincalError
+
+__all__ = ["plan", "Plan", "build_plan", "render_plan_html"]
+
+#: Random designs drawn for the baseline column.
+RANDOM_DESIGNS = 20
+
+_MEANING = {
+    "O1": "(s1...sL)^(1/L)/sqrt(m), Borm & Menq: D-optimality",
+    "O2": "sL/s1, Driels & Pathre: inverse condition number",
+    "O3": "sL, Nahvi et al.: minimum singular value",
+    "O4": "sL^2/s1, Nahvi & Hollerbach: noise amplification",
+    "O5": "1/(1/s1+...+1/sL), Sun & Hollerbach",
+    "kappa": "s1/sL: condition number (smaller is better)",
+}
+
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;
+color:#222}h1{font-size:1.5em}h2{font-size:1.2em;margin-top:1.6em;border-bottom:1px solid #ddd}
+table{border-collapse:collapse;font-size:.88em;margin:.6em 0}th,td{border:1px solid #ddd;
+padding:3px 8px;text-align:right}th{background:#f3f3f3}td.l,th.l{text-align:left}
+img{max-width:100%}.small{font-size:.85em;color:#555}"""
+
+
+@dataclass
+class Plan:
+    """Everything ``kincal plan`` computed (SI units)."""
+
+    problem: Any
+    design: Any
+    prediction: Any
+    random_indices: list[dict[str, float]]
+    random_rms: list[float]
+    random_prediction: Any
+    random_singular_values: Any
+    inputs: dict[str, str] = field(default_factory=dict)
+    dropped: int = 0
+
+
+def _criterion(text: str) -> str:
+    from kincal.identify.observability import CRITERIA
+
+    key = text.strip()
+    key = "kappa" if key.lower() == "kappa" else key.upper()
+    if key not in CRITERIA:
+        raise KincalError(f"option --criterion: unknown criterion {text!r}; use one of "
+                          f"{', '.join(CRITERIA)}")
+    return key
+
+
+def build_plan(robot: Any, *, instrument: str = "position", poses: int = 30,
+               criterion: str = "O1", candidates: int = 2000,
+               candidates_file: str | None = None, reachable: bool = False,
+               units: str | None = None, ignore: list[str] | None = None,
+               noise: float = 1e-5, orientation_noise: float = 1e-5,
+               marker: np.ndarray | None = None, scaling: str = "workspace",
+               min_distance: float = 0.0, margin: float = 0.05, grid: int = 3,
+               exchange: bool = True, seed: int = 0, progress: Any = None) -> Plan:
+    """Candidates -> design problem -> selection -> prediction, with a random baseline."""
+    from kincal.identify.design import (
+        instrument_candidates,
+        random_candidates,
+        random_design,
+        read_configurations,
+        select_poses,
+    )
+    from kincal.identify.observability import DEFAULT_MARKER, design_problem
+    from kincal.identify.prediction import predict_accuracy, workspace_grid
+    from kincal.measure.files import parse_list_option, parse_units_option
+
+    rng = np.random.default_rng(seed)
+    opts: dict[str, Any] = {"scaling": scaling}
+    if instrument in ("position", "pose"):
+        opts.update(noise=noise, orientation_noise=orientation_noise,
+                    marker=DEFAULT_MARKER if marker is None else marker)
+    dropped = 0
+    if progress is not None:
+        progress("candidate Jacobian", 0, 1)
+    if reachable:
+        from kincal.measure.registry import get_instrument
+
+        inst_opts = {"margin": margin} if "margin" in get_instrument(instrument).options else {}
+        problem = instrument_candidates(robot, instrument, candidates, rng, inst_opts, **opts)
+        source = f"{problem.num_candidates} configurations measurable by {instrument}"
+    else:
+        if candidates_file:
+            q, dropped = read_configurations(candidates_file, robot, parse_units_option(units),
+                                             parse_list_option(ignore))
+            source = f"{len(q)} configurations from {candidates_file}"
+        else:
+            q = random_candidates(robot, candidates, rng, margin)
+            source = f"{len(q)} random configurations within the joint limits"
+        problem = design_problem(robot, q, instrument, **opts)
+    design = select_poses(problem, poses, criterion, min_distance=min_distance,
+                          exchange=exchange, progress=progress)
+    q_eval = workspace_grid(robot, grid, margin=0.1)
+    pred = predict_accuracy(problem, design, q_eval)
+    rnd, rms, preds = [], [], []
+    for _ in range(RANDOM_DESIGNS):
+        d = random_design(problem, poses, rng, min_distance=min_distance)
+        p = predict_accuracy(problem, d, q_eval)
+        rnd.append(d)
+        rms.append(p.rms)
+        preds.append(p)
+    med = int(np.argsort(rms)[len(rms) // 2])
+    inputs = {"robot": robot.name, "instrument": instrument, "candidates": source,
+              "poses": str(poses), "criterion": f"{criterion} ({design.method})",
+              "scaling": scaling, "noise": f"{noise * 1e3:g} mm per coordinate",
+              "minimum distance": f"{math.degrees(min_distance):g} deg (joint space)",
+              "evaluation": f"joint-space grid, {grid} values per joint "
+                            f"({len(q_eval)} configurations)", "seed": str(seed)}
+    return Plan(problem, design, pred, [d.indices.as_dict() for d in rnd], rms, preds[med],
+                rnd[med].indices.singular_values, inputs, dropped)
+
+
+# --------------------------------------------------------------------------- output
+def _fmt_std(value: float, unit: str) -> str:
+    if unit == "m":
+        return f"{value * 1e3:.4g} mm"
+    if unit == "rad":
+        return f"{math.degrees(value) * 3600:.4g} arcsec"
+    return f"{value:.4g} {unit}"
+
+
+def _indices_table(plan: Plan) -> Table:
+    from kincal.identify.observability import INDICES
+
+    t = Table(title=f"Observability indices ({plan.problem.scaling} scaling): design vs "
+                    f"median of {RANDOM_DESIGNS} random designs")
+    for c in ("index", "design", "random", "definition"):
+        t.add_column(c, justify="left" if c in ("index", "definition") else "right")
+    ind = plan.design.indices.as_dict()
+    for k in INDICES:
+        med = float(np.median([r[k] for r in plan.random_indices]))
+        mark = " *" if k == plan.design.criterion else ""
+        t.add_row(k + mark, f"{ind[k]:.4g}", f"{med:.4g}", _MEANING[k])
+    return t
+
+
+def _accuracy_table(plan: Plan) -> Table:
+    p, r = plan.prediction, plan.random_prediction
+    t = Table(title=f"Predicted position error after calibration over {len(p.q_eval)} "
+                    f"grid configurations [mm] (noise {p.noise * 1e3:g} mm)")
+    for c in ("poses", "RMS", "95 %", "max"):
+        t.add_column(c, justify="left" if c == "poses" else "right")
+    t.add_row(f"{plan.design.criterion} design", f"{p.rms * 1e3:.4g}", f"{p.p95 * 1e3:.4g}",
+              f"{p.max * 1e3:.4g}")
+    t.add_row("random (median)", f"{r.rms * 1e3:.4g}", f"{r.p95 * 1e3:.4g}",
+              f"{r.max * 1e3:.4g}")
+    return t
+
+
+def _param_table(plan: Plan) -> Table:
+    p = plan.prediction
+    t = Table(title=f"Predicted standard deviation of the {len(p.names)} estimated "
+                    "parameters")
+    t.add_column("parameter")
+    t.add_column("std", justify="right")
+    for n, u, s in zip(p.names, p.units, p.std, strict=True):
+        t.add_row(n, _fmt_std(float(s), u))
+    return t
+
+
+def render_plan_html(plan: Plan) -> str:
+    """A self-contained HTML page: inputs, indices, prediction, figure, the poses."""
+    from kincal.identify.observability import INDICES
+    from kincal.identify.prediction import prediction_figure
+
+    p, d = plan.prediction, plan.design
+    esc = html.escape
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>kincal plan: "
+             f"{esc(plan.inputs.get('robot', ''))}</title><style>{_CSS}</style></head><body>",
+             f"<h1>Calibration plan for {esc(plan.inputs.get('robot', ''))}</h1><table>"]
+    parts += [f'<tr><th class="l">{esc(k)}</th><td class="l">{esc(v)}</td></tr>'
+              for k, v in plan.inputs.items()]
+    parts.append("</table><h2>Observability indices</h2><table><tr><th>index</th><th>design"
+                 f"</th><th>random (median of {RANDOM_DESIGNS})</th><th class='l'>definition"
+                 "</th></tr>")
+    ind = d.indices.as_dict()
+    for k in INDICES:
+        med = float(np.median([r[k] for r in plan.random_indices]))
+        parts.append(f"<tr><td class='l'>{k}</td><td>{ind[k]:.4g}</td><td>{med:.4g}</td>"
+                     f"<td class='l'>{esc(_MEANING[k])}</td></tr>")
+    parts.append("</table><h2>Predicted accuracy after calibration</h2>"
+                 f"<p>Expected RMS position error over the grid: <b>{p.rms * 1e3:.4g} mm</b> "
+                 f"(95 %: {p.p95 * 1e3:.4g} mm, max {p.max * 1e3:.4g} mm); random poses: "
+                 f"{plan.random_prediction.rms * 1e3:.4g} mm. Noise {p.noise * 1e3:g} mm per "
+                 "coordinate; linearised least squares at the nominal parameters "
+                 "(Cramér-Rao bound).</p>")
+    png = prediction_figure(p, plan.random_prediction,
+                            [d.indices.singular_values, plan.random_singular_values],
+                            labels=(f"{d.criterion} design", "random"))
+    parts.append('<img alt="prediction" src="data:image/png;base64,'
+                 + base64.b64encode(png).decode("ascii") + '">')
+    parts.append("<h2>Estimated parameters</h2><table><tr><th class='l'>parameter</th>"
+                 "<th>predicted std</th></tr>")
+    parts += [f"<tr><td class='l'>{esc(n)}</td><td>{_fmt_std(float(s), u)}</td></tr>"
+              for n, u, s in zip(p.names, p.units, p.std, strict=True)]
+    held = plan.problem.report.not_identifiable
+    parts.append("</table>" + (f"<p class='small'>Not identifiable from these candidates "
+                               f"(held at nominal): {esc(', '.join(held))}</p>" if held else ""))
+    robot = plan.problem.robot
+    parts.append("<h2>Poses (deg / mm)</h2><table><tr><th>#</th>" + "".join(
+        f"<th>{esc(j.name)}</th>" for j in robot.joints) + "</tr>")
+    rev = np.array([j.kind == "revolute" for j in robot.joints])
+    for i, q in enumerate(d.q, start=1):
+        v = np.where(rev, np.degrees(q), q * 1e3)
+        parts.append(f"<tr><td>{i}</td>" + "".join(f"<td>{x:.3f}</td>" for x in v) + "</tr>")
+    now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
+    parts.append(f"</table><p class='small'>kincal plan, {now}.</p></body></html>")
+    return "\n".join(parts)
+
+
+class _Bar:
+    """A rich progress bar fed by ``progress(phase, done, total)``."""
+
+    def __init__(self) -> None:
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                                 TextColumn("{task.completed}/{task.total}"),
+                                 TimeElapsedColumn(), console=err_console, transient=True)
+        self.task: Any = None
+        self.phase: str | None = None
+
+    def __enter__(self) -> _Bar:
+        self.progress.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.progress.__exit__(*exc)
+
+    def __call__(self, phase: str, done: int, total: int) -> None:
+        if phase != self.phase:
+            if self.task is not None:
+                self.progress.update(self.task, visible=False)
+            self.phase = phase
+            self.task = self.progress.add_task(phase, total=total)
+        self.progress.update(self.task, completed=done, total=total)
+
+
+@app.command()
+def plan(
+    robot: Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
+                                         "path to a YAML or URDF robot file.")],
+    output: Annotated[str, typer.Option("-o", "--output", help="CSV of the selected poses "
+                                        "(columns named as the robot's joints with units, "
+                                        "e.g. q1_rad).")],
+    instrument: Annotated[str, typer.Option("--instrument", "-i", help="Instrument that will "
+                                            "measure: position (laser tracker), pose, or any "
+                                            "of `kincal instruments` with --reachable.")
+                          ] = "position",
+    poses: Annotated[int, typer.Option("--poses", "-n", min=1, help="Number of poses to "
+                                       "select.")] = 30,
+    criterion: Annotated[str, typer.Option("--criterion", "-c", help="O1 (D-optimal, DETMAX), "
+                                           "O2, O3, O4, O5 (exchange) or kappa (greedy "
+                                           "condition number, seed 001).")] = "O1",
+    candidates: Annotated[int, typer.Option("--candidates", min=1, help="Number of random "
+                                            "candidate configurations.")] = 2000,
+    candidates_file: Annotated[str | None, typer.Option("--candidates-file", help="CSV of "
+                                                        "candidate configurations (joint "
+                                                        "columns with units) instead of "
+                                                        "random ones.")] = None,
+    reachable: Annotated[bool, typer.Option("--reachable", help="Candidates from the "
+                                            "instrument's simulator (configurations it can "
+                                            "measure).")] = False,
+    noise_mm: Annotated[float, typer.Option("--noise-mm", min=0.0, help="Instrument noise per "
+                                            "coordinate, in mm.")] = 0.01,
+    orientation_noise_deg: Annotated[float, typer.Option(
+        "--orientation-noise-deg", min=0.0,
+        help="Pose instrument: rotation noise per axis, in deg.")
+    ] = 0.005,
+    marker_mm: Annotated[str | None, typer.Option("--marker-mm", help="Marker (or target "
+                                                  "origin) in the tool frame, 'x,y,z' in mm; "
+                                                  "default 20,10,50.")] = None,
+    scaling: Annotated[str, typer.Option("--scaling", help="workspace (default), unit or "
+                                         "errors: the Jacobian scaling of the indices.")
+                       ] = "workspace",
+    min_distance_deg: Annotated[float, typer.Option("--min-distance-deg", min=0.0, help="Minimum "
+                                                    "joint-space distance between poses, "
+                                                    "in deg.")] = 0.0,
+    margin: Annotated[float, typer.Option("--margin", min=0.0, max=0.45, help="Fraction of "
+                                          "each joint range kept away from the limits.")
+                      ] = 0.05,
+    grid: Annotated[int, typer.Option("--grid", min=1, max=12, help="Values per joint of the "
+                                      "evaluation grid.")] = 3,
+    no_exchange: Annotated[bool, typer.Option("--no-exchange", help="Greedy selection only "
+                                              "(no DETMAX / exchange).")] = False,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    report: Annotated[str | None, typer.Option("--report", help="Write an HTML report here.")
+                      ] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Also write the plan as JSON "
+                                                 "('-' for stdout).")] = None,
+    angle_unit: Annotated[str, typer.Option("--angle-unit", help="Angle unit of the CSV: rad, "
+                                            "deg.")] = "rad",
+    length_unit: Annotated[str, typer.Option("--length-unit", help="Length unit of the CSV "
+                                             "(prismatic joints): m, mm.")] = "m",
+    units: Annotated[str | None, typer.Option("--units", help="Units of candidate-file "
+                                              "columns without one, e.g. 'q1=deg'.")] = None,
+    ignore: Annotated[list[str] | None, typer.Option("--ignore", help="Candidate-file columns "
+                                                     "to drop.")] = None,
+    base_link: Annotated[str | None, typer.Option("--base-link", help="URDF only: first link.")
+                         ] = None,
+    tip_link: Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link.")
+                        ] = None,
+) -> None:
+    """Choose calibration poses by an observability index (O1-O5, kappa) and predict the
+    accuracy after calibration before measuring anything."""
+    from kincal.identify.design import write_poses
+    from kincal.io import atomic_write_text, write_json
+    from kincal.measure.files import UNITS
+
+    crit = _criterion(criterion)
+    for u, dim, opt in ((angle_unit, "angle", "--angle-unit"),
+                        (length_unit, "length", "--length-unit")):
+        if u not in UNITS or UNITS[u][0] != dim:
+            raise KincalError(f"option {opt}: {u!r} is not {'an' if dim == 'angle' else 'a'} "
+                              f"{dim} unit")
+    if noise_mm <= 0:
+        raise KincalError("option --noise-mm must be positive")
+    if instrument == "pose" and orientation_noise_deg <= 0:
+        raise KincalError("option --orientation-noise-deg must be positive")
+    if candidates_file and reachable:
+        raise KincalError("use either --candidates-file or --reachable, not both")
+    from kincal.measure.registry import get_instrument
+
+    get_instrument(instrument)                       # unknown names: one line listing them
+    if instrument not in ("position", "pose") and not reachable:
+        raise KincalError(f"instrument {instrument!r}: its poses cannot be placed at arbitrary "
+                          "configurations; add --reachable to take the candidates from its "
+                          "simulator")
+    r = robot_arg(robot, base_link, tip_link)
+    if not hasattr(r, "param_jacobian"):
+        raise KincalError(f"robot {getattr(r, 'name', robot)!r}: `kincal plan` works on serial "
+                          "robots")
+    marker = None if marker_mm is None else parse_vector(marker_mm, "--marker-mm", 3) * 1e-3
+    out = err_console if json_out == "-" else console
+    with _Bar() as bar:
+        p = build_plan(r, instrument=instrument, poses=poses, criterion=crit,
+                       candidates=candidates, candidates_file=candidates_file,
+                       reachable=reachable, units=units, ignore=ignore,
+                       noise=noise_mm * 1e-3,
+                       orientation_noise=math.radians(orientation_noise_deg) or 1e-5,
+                       marker=marker, scaling=scaling,
+                       min_distance=math.radians(min_distance_deg), margin=margin, grid=grid,
+                       exchange=not no_exchange, seed=seed, progress=bar)
+    d, pred = p.design, p.prediction
+    html_text = render_plan_html(p) if report else None
+    comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={crit} "
+                f"({d.method}); poses={d.poses}; seed={seed}",
+                f"predicted RMS position error after calibration: {pred.rms * 1e3:.4g} mm "
+                f"(noise {noise_mm:g} mm); O1={d.indices.O1:.4g} kappa={d.indices.kappa:.4g}"]
+    write_poses(output, r, d.q, angle_unit=angle_unit, length_unit=length_unit,
+                comments=comments)
+    if html_text is not None:
+        atomic_write_text(report, html_text)
+    n_all = len(p.problem.problem.names)
+    out.print(f"{escape(r.name)}: {p.problem.num_params} of {n_all} parameters identifiable "
+              f"from {escape(p.inputs['candidates'])}"
+              + (f" ({p.dropped} row{'s' if p.dropped > 1 else ''} outside the joint limits "
+                 "dropped)" if p.dropped else ""))
+    out.print(f"selected {d.poses} poses by {crit} ({d.method}, {d.exchanges} exchanges)")
+    out.print(_indices_table(p))
+    out.print(_accuracy_table(p))
+    out.print(_param_table(p))
+    cols = ", ".join(f"{j.name}_{angle_unit if j.kind == 'revolute' else length_unit}"
+                     for j in r.joints)
+    out.print(f"wrote {d.poses} poses -> {escape(output)} (columns {cols})"
+              + (f"; report -> {escape(report)}" if report else ""))
+    if json_out:
+        write_json(json_out, {
+            "robot": r.name, "instrument": instrument, "criterion": crit,
+            "method": d.method, "poses": d.q.tolist(), "candidate_indices": d.selected.tolist(),
+            "joint_names": list(r.joint_names), "indices": d.indices.as_dict(),
+            "random_indices_median": {k: float(np.median([x[k] for x in p.random_indices]))
+                                      for k in d.indices.as_dict()},
+            "identifiable": list(p.problem.names),
+            "not_identifiable": p.problem.report.not_identifiable,
+            "prediction": pred.to_dict(),
+            "random_prediction_rms_position_m": float(np.median(p.random_rms)),
+            "output": output, "report": report})
