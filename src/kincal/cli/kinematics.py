@@ -13,6 +13,7 @@ from rich.table import Table
 from kincal.cli.app import app
 from kincal.cli.common import console, fmt_value, joint_vector, matrix_table, robot_arg
 from kincal.io import write_json
+from kincal.robots.chain import Robot
 from kincal.robots.files import library_dir, library_names, read_robot_yaml
 
 RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
@@ -53,16 +54,8 @@ def robots() -> None:
     console.print(t)
 
 
-@app.command()
-def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
-         json_out: JsonOut = None) -> None:
-    """Show a robot's joints and its named parameters with units."""
-    r = robot_arg(robot, base_link, tip_link)
-    if _is_fivebar(r):
-        from kincal.cli.fivebar import show_fivebar
-
-        show_fivebar(r, console)
-        return
+def _print_robot(r: Robot) -> None:
+    """Joint table, parameter table (mm / deg for people) and the source of the numbers."""
     jt = Table(title=f"{r.name}: {r.n} joints ({r.meta.get('convention', '')})")
     for c in ("#", "joint", "type", "lower", "upper"):
         jt.add_column(c, justify="right" if c in ("#", "lower", "upper") else "left")
@@ -83,6 +76,20 @@ def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
     console.print(pt)
     if "source" in r.meta:
         console.print(f"[dim]source: {escape(str(r.meta['source']))}[/dim]")
+
+
+@app.command()
+def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
+         json_out: JsonOut = None) -> None:
+    """Show a robot's joints and its named parameters with units."""
+    r = robot_arg(robot, base_link, tip_link)
+    if _is_fivebar(r):
+        from kincal.cli.fivebar import show_fivebar
+
+        show_fivebar(r, console)
+        return
+    if json_out != "-":
+        _print_robot(r)
     if json_out:
         write_json(json_out, {"name": r.name, "joints": [
             {"name": j.name, "type": j.kind, "lower": j.lower if math.isfinite(j.lower) else None,

@@ -14,8 +14,11 @@ ends.
 
 Forward kinematics applies the transforms to a running frame ``(R, p)``: a rotation
 mixes two columns of ``R``, a translation adds a column of ``R`` to ``p``; everything is
-vectorised over the N configurations (the only Python loop runs over the K
-transforms).
+vectorised over the N configurations.  For speed, each robot compiles its chain once
+(:class:`_Plan`): the constant transforms between two joints are multiplied into one
+4x4 block, applied as a single matrix product, and the configurations are processed in
+blocks of a few thousand so that the temporaries stay in the CPU caches (the Python
+loops run over the joints and over those blocks, never over configurations).
 
 Derivatives need no differentiation.  Perturbing the value of ``E_k`` by ``dv`` moves
 the end frame by the unit twist of ``E_k``'s axis ``a_k`` (a column of the running
@@ -31,8 +34,11 @@ Jacobian (constant values) from one pass.  Units: metres and radians throughout.
 from __future__ import annotations
 
 import difflib
+import math
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
@@ -243,36 +249,6 @@ class Robot:
             out.append(c + et.scale * q[:, et.joint] if et.joint >= 0 else float(c))
         return out
 
-    def _sweep(self, q: Array, record: bool) -> tuple[list[Array], Array, list[tuple]]:
-        """Run the chain over all configurations.
-
-        Returns the end rotation columns ``[x, y, z]`` (each (3, N)), the end position
-        (3, N) and, when ``record``, for every transform its (axis (3, N), origin (3, N)).
-        """
-        N = q.shape[0]
-        cols = [np.zeros((3, N)) for _ in range(3)]
-        for i in range(3):
-            cols[i][i] = 1.0
-        p = np.zeros((3, N))
-        rec: list[tuple] = []
-        for et, v in zip(self.ets, self._values(q), strict=True):
-            ax = _AXIS[et.kind]
-            if record:
-                rec.append((cols[ax], p))
-            if et.kind in ROTATIONS:
-                if isinstance(v, float) and v == 0.0:
-                    continue
-                c, s = np.cos(v), np.sin(v)
-                i, j = (ax + 1) % 3, (ax + 2) % 3
-                ci, cj = cols[i], cols[j]
-                cols[i] = c * ci + s * cj
-                cols[j] = c * cj - s * ci
-            else:
-                if isinstance(v, float) and v == 0.0:
-                    continue
-                p = p + v * cols[ax]
-        return cols, p, rec
-
     @staticmethod
     def _assemble(cols: list[Array], p: Array) -> Array:
         N = p.shape[1]
@@ -284,39 +260,16 @@ class Robot:
         T[:, 3, 3] = 1.0
         return T
 
+    @cached_property
+    def _plan(self) -> _Plan:
+        """The chain compiled for batched evaluation (built on first use, per robot)."""
+        return _Plan(self)
+
     def fk(self, q: ArrayLike) -> Array:
         """Forward kinematics ``T(q) = E_1 ... E_K``: (N, n) -> (N, 4, 4); (n,) -> (4, 4)."""
         q2, single = self._check_q(q)
-        cols, p, _ = self._sweep(q2, record=False)
-        T = self._assemble(cols, p)
+        T, _, _ = self._plan.evaluate(q2, joints=False, params=False)
         return T[0] if single else T
-
-    def _twists(self, rec: list[tuple], p_end: Array, ks: Sequence[int]) -> Array:
-        """Unit twists ``[dp; dphi]`` of transforms ``ks`` at the end point: (6, len(ks), N)."""
-        N = p_end.shape[1]
-        out = np.zeros((6, len(ks), N))
-        rot = [c for c, k in enumerate(ks) if self.ets[k].is_rotation]
-        tra = [c for c, k in enumerate(ks) if not self.ets[k].is_rotation]
-        if rot:
-            axes = np.stack([rec[ks[c]][0] for c in rot], 1)          # (3, R, N)
-            arms = p_end[:, None, :] - np.stack([rec[ks[c]][1] for c in rot], 1)
-            out[:3, rot] = np.cross(axes, arms, axis=0)
-            out[3:, rot] = axes
-        if tra:
-            out[:3, tra] = np.stack([rec[ks[c]][0] for c in tra], 1)
-        return out
-
-    def _scatter(self, tw: Array, ks: Sequence[int], attr: str, width: int) -> Array:
-        """Sum twists (6, K, N) into columns ``et.<attr>`` -> (N, 6, width)."""
-        N = tw.shape[2]
-        targets = [getattr(self.ets[k], attr) for k in ks]
-        if attr == "joint":
-            tw = tw * np.array([self.ets[k].scale for k in ks])[None, :, None]
-        if targets == list(range(width)):
-            return np.transpose(tw, (2, 0, 1))
-        out = np.zeros((6, width, N))
-        np.add.at(out, (slice(None), np.array(targets, dtype=np.intp)), tw)
-        return np.transpose(out, (2, 0, 1))
 
     def fk_with_jacobians(
         self, q: ArrayLike, joints: bool = True, params: bool = True
@@ -329,16 +282,7 @@ class Robot:
         columns in ``param_names`` order).  Always batched (N >= 1).
         """
         q2, _ = self._check_q(q)
-        cols, p, rec = self._sweep(q2, record=True)
-        T = self._assemble(cols, p)
-        J = Jp = None
-        if joints:
-            ks = [k for k, et in enumerate(self.ets) if et.joint >= 0]
-            J = self._scatter(self._twists(rec, p, ks), ks, "joint", self.n)
-        if params:
-            ks = [k for k, et in enumerate(self.ets) if et.param >= 0]
-            Jp = self._scatter(self._twists(rec, p, ks), ks, "param", self.num_params)
-        return T, J, Jp
+        return self._plan.evaluate(q2, joints=joints, params=params)
 
     def jacobian(self, q: ArrayLike, frame: Literal["base", "tool"] = "base") -> Array:
         """Geometric Jacobian ``[v; omega] = J(q) q_dot``: (N, 6, n), or (6, n) for (n,).
@@ -426,6 +370,357 @@ def _to_tool_frame(T: Array, J: Array) -> Array:
     out[:, :3] = Rt @ J[:, :3]
     out[:, 3:] = Rt @ J[:, 3:]
     return out
+
+
+# ---------------------------------------------------------------------------
+# Batched evaluation
+
+
+#: Working memory per block of configurations [bytes]: blocks of a few thousand
+#: configurations keep the temporaries in the CPU caches and amortise the Python
+#: overhead (a performance setting only; the results do not depend on it).
+_BLOCK_BYTES = 1 << 23
+_BLOCK_MIN, _BLOCK_MAX = 512, 8192
+#: Per-thread pool of block working arrays (see :meth:`_Plan._scratch`).
+_SCRATCH = threading.local()
+_SCRATCH_BYTES = 1 << 26
+
+
+def _et_matrix(kind: str, v: float) -> Array:
+    """4x4 homogeneous matrix of one elementary transform with value ``v``."""
+    T = np.eye(4)
+    ax = _AXIS[kind]
+    if kind in ROTATIONS:
+        c, s = math.cos(v), math.sin(v)
+        i, j = (ax + 1) % 3, (ax + 2) % 3
+        T[i, i] = T[j, j] = c
+        T[j, i], T[i, j] = s, -s
+    else:
+        T[ax, 3] = v
+    return T
+
+
+def _block_step(G: Array) -> tuple[str, Any]:
+    """How to apply the constant block ``G`` (4x4) to the running frame."""
+    if np.array_equal(G, np.eye(4)):
+        return "identity", None
+    if np.array_equal(G[:3, :3], np.eye(3)):
+        return "shift", [(i, float(G[i, 3])) for i in range(3) if G[i, 3] != 0.0]
+    return "matrix", np.ascontiguousarray(G.T)
+
+
+class _Plan:
+    """A robot's chain compiled for batched evaluation.
+
+    The chain is ``P E_1 C_1 E_2 C_2 ... E_J C_J``: ``E_m`` the elementary transforms
+    that carry a joint, ``P`` and ``C_m`` the products of the constant transforms
+    between them (4x4, computed once here).  A block of configurations holds the running
+    frame as ``F`` (4, 3, L): its three rotation columns and its origin, each a 3-vector
+    per configuration.  A joint rotation mixes two of the columns, a joint translation adds
+    a column to the origin, and a constant block is one matrix product ``F <- C^T F``
+    (``F`` flattened to (4, 3L)).
+
+    Jacobians come from the frame ``S_m`` just after each joint: the frame at any
+    elementary transform ``k`` of the block that follows joint ``m`` is ``S_m G_k`` with
+    ``G_k`` the constant product between them, so its axis and origin are the fixed
+    combinations ``S_m G_k[:, axis]`` and ``S_m G_k[:, 3]`` of ``S_m``'s four columns,
+    again a matrix product for all the transforms of a block at once.
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        ets = robot.ets
+        pv = robot.param_values
+        value = [float(pv[et.param]) if et.param >= 0 else float(et.constant) for et in ets]
+        carriers = [k for k, et in enumerate(ets) if et.joint >= 0]
+        bounds = carriers + [len(ets)]
+        self.n, self.P = robot.n, robot.num_params
+        self.J = len(carriers)
+
+        # parameter rows: the transforms with a parameter, in chain order, grouped by the
+        # frame they are measured from (-1: the constant prefix, m: joint m's frame)
+        rows_group: list[int] = []
+        u_ax: list[Array] = []
+        u_org: list[Array] = []
+
+        def constant_run(start: int, stop: int, group: int) -> Array:
+            G = np.eye(4)
+            for k in range(start, stop):
+                if ets[k].param >= 0:
+                    rows_group.append(group)
+                    u_ax.append(G[:, _AXIS[ets[k].kind]].copy())
+                    u_org.append(G[:, 3].copy())
+                G = G @ _et_matrix(ets[k].kind, value[k])
+            return G
+
+        prefix = constant_run(0, bounds[0], -1)
+        self.prefix = np.ascontiguousarray(prefix[:3, :].T)[:, :, None]      # (4, 3, 1)
+        self.posts: list[tuple[str, Any]] = []
+        axes, kinds, joints, scales, offsets = [], [], [], [], []
+        for m, k in enumerate(carriers):
+            et = ets[k]
+            if et.param >= 0:
+                rows_group.append(m)
+                u_ax.append(np.eye(4)[:, _AXIS[et.kind]])
+                u_org.append(np.eye(4)[:, 3])
+            G = constant_run(k + 1, bounds[m + 1], m)
+            self.posts.append(_block_step(G))
+            axes.append(_AXIS[et.kind])
+            kinds.append(et.is_rotation)
+            joints.append(et.joint)
+            scales.append(et.scale)
+            offsets.append(value[k])
+        self.axes = np.array(axes, dtype=np.intp)
+        self.rot = np.array(kinds, dtype=bool)
+        self.all_rot = bool(self.rot.all())
+        self.joint_of = np.array(joints, dtype=np.intp)
+        self.scales = np.array(scales, dtype=float)
+        self.offsets = np.array(offsets, dtype=float)
+        self.negative = np.flatnonzero(self.scales != 1.0)
+        self.identity_q = bool(np.all(self.scales == 1.0) and np.all(self.offsets == 0.0))
+        self.in_joint_order = bool(np.array_equal(self.joint_of, np.arange(self.J)))
+        self.same_axis = bool(self.J and np.all(self.axes == self.axes[0]))
+
+        # parameter rows
+        pk = [k for k, et in enumerate(ets) if et.param >= 0]
+        self.R = len(pk)
+        self.rows_rot = np.array([ets[k].is_rotation for k in pk], dtype=bool)
+        self.rows_tra = np.flatnonzero(~self.rows_rot)
+        self.row_param = np.array([ets[k].param for k in pk], dtype=np.intp)
+        self.rows_are_params = bool(np.array_equal(self.row_param, np.arange(self.P)))
+        self.rows_unique = len(set(self.row_param.tolist())) == self.R
+        g = np.array(rows_group, dtype=np.intp)
+        UA = np.array(u_ax).reshape(-1, 4)
+        UO = np.array(u_org).reshape(-1, 4)
+        # constant prefix rows: axis and origin are fixed vectors
+        pre = np.flatnonzero(g == -1)
+        self.pre_rows = slice(0, len(pre))
+        self.pre_ax = UA[pre, :3][:, :, None]
+        self.pre_org = UO[pre, :3][:, :, None]
+        self.groups: list[tuple[int, slice, Array, Array]] = []
+        for m in range(self.J):
+            idx = np.flatnonzero(g == m)
+            if len(idx):
+                self.groups.append((m, slice(int(idx[0]), int(idx[-1]) + 1),
+                                    np.ascontiguousarray(UA[idx]), np.ascontiguousarray(UO[idx])))
+
+    # ------------------------------------------------------------------ sweep
+    def _block_size(self, N: int, joints: bool, params: bool) -> int:
+        """Configurations per block: the block's arrays fit in ``_BLOCK_BYTES``."""
+        per = 8 * (12 * 2 + 6 + 3 * self.J)                   # frames, temporaries, trig
+        if joints or params:
+            per += 8 * (12 * self.J + 10 * self.J)             # joint frames, Jacobian block
+        if params:
+            per += 8 * 16 * self.R                             # axes, arms, twists
+        L = 1 << max((_BLOCK_BYTES // per).bit_length() - 1, 0)
+        return max(1, min(N, max(_BLOCK_MIN, min(_BLOCK_MAX, L))))
+
+    def _joint_values(self, q: Array, sl: slice, V: Array) -> Array:
+        """Joint transform values ``c_m + s_m q_j`` of a block into ``V`` (J, L), chain order."""
+        np.copyto(V, (q[sl] if self.in_joint_order else q[sl][:, self.joint_of]).T)
+        if not self.identity_q:
+            V *= self.scales[:, None]
+            V += self.offsets[:, None]
+        return V
+
+    def evaluate(self, q: Array, joints: bool, params: bool
+                 ) -> tuple[Array, Array | None, Array | None]:
+        N = q.shape[0]
+        record = joints or params
+        # Jacobians are stored (6, columns, N) and returned as (N, 6, columns) views: every
+        # block then writes whole rows, never a transposed copy
+        T = np.empty((N, 4, 4))
+        J = np.empty((6, self.n, N)) if joints else None
+        Jp = np.empty((6, self.P, N)) if params else None
+        out = (T, None if J is None else J.transpose(2, 0, 1),
+               None if Jp is None else Jp.transpose(2, 0, 1))
+        if N == 0:
+            return out
+        L = self._block_size(N, joints, params)
+        for start in range(0, N, L):
+            sl = slice(start, min(N, start + L))
+            b = self._scratch(sl.stop - sl.start, record, params)
+            F, S = self._sweep(q, sl, b, record)
+            Tb = T[sl]
+            for c in range(4):
+                for r in range(3):
+                    Tb[:, r, c] = F[c, r]
+            Tb[:, 3, :3] = 0.0
+            Tb[:, 3, 3] = 1.0
+            if joints:
+                self._joint_columns(F, S, b, J[:, :, sl])  # type: ignore[index]
+            if params:
+                self._param_columns(F, S, b, Jp[:, :, sl])  # type: ignore[index]
+        return out
+
+    def _scratch(self, L: int, record: bool, params: bool) -> dict[str, Array]:
+        """Working arrays for a block of ``L`` configurations.
+
+        Allocating them afresh on every call costs more than the arithmetic for small N,
+        so they are kept between calls in a per-thread pool shared by all robots of the
+        same shape (at most ``_SCRATCH_BYTES`` per thread; never part of a result).
+        """
+        pool = getattr(_SCRATCH, "pool", None)
+        if pool is None:
+            pool = _SCRATCH.pool = {}
+            _SCRATCH.nbytes = 0
+        key = (L, self.J, self.R if params else -1, record)
+        b = pool.get(key)
+        if b is None:
+            b = self._buffers(L, record, params)
+            size = sum(a.nbytes for a in b.values())
+            if _SCRATCH.nbytes + size > _SCRATCH_BYTES:
+                pool.clear()
+                _SCRATCH.nbytes = 0
+            pool[key] = b
+            _SCRATCH.nbytes += size
+        return b
+
+    def _buffers(self, L: int, record: bool, params: bool) -> dict[str, Array]:
+        J = self.J
+        b = {"t1": np.empty((3, L)), "t2": np.empty((3, L)),
+             "V": np.empty((J, L)), "cos": np.empty((J, L)), "sin": np.empty((J, L))}
+        if record:
+            b["S"] = np.empty((J + 1, 4, 3, L))
+            b["D"] = np.empty((J, 3, L))
+            b["tmp"] = np.empty((J, L))
+            b["Jb"] = np.empty((6, J, L))
+        else:
+            b["X"] = np.empty((4, 3, L))
+            b["Y"] = np.empty((4, 3, L))
+        if params:
+            R = self.R
+            b["AX"] = np.empty((R, 3, L))
+            b["OR"] = np.empty((R, 3, L))
+            b["TW"] = np.empty((6, R, L))
+            b["tmpR"] = np.empty((R, L))
+        return b
+
+    def _trig(self, V: Array, b: dict[str, Array]) -> tuple[Array, Array]:
+        """``cos v, sin v`` of the joint values from one tangent of the half angle.
+
+        With ``t = tan(v / 2)``: ``cos v = 2 / (1 + t^2) - 1`` and ``sin v = t (1 + cos v)``
+        (one transcendental call instead of two; a few ulp of error at most).
+        Prismatic rows are left at ``cos = 1, sin = 0`` and not used.
+        """
+        c, s = b["cos"], b["sin"]
+        np.multiply(V, 0.5, out=s)
+        if not self.all_rot:
+            s[~self.rot] = 0.0
+        np.tan(s, out=s)
+        np.multiply(s, s, out=c)
+        c += 1.0
+        np.divide(2.0, c, out=c)
+        s *= c
+        c -= 1.0
+        return c, s
+
+    def _sweep(self, q: Array, sl: slice, b: dict[str, Array], record: bool
+               ) -> tuple[Array, Array | None]:
+        """Run one block of configurations.
+
+        Returns the end frame (4, 3, L) and, when ``record``, the frames ``S`` (J + 1, 4,
+        3, L) with ``S[m]`` the frame just after joint ``m``.
+        """
+        L = sl.stop - sl.start
+        S = b.get("S")
+        cur = S[0] if record else b["X"]  # type: ignore[index]
+        spare = None if record else b["Y"]
+        np.copyto(cur, self.prefix)
+        if self.J == 0:
+            return cur, S
+        V = self._joint_values(q, sl, b["V"])
+        cos, sin = self._trig(V, b)
+        t1, t2 = b["t1"], b["t2"]
+        for m in range(self.J):
+            ax = self.axes[m]
+            if self.rot[m]:                       # X <- X Rot(v): mix two columns
+                A, B = cur[(ax + 1) % 3], cur[(ax + 2) % 3]
+                c, s = cos[m], sin[m]
+                np.multiply(A, s, out=t1)
+                np.multiply(B, s, out=t2)
+                A *= c
+                A += t2
+                B *= c
+                B -= t1
+            else:                                 # X <- X Trans(v): move the origin
+                np.multiply(cur[ax], V[m], out=t1)
+                cur[3] += t1
+            kind, data = self.posts[m]
+            if kind == "identity" and (m == self.J - 1 or not record):
+                continue
+            nxt = S[m + 1] if record else cur  # type: ignore[index]
+            if kind == "matrix":                  # X <- X C: one matrix product
+                if not record:
+                    nxt, spare = spare, cur
+                np.matmul(data, cur.reshape(4, 3 * L), out=nxt.reshape(4, 3 * L))
+            else:
+                if record:
+                    np.copyto(nxt, cur)
+                for i, v in data or ():           # translation only: p <- p + v x_i
+                    np.multiply(nxt[i], v, out=t1)
+                    nxt[3] += t1
+            cur = nxt
+        return cur, S
+
+    # ------------------------------------------------------------- jacobians
+    @staticmethod
+    def _cross_into(out: Array, A: Array, D: Array, tmp: Array) -> None:
+        """``out[i] = (A x D)_i`` for stacks ``A, D`` (K, 3, L); ``out`` (3, K, L)."""
+        for i in range(3):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            np.multiply(A[:, j], D[:, k], out=out[i])
+            np.multiply(A[:, k], D[:, j], out=tmp)
+            out[i] -= tmp
+
+    def _joint_columns(self, F: Array, S: Array, b: dict[str, Array], out: Array) -> None:
+        """Geometric Jacobian of a block into ``out`` (6, n, L)."""
+        if self.J == 0:
+            return
+        Sj = S[: self.J]
+        A = Sj[:, self.axes[0]] if self.same_axis else Sj[np.arange(self.J), self.axes]
+        D = b["D"]
+        np.subtract(F[3], Sj[:, 3], out=D)                  # arms p_end - o_m
+        Jb = out if self.in_joint_order else b["Jb"]
+        self._cross_into(Jb, A, D, b["tmp"])
+        Jb[3:] = A.transpose(1, 0, 2)
+        if not self.all_rot:
+            pr = np.flatnonzero(~self.rot)
+            Jb[:3, pr] = A[pr].transpose(1, 0, 2)
+            Jb[3:, pr] = 0.0
+        if self.negative.size:
+            Jb[:, self.negative] *= -1.0
+        if not self.in_joint_order:
+            out[:, self.joint_of] = Jb
+
+    def _param_columns(self, F: Array, S: Array, b: dict[str, Array], out: Array) -> None:
+        """Parameter Jacobian of a block into ``out`` (6, P, L)."""
+        if self.R == 0:
+            out[...] = 0.0
+            return
+        L = F.shape[2]
+        AX, OR = b["AX"], b["OR"]
+        AX[self.pre_rows] = self.pre_ax
+        OR[self.pre_rows] = self.pre_org
+        for m, rows, UA, UO in self.groups:
+            k = rows.stop - rows.start
+            src = S[m].reshape(4, 3 * L)
+            np.matmul(UA, src, out=AX[rows].reshape(k, 3 * L))
+            np.matmul(UO, src, out=OR[rows].reshape(k, 3 * L))
+        np.subtract(F[3], OR, out=OR)                        # arms p_end - o_k
+        TW = out if self.rows_are_params else b["TW"]
+        self._cross_into(TW, AX, OR, b["tmpR"])
+        TW[3:] = AX.transpose(1, 0, 2)
+        if len(self.rows_tra):
+            tr = self.rows_tra
+            TW[:3, tr] = AX[tr].transpose(1, 0, 2)
+            TW[3:, tr] = 0.0
+        if self.rows_are_params:
+            return
+        out[...] = 0.0
+        if self.rows_unique:
+            out[:, self.row_param] = TW
+        else:
+            np.add.at(out, (slice(None), self.row_param), TW)
 
 
 # ---------------------------------------------------------------------------
