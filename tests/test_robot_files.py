@@ -469,13 +469,7 @@ def test_documents_with_huge_ints_or_non_string_keys(doc):
     _only_kincal_errors(doc)
 
 
-FIVEBAR_BUG = ("fivebar_files.py: `units.get('length') not in LENGTH_UNITS` raises TypeError for "
-               "an unhashable value (units: {angle: []}); its number reader raises OverflowError "
-               "for a 400-digit integer; fix: check isinstance(value, str) before the dict "
-               "lookup, and catch OverflowError around float(value)")
 
-
-@pytest.mark.xfail(strict=True, reason=FIVEBAR_BUG)
 @pytest.mark.parametrize("change", [{"units": {"length": "m", "angle": []}},
                                     {"links": {"l1": 10**400, "l2": 0.15, "l3": 0.25,
                                                "l4": 0.25}}], ids=["unhashable_unit", "huge_int"])

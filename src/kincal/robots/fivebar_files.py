@@ -80,10 +80,16 @@ class _Reader:
                 return default
             raise self.fail(field, "is missing")
         value = data[key]
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        if not ok or not math.isfinite(value) or (positive and value <= 0):
-            raise self.fail(field, "must be a positive number" if positive else "must be a number")
-        return float(value)
+        want = "must be a positive number" if positive else "must be a number"
+        if not isinstance(value, int | float) or isinstance(value, bool):
+            raise self.fail(field, want)
+        try:
+            number = float(value)
+        except OverflowError:
+            raise self.fail(field, f"{want} (an integer too large for a float)") from None
+        if not math.isfinite(number) or (positive and number <= 0):
+            raise self.fail(field, want)
+        return number
 
     def unknown(self, data: Mapping[str, Any], allowed: set[str], prefix: str) -> None:
         extra = sorted(str(k) for k in data if k not in allowed)
@@ -103,9 +109,9 @@ def fivebar_from_dict(cls: type[FiveBar], data: Mapping[str, Any], source: str) 
     r.unknown(data, _TOP_KEYS, "")
     units = r.mapping(data.get("units"), "units")
     r.unknown(units, {"length", "angle"}, "units")
-    if units.get("length") not in LENGTH_UNITS:
+    if not isinstance(units.get("length"), str) or units["length"] not in LENGTH_UNITS:
         raise r.fail("units.length", f"must be one of {', '.join(LENGTH_UNITS)}")
-    if units.get("angle") not in ANGLE_UNITS:
+    if not isinstance(units.get("angle"), str) or units["angle"] not in ANGLE_UNITS:
         raise r.fail("units.angle", f"must be one of {', '.join(ANGLE_UNITS)}")
     ls, an = LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]]
 
