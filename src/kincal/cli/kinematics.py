@@ -36,21 +36,20 @@ def _is_fivebar(robot: object) -> bool:
 
 @app.command()
 def robots() -> None:
-    """List the built-in robots with their joints and the source of their numbers."""
+    """List the built-in robots (`kincal show NAME` gives the parameters and their source)."""
     t = Table(title="Built-in robots (use the name wherever ROBOT is asked)")
-    for c in ("name", "joints", "convention", "description", "source"):
+    for c in ("name", "joints", "convention", "description"):
         t.add_column(c, overflow="fold")
     for name in library_names():
         r = read_robot_yaml(library_dir() / f"{name}.yaml")
         if _is_fivebar(r):
-            kinds, conv = "five-bar (2 actuated)", "fivebar"
+            kinds, conv = "2 actuated", "fivebar"
         else:
             kinds = "".join("R" if j.kind == "revolute" else "P" for j in r.joints)
             conv = r.meta.get("convention", "")
-        src = str(r.meta.get("source", "")) if hasattr(r, "meta") else ""
-        desc = str(r.meta.get("description", "")) if hasattr(r, "meta") else ""
-        short = src[:90] + ("…" if len(src) > 90 else "")
-        t.add_row(name, kinds, conv, escape(desc), escape(short))
+        desc = str(getattr(r, "meta", {}).get("description", "")) or "five-bar parallel robot"
+        short = desc if len(desc) <= 64 else desc[:63].rstrip(" ,") + "…"
+        t.add_row(name, kinds, conv, escape(short))
     console.print(t)
 
 
