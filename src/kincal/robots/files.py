@@ -23,10 +23,28 @@ points to a URDF file: ``{file: arm.urdf, base_link: base, tip_link: tool0}``.
 
 Joint limits are in the file's angle unit for revolute joints and its length unit
 for prismatic ones.  Every error names the file and the field, on one line.
+
+**Joint units of measurement files** (optional, top level)::
+
+    joint_units: si                       # or a mapping {joint name: unit}
+
+``units`` is about the numbers *in the robot file*.  ``joint_units`` is about the
+joint columns of *measurement files* for this robot: with ``si`` a bare column named
+after a joint (``arm_3_joint``, no ``_deg`` suffix) is read in rad (revolute) or m
+(prismatic); a mapping gives the unit per joint (``{q1: deg, q7: mm}``; angle units
+``rad deg``, length units ``m mm``).  Without it bare joint columns need ``--units``.
+It is read into ``robot.meta["joint_units"]`` (the form
+:mod:`kincal.measure.files` consumes) and written back by :func:`write_robot_yaml`;
+URDF-derived robots are ``si`` by definition (the URDF standard), so writing one as
+YAML sets ``joint_units: si``.
+
+:func:`robot_yaml_text` renders a robot file without writing it;
+:func:`write_robot_yaml` writes it atomically.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Mapping
@@ -73,9 +91,13 @@ class _Reader:
     def number(self, value: Any, field: str) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise self.fail(field, f"must be a number, got {value!r}")
-        if not math.isfinite(float(value)):
+        try:
+            number = float(value)
+        except OverflowError:
+            raise self.fail(field, "must be finite, got an integer too large for a float") from None
+        if not math.isfinite(number):
             raise self.fail(field, f"must be finite, got {value!r}")
-        return float(value)
+        return number
 
     def string(self, value: Any, field: str) -> str:
         if not isinstance(value, str) or not value.strip():
@@ -110,7 +132,7 @@ def _frame(r: _Reader, data: Mapping[str, Any], key: str, ls: float, as_: float)
     if key not in data or data[key] is None:
         return [0.0] * 6
     m = r.mapping(data[key], key)
-    unknown = sorted(set(m) - set(_FRAME_KEYS))
+    unknown = sorted(map(str, set(m) - set(_FRAME_KEYS)))
     if unknown:
         raise r.fail(f"{key}.{unknown[0]}", f"is not a frame field (use {', '.join(_FRAME_KEYS)})")
     return [r.number(m.get(k, 0.0), f"{key}.{k}") * (ls if i < 3 else as_)
@@ -125,6 +147,34 @@ def _meta(r: _Reader, data: Mapping[str, Any], convention: str) -> dict[str, Any
     return meta
 
 
+def _joint_units(r: _Reader, data: Mapping[str, Any], robot: Robot) -> str | dict[str, str] | None:
+    """The optional ``joint_units`` field: ``"si"`` or ``{joint: unit}``, checked against
+    the robot's joints (angle units for revolute joints, length units for prismatic)."""
+    value = data.get("joint_units")
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return r.choice(value, "joint_units", ("si",))
+    m = r.mapping(value, "joint_units")
+    kinds = {j.name: j.kind for j in robot.joints}
+    out: dict[str, str] = {}
+    for name, unit in m.items():
+        field = f"joint_units.{name}"
+        if str(name) not in kinds:
+            raise r.fail(field, f"names no joint of the robot (joints: {', '.join(kinds)})")
+        allowed = ANGLE_UNITS if kinds[str(name)] == "revolute" else LENGTH_UNITS
+        out[str(name)] = r.choice(unit, field, list(allowed))
+    return out
+
+
+def _with_joint_units(r: _Reader, data: Mapping[str, Any], robot: Robot) -> Robot:
+    """``robot`` with ``meta["joint_units"]`` set from the file (unchanged without it)."""
+    ju = _joint_units(r, data, robot)
+    if ju is None:
+        return robot
+    return dataclasses.replace(robot, meta={**dict(robot.meta), "joint_units": ju})
+
+
 def _dh_robot(r: _Reader, data: Mapping[str, Any], name: str, conv: str) -> Robot:
     ls, as_ = _units(r, data)
     joints = r.get(data, "joints", "")
@@ -135,7 +185,7 @@ def _dh_robot(r: _Reader, data: Mapping[str, Any], name: str, conv: str) -> Robo
         f = f"joints[{i}]"
         row = r.mapping(row, f)
         allowed = {"name", "type", "a", "d", "alpha", "theta_offset", "beta", "limits"}
-        extra = sorted(set(row) - allowed)
+        extra = sorted(map(str, set(row) - allowed))
         if extra:
             raise r.fail(f"{f}.{extra[0]}", f"is not a DH field (use {', '.join(sorted(allowed))})")
         kind = r.choice(r.get(row, "type", f"{f}."), f"{f}.type", ("revolute", "prismatic"))
@@ -194,6 +244,8 @@ def _ets_robot(r: _Reader, data: Mapping[str, Any], name: str) -> Robot:
         pname = row.get("name")
         if pname is not None:
             pname = r.string(pname, f"{f}.name")
+            if pname.startswith(("base.", "tool.")):
+                raise r.fail(f"{f}.name", "is reserved for the base and tool frames")
             if pname in b.names:
                 raise r.fail(f"{f}.name", f"repeats parameter {pname!r}")
         role = r.choice(row.get("role", "angle" if kind.startswith("R") else "length"),
@@ -241,11 +293,13 @@ def robot_from_dict(data: Any, source: str) -> Any:
         robot = load_urdf(path, base_link=data.get("base_link"), tip_link=data.get("tip_link"))
         meta = dict(robot.meta)
         meta.update({k: v for k, v in _meta(r, data, "urdf").items() if k != "convention"})
-        return Robot(name, robot.ets, robot.joints, robot.param_names, robot.param_values,
-                     robot.param_units, robot.param_roles, meta)
-    if conv == "ets":
-        return _ets_robot(r, data, name)
-    return _dh_robot(r, data, name, conv)
+        robot = Robot(name, robot.ets, robot.joints, robot.param_names, robot.param_values,
+                      robot.param_units, robot.param_roles, meta)
+    elif conv == "ets":
+        robot = _ets_robot(r, data, name)
+    else:
+        robot = _dh_robot(r, data, name, conv)
+    return _with_joint_units(r, data, robot)
 
 
 def read_robot_yaml(path: str | os.PathLike[str]) -> Any:
@@ -253,6 +307,8 @@ def read_robot_yaml(path: str | os.PathLike[str]) -> Any:
     source = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise RobotFileError(f"not UTF-8 text (byte {exc.start})", source=source) from None
     except OSError as exc:
         raise RobotFileError(f"cannot read: {exc.strerror}", source=source) from None
     try:
@@ -315,12 +371,23 @@ def _limits_out(lo: float, hi: float) -> list[float] | None:
     return None if not (math.isfinite(lo) and math.isfinite(hi)) else [float(lo), float(hi)]
 
 
+def joint_units_of(robot: Robot) -> str | dict[str, str] | None:
+    """What a robot file should say under ``joint_units``: ``"si"`` for URDF-derived
+    robots and robots that declared it, the mapping a robot declared, else None."""
+    declared = robot.meta.get("joint_units")
+    if isinstance(declared, Mapping):
+        return {str(k): str(v) for k, v in declared.items()}
+    if declared == "si" or robot.meta.get("convention") == "urdf":
+        return "si"
+    return None
+
+
 def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
     """The YAML document of a robot, in SI units (m, rad), in its own convention.
 
     DH robots are written as DH tables (unless ``as_ets``); every other serial robot
     (URDF-derived included) as an explicit ``ets`` chain, so the file carries every
-    parameter.
+    parameter.  ``joint_units`` is written when :func:`joint_units_of` gives one.
     """
     conv = "ets" if as_ets else robot.meta.get("convention", "ets")
     doc: dict[str, Any] = {"name": robot.name}
@@ -328,6 +395,9 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         if key in robot.meta:
             doc[key] = robot.meta[key]
     doc["units"] = {"length": "m", "angle": "rad"}
+    ju = joint_units_of(robot)
+    if ju is not None:
+        doc["joint_units"] = ju
     if conv in ("standard_dh", "modified_dh", "hayati"):
         doc["convention"] = conv
         doc["base"] = _fmt_frame(frame_values(robot, "base"))
@@ -372,8 +442,15 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
     return doc
 
 
-def write_robot_yaml(robot: Robot, path: str | os.PathLike[str]) -> None:
-    """Write ``robot`` as a YAML robot file (SI units), atomically."""
-    text = yaml.safe_dump(robot_to_dict(robot), sort_keys=False, default_flow_style=None,
-                          width=100)
-    atomic_write_text(path, text)
+def robot_yaml_text(robot: Robot, as_ets: bool = False) -> str:
+    """The YAML robot file of ``robot`` (SI units; see :func:`robot_to_dict`), as text."""
+    return yaml.safe_dump(robot_to_dict(robot, as_ets), sort_keys=False,
+                          default_flow_style=None, width=100)
+
+
+def write_robot_yaml(robot: Robot, path: str | os.PathLike[str], as_ets: bool = False) -> None:
+    """Write ``robot`` as a YAML robot file (SI units), atomically (``-``: stdout).
+
+    ``as_ets`` writes a DH robot as an explicit elementary-transform chain.
+    """
+    atomic_write_text(path, robot_yaml_text(robot, as_ets))
