@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from kincal.cli import main
+from kincal.errors import MeasurementFileError
 from kincal.measure.registry import instruments, read_measurements
 from kincal.robots.files import load_robot
 
@@ -368,3 +369,74 @@ def test_demo_runs_and_writes_its_files(capsys, tmp_path):
         assert (tmp_path / "demo" / name).is_file()
     res = json.loads((tmp_path / "demo" / "result.json").read_text())
     assert res["metrics"]["validation"]["rms_position_m"] < 5e-5
+
+
+#: PUMA 560 standard DH rows (a [m], d [m], alpha [deg]); theta offsets are 0.
+_PUMA_DH = [(0.0, 0.0, 90.0), (0.4318, 0.0, 0.0), (0.0203, 0.15005, -90.0),
+            (0.0, 0.4318, 90.0), (0.0, 0.0, -90.0), (0.0, 0.0, 0.0)]
+
+
+def _dh(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
+    """Standard DH: Rz(theta) Tz(d) Tx(a) Rx(alpha)."""
+    ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
+    return np.array([[ct, -st * ca, st * sa, a * ct], [st, ct * ca, -ct * sa, a * st],
+                     [0.0, sa, ca, d], [0.0, 0.0, 0.0, 1.0]])
+
+
+def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
+    """`kincal export` writes URDF and YAML; `kincal fk` of every file gives the same T."""
+    q = "0.3,-0.7,1.1,0.4,-0.9,2.0"
+    urdf, yaml_ets, from_urdf = (tmp_path / n for n in ("puma.urdf", "puma_ets.yaml",
+                                                         "from_urdf.yaml"))
+    assert run(capsys, "export", "puma560", urdf)[0] == 0
+    assert run(capsys, "export", "puma560", yaml_ets, "--as-ets")[0] == 0
+    code, _, err = run(capsys, "export", urdf, from_urdf)
+    assert code == 0, err
+    Ts = []
+    for spec in ("puma560", urdf, yaml_ets, from_urdf):
+        j = tmp_path / "fk.json"
+        code, _, err = run(capsys, "fk", spec, "--q", q, "--json", j)
+        assert code == 0, err
+        Ts.append(np.array(json.loads(j.read_text())["T"]))
+    # truth independent of kincal's FK: the PUMA 560's published DH table (Corke &
+    # Armstrong-Helouvry 1994, as in the library file), composed by hand
+    T_hand = np.eye(4)
+    for (a, d, alpha_deg), qi in zip(_PUMA_DH, map(float, q.split(",")), strict=True):
+        T_hand = T_hand @ _dh(qi, d, a, math.radians(alpha_deg))
+    for T in Ts:
+        np.testing.assert_allclose(T, T_hand, atol=1e-12)
+    assert "convention: ets" in yaml_ets.read_text()
+    # a URDF-derived robot is `joint_units: si`: bare joint columns read as rad
+    assert "joint_units: si" in from_urdf.read_text()
+    assert "joint_units" not in yaml_ets.read_text()
+    csv = tmp_path / "bare.csv"
+    csv.write_text("# kincal measurements: instrument=position; name=t\n"
+                   "q1,q2,q3,q4,q5,q6,x_mm,y_mm,z_mm\n0.1,0.2,0.3,0.4,0.5,0.6,1,2,3\n")
+    block = read_measurements(csv, load_robot(from_urdf))[0]
+    np.testing.assert_allclose(block.q, [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
+    with pytest.raises(MeasurementFileError, match="has no unit"):
+        read_measurements(csv, load_robot("puma560"))
+    # bad output names: one line, nothing written
+    code, _, err = run(capsys, "export", "puma560", tmp_path / "puma.txt")
+    assert code == 2 and "name it .yaml, .yml or .urdf" in err
+    assert not (tmp_path / "puma.txt").exists()
+
+
+def test_instrument_file_with_a_look_alike_column_is_an_error(capsys, tmp_path):
+    """csvio follows the project rule: a column that looks like another instrument's
+    measurement (az_deg in a range file) is an error unless --ignore'd."""
+    path = tmp_path / "r.csv"
+    assert run(capsys, "simulate", "puma560", "-o", path, "-i", "range", "--poses", "30",
+               "--seed", "4", "--length-unit", "mm", "--angle-unit", "deg")[0] == 0
+    lines = path.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    lines[k] += ",az_deg"
+    lines[k + 1:] = [ln + ",0" for ln in lines[k + 1:]]
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "c.yaml"
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", path, "-o", out)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists()
+    assert f"{path}: line {k + 1}: column" in err and "(az_deg) looks like an instrument" in err
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", path, "-o", out, "--ignore",
+                       "az_deg")
+    assert code == 0, err

@@ -288,8 +288,13 @@ def _history(result: Any) -> tuple[Array, list[str], Array, Array]:
 
 def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str = "",
                 inputs: Mapping[str, str] | None = None,
-                truth: Mapping[str, float] | None = None, plots: bool = True) -> str:
-    """The report as one self-contained HTML document (images embedded)."""
+                truth: Mapping[str, float] | None = None, plots: bool = True,
+                extra_sections: Sequence[str] = ()) -> str:
+    """The report as one self-contained HTML document (images embedded).
+
+    ``extra_sections`` are HTML fragments placed before the footer (e.g. the cross-bar
+    patent's selection and comparison tables).
+    """
     from kincal import __version__
     from kincal import report_plots as rp
 
@@ -349,6 +354,7 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
             if C.shape == (len(idx), len(idx)) and np.all(np.isfinite(C)):
                 parts.append("<h2>Correlation of the estimates</h2>" + _img(
                     rp.correlation(C, [names[i] for i in idx]), "correlation"))
+    parts.extend(extra_sections)
     parts.append(f"<p class='small'>kincal {__version__}, {now}. Units inside kincal are SI "
                  "(m, rad); the result JSON and robot files are SI.</p></body></html>")
     return "\n".join(parts)
@@ -356,6 +362,8 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
 
 def write_html_report(path: str | Path, result: Any, comparisons: Sequence[ErrorComparison],
                       title: str = "", inputs: Mapping[str, str] | None = None,
-                      truth: Mapping[str, float] | None = None) -> None:
+                      truth: Mapping[str, float] | None = None,
+                      extra_sections: Sequence[str] = ()) -> None:
     """Write :func:`render_html` to ``path`` atomically."""
-    atomic_write_text(path, render_html(result, comparisons, title, inputs, truth))
+    atomic_write_text(path, render_html(result, comparisons, title, inputs, truth,
+                                        extra_sections=extra_sections))

@@ -12,10 +12,14 @@ import sys
 
 from kincal.cli import (  # noqa: F401  (imported to register their commands)
     calibration,
+    compensate,
+    demo,
+    export,
     fivebar,
     kinematics,
     motion,
     plan,
+    simulate,
 )
 from kincal.cli.app import app
 from kincal.errors import KincalError

@@ -11,12 +11,23 @@ options).  The instruments add:
   ``# kincal measurements: instrument=range; name=adm; sigma_mm=0.005``;
 * block options as tags (``marker=own|tool``, ``mount=fixed|hand``).
 
+**Columns the instrument does not read** follow the project rule of
+:mod:`kincal.measure.files`: a column (or a line-1 constant) that looks like a joint,
+a measurement or an instrument column -- the shared look-alikes (``q7``, ``x2``,
+``sigma2`` ...) and every column name any instrument file uses (:data:`INSTRUMENT_WORDS`:
+``az``, ``el``, ``range``, ``n_az``, ``d``, ``fx``, ``target_x``, ``station``, ``mode``,
+``plane`` ... with or without a number) -- is an error naming the file, the line and
+the column, unless it is listed in ``ignore``; plain bookkeeping columns
+(``pose_id``, ``operator``) are skipped and reported in ``table.ignored``.  A text
+column listed in ``ignore`` counts as absent.
+
 One block per file.  Writers write the units they are asked (default SI) atomically.
 """
 
 from __future__ import annotations
 
 import csv
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,16 +39,27 @@ from numpy.typing import NDArray
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text
 from kincal.measure.files import (
+    _LOOKS_MEASURED,
     TAG_PREFIX,
     UNITS,
     Field,
     MeasurementTable,
+    glob_regex,
     joint_columns,
     read_table,
     split_unit,
 )
 
 Array = NDArray[np.float64]
+
+#: Column names (base names, without unit) used by some instrument file: in a file of
+#: another instrument they are never dropped silently (a number suffix is allowed).
+INSTRUMENT_WORDS = re.compile(
+    r"(range|az|el|n_az|n_el|d|u|v|fx|fy|cx|cy|target_[xyz]|sigma|sigma_rot|station|mode"
+    r"|run|plane|placement|point|socket)\d*", re.IGNORECASE)
+
+#: Line-1 tags that are block options (no unit), never constants.
+OPTION_TAGS = ("instrument", "name", "marker", "mount")
 
 
 @dataclass
@@ -95,9 +117,23 @@ def read_block_table(path: str | Path, robot: Any, instrument: str, fields: Sequ
     tab = BlockTable(t, {})
     if t.tags and t.tags.get("instrument") != instrument:
         raise tab.at(1, f"instrument={t.tags.get('instrument')}, expected {instrument}")
+    body = _body(path)
+    header_line = body[0][0]
+    names = [c.strip() for c in next(csv.reader([body[0][1]]))]
+    dropped = {n for n in names if any(glob_regex(p).match(n) for p in ignore)}
+    _check_unread(tab, names, dropped, fields, text, instrument, header_line)
     for tag, v in t.tags.items():
         base, unit = split_unit(tag)
         fld = next((f for f in fields if f.matches(base)), None)
+        if tag in OPTION_TAGS or any(glob_regex(p).match(tag) for p in ignore):
+            continue
+        if fld is None and (unit is not None or INSTRUMENT_WORDS.fullmatch(base)):
+            if _looks_like_data(base):
+                raise tab.at(1, f"{tag} looks like a measurement constant, but this "
+                                f"{instrument} file reads only: {_expected(fields, text)}; "
+                                "list it in --ignore to drop it")
+            t.ignored.append(f"{tag} (line 1)")
+            continue
         if unit is None or fld is None:
             continue
         if UNITS[unit][0] != fld.dimension:
@@ -112,18 +148,15 @@ def read_block_table(path: str | Path, robot: Any, instrument: str, fields: Sequ
             raise tab.at(1, f"{tag}={v!r} is not a finite number")
         t.values[base] = np.full(len(t), value)
         t.columns[base] = tag
-    body = _body(path)
-    header_line = body[0][0]
     for base in required:
         if base not in t.values:
             fld = next(f for f in fields if f.matches(base))
             unit = {"length": "mm", "angle": "deg", "pixel": "px"}.get(fld.dimension, "1")
             raise tab.at(header_line, f"missing column {base!r} (with its unit, e.g. "
                                       f"{base}_{unit}; or {base}_{unit}=VALUE on line 1)")
-    names = [c.strip() for c in next(csv.reader([body[0][1]]))]
     rows = list(csv.reader([ln for _, ln in body[1:]]))
     for key, default in text.items():
-        if key in names:
+        if key in names and key not in dropped:
             k = names.index(key)
             vals = [r[k].strip() for r in rows]
             empty = [i for i, v in enumerate(vals) if not v]
@@ -140,6 +173,40 @@ def read_block_table(path: str | Path, robot: Any, instrument: str, fields: Sequ
         raise tab.error(i, f"column {t.columns['sigma']}: a standard deviation must be "
                            "positive")
     return tab
+
+
+def _looks_like_data(base: str) -> bool:
+    """True for names that look like a joint, a measurement or an instrument column."""
+    return bool(_LOOKS_MEASURED.fullmatch(base) or INSTRUMENT_WORDS.fullmatch(base))
+
+
+def _expected(fields: Sequence[Field], text: Mapping[str, str | None]) -> str:
+    return "; ".join([f.description or f.pattern for f in fields] + list(text))
+
+
+def _check_unread(tab: BlockTable, names: Sequence[str], dropped: set[str],
+                  fields: Sequence[Field], text: Mapping[str, str | None], instrument: str,
+                  header_line: int) -> None:
+    """Sort the columns :func:`read_table` did not read: the instrument's text columns
+    are read (not reported); look-alikes of any instrument's columns are errors;
+    the rest stay in ``table.ignored`` (bookkeeping, reported by the caller)."""
+    t = tab.table
+    kept: list[str] = []
+    for name in t.ignored:
+        if name in dropped:                         # --ignore: dropped on purpose
+            kept.append(name)
+            continue
+        if name in text:                            # a text column of this instrument
+            continue
+        base = split_unit(name)[0]
+        if _looks_like_data(base):
+            col = list(names).index(name) + 1
+            raise tab.at(header_line, f"column {col} ({name}) looks like an instrument "
+                                      f"column, but this {instrument} file reads only: "
+                                      f"{_expected(fields, text)}; list it in --ignore to "
+                                      "drop it")
+        kept.append(name)
+    t.ignored[:] = kept
 
 
 def write_block_table(path: str | Path, tags: Mapping[str, str], q: Array,

@@ -91,7 +91,9 @@ def _choice(tab: BlockTable, key: str, choices: Sequence[str]) -> list[str]:
 
 def _build(tab: BlockTable, make: Any) -> Any:
     try:
-        return make()
+        block = make()
+        block.table = tab.table  # lets the CLI list the bookkeeping columns it skipped
+        return block
     except MeasurementFileError:
         raise
     except KincalError as exc:

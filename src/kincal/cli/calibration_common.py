@@ -1,0 +1,227 @@
+"""Shared pieces of the calibration commands: option types, robot loading, progress, tables.
+
+Used by :mod:`kincal.cli.calibration`, :mod:`~kincal.cli.simulate`,
+:mod:`~kincal.cli.compensate`, :mod:`~kincal.cli.demo` and :mod:`~kincal.cli.export`.
+Tables show mm and degrees; everything computed stays SI (m, rad).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from kincal.cli.common import console, err_console
+from kincal.errors import KincalError
+
+# --------------------------------------------------------------------------- options
+RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
+                                         "path to a YAML robot file or a URDF file.")]
+DataOpt = Annotated[list[str], typer.Option("--data", "-d", help="Measurement CSV file "
+                                            "(repeat for several instruments / sessions; each "
+                                            "file is one block with its own instrument frame).")]
+UnitsOpt = Annotated[str | None, typer.Option(
+    "--units", help="Units of columns whose header has none, e.g. "
+    "'x1=m,y1=m,z1=m,arm_1_joint=rad'; keys may use * and ? ('x?=m').")]
+IgnoreOpt = Annotated[list[str] | None, typer.Option(
+    "--ignore", help="Columns to drop on purpose, comma separated, * and ? allowed "
+    "('x2,y2,z2' or '?2,?3'). Columns that look like joints or measurements are never "
+    "dropped silently.")]
+JsonOpt = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
+                                             "to this path ('-' for stdout).")]
+BaseLink = Annotated[str | None, typer.Option("--base-link", help="URDF only: first link of "
+                                              "the chain.")]
+TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link of the "
+                                             "chain.")]
+LengthUnit = Annotated[str, typer.Option("--length-unit", help="Length unit of written CSV "
+                                         "files: m, mm, um.")]
+AngleUnit = Annotated[str, typer.Option("--angle-unit", help="Angle unit of written CSV files: "
+                                        "rad, deg.")]
+
+
+# --------------------------------------------------------------------------- helpers
+def out_console(json_path: str | None) -> Console:
+    """Tables go to stdout unless the JSON does (``--json -``)."""
+    return err_console if json_path == "-" else console
+
+
+def load(spec: str, base_link: str | None = None, tip_link: str | None = None) -> Any:
+    """Load ROBOT (library name, YAML or URDF path)."""
+    from kincal.robots.files import load_robot
+
+    return load_robot(spec, base_link=base_link, tip_link=tip_link)
+
+
+def is_fivebar(robot: Any) -> bool:
+    return type(robot).__name__ == "FiveBar"
+
+
+def serial(robot: Any, command: str) -> Any:
+    """``robot`` if it is a serial robot, else a one-line error naming ``command``."""
+    if is_fivebar(robot):
+        raise KincalError(f"`kincal {command}` works on serial robots; for the five-bar use "
+                          "`kincal calibrate` or the fivebar-* commands")
+    return robot
+
+
+def check_unit(unit: str, dimension: str, option: str) -> str:
+    """``unit`` if it is a ``dimension`` unit of measurement files, else a one-line error."""
+    from kincal.measure.files import UNITS
+
+    if unit not in UNITS or UNITS[unit][0] != dimension:
+        ok = [u for u, (d, _) in UNITS.items() if d == dimension]
+        raise KincalError(f"option {option}: {unit!r} is not a {dimension} unit "
+                          f"({', '.join(ok)})")
+    return unit
+
+
+def read_blocks(paths: Sequence[str], robot: Any, units: str | None,
+                ignore: Sequence[str] | None, out: Console | None = None) -> list[Any]:
+    """:func:`kincal.workflow.read_blocks`, printing the columns each file did not read."""
+    from kincal.workflow import ignored_columns
+    from kincal.workflow import read_blocks as read
+
+    blocks = read(paths, robot, units, ignore)
+    if out is not None:
+        for path, cols in ignored_columns(blocks):
+            out.print(f"[dim]{escape(path)}: not read (not joint or measurement "
+                      f"columns): {escape(', '.join(cols))}[/dim]")
+    return blocks
+
+
+class Progress:
+    """A rich progress bar fed by the solver's per-iteration callback (on stderr)."""
+
+    def __init__(self, total: int, enabled: bool = True) -> None:
+        from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
+        from rich.progress import Progress as RichProgress
+
+        self.total = total
+        self.progress = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(),
+                                     TextColumn("{task.fields[info]}"), TimeElapsedColumn(),
+                                     console=err_console, transient=True,
+                                     disable=not enabled)
+        self.task: Any = None
+        self.stage: Any = None
+
+    def __enter__(self) -> Progress:
+        self.progress.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.progress.__exit__(*exc)
+
+    def __call__(self, rec: Any) -> None:
+        if rec.stage != self.stage:     # one bar, restarted per stage (the patent has many)
+            self.stage = rec.stage
+            if self.task is None:
+                self.task = self.progress.add_task(f"stage {rec.stage}", total=self.total,
+                                                   info="")
+            else:
+                self.progress.reset(self.task, total=self.total,
+                                    description=f"stage {rec.stage}")
+        self.progress.update(self.task, completed=min(rec.iteration, self.total),
+                             info=f"iteration {rec.iteration}  RMS {rec.rms:.4g} sigma")
+
+
+# --------------------------------------------------------------------------- tables
+def scaled(v: float | None, factor: float) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v * factor:.4f}"
+
+
+def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
+    """The before/after table: RMS and max of every measured error kind (mm, deg, px)."""
+    from kincal.report import error_keys, error_metrics, quantity
+
+    captions = [escape(c.title) for c in comparisons if " (" in c.title]
+    t = Table(title="Errors before -> after calibration", caption="; ".join(captions) or None)
+    for c in ("data", "quantity", "n", "RMS before", "RMS after", "max before", "max after"):
+        t.add_column(c, justify="left" if c in ("data", "quantity") else "right",
+                     overflow="fold", no_wrap=c == "quantity")
+    for c in comparisons:
+        for k, key in enumerate(error_keys(c.before, c.after)):
+            name, f, unit = quantity(key)
+            b = error_metrics({key: c.before[key]}) if key in c.before else {}
+            a = error_metrics({key: c.after[key]}) if key in c.after else {}
+            t.add_row(escape(c.title.split(" (")[0]) if k == 0 else "", escape(f"{name} [{unit}]"),
+                      str(a.get("n", b.get("n", ""))), scaled(b.get(f"rms_{key}"), f),
+                      f"[bold]{scaled(a.get(f'rms_{key}'), f)}[/bold]",
+                      scaled(b.get(f"max_{key}"), f), scaled(a.get(f"max_{key}"), f))
+    out.print(t)
+
+
+def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
+    """Estimated parameters: nominal, estimate, change, std (mm / deg)."""
+    d = res.to_dict()
+    t = Table(title=f"Estimated parameters ({d['estimated_count']} of {len(d['parameters'])}; "
+              "lengths mm, angles deg)")
+    for c in ("parameter", "nominal", "estimate", "change", "std (1σ)", "status"):
+        t.add_column(c, justify="left" if c in ("parameter", "status") else "right")
+    for p in d["parameters"]:
+        if not everything and not p["estimated"]:
+            continue
+        f = {"m": lambda v: scaled(v, 1e3), "rad": lambda v: scaled(v, 180 / math.pi)
+             }.get(p["unit"], lambda v: f"{v:g}")
+        t.add_row(escape(p["name"]), f(p["nominal"]), f(p["estimate"]),
+                  f(p["estimate"] - p["nominal"]),
+                  f(p["std"]) if p["std"] is not None else "-", escape(p["status"]))
+    out.print(t)
+
+
+def print_identifiability(out: Console, res: Any, limit: int = 8) -> None:
+    """What the data could not identify, grouped by what absorbs it."""
+    from kincal.report import identifiability_groups
+
+    rep = res.identifiability
+    held = rep.not_identifiable
+    out.print(f"identifiability: [bold]{len(rep.identifiable)}[/bold] of {len(rep.names)} "
+              f"candidate parameters identifiable (condition number {rep.cond_scaled:.3g}); "
+              f"{len(held)} held at their initial values:")
+    groups = identifiability_groups(rep, res.problem.names, res.problem.roles)
+    for g in groups[:limit]:
+        out.print(f"  - {escape(g)}")
+    if len(groups) > limit:
+        out.print(f"  ... and {len(groups) - limit} more (see the report / JSON).")
+
+
+def print_patent(out: Console, info: Any) -> None:
+    """The patent procedure's record: selection, cycles, comparison with one-stage LM."""
+    from kincal.report import quantity
+
+    d = info.to_dict()
+    n_all = len(d["kept"]) + len(d["discarded"])
+    if d["condition_growth"] is not None:
+        dropped = ", ".join(f"{x['placement']}" for x in d["discarded"]) or "none"
+        out.print(f"patent data selection (condition growth <= {d['condition_growth']:g}): "
+                  f"kept [bold]{len(d['kept'])} of {n_all}[/bold] placements; discarded: "
+                  f"{escape(dropped)}")
+    moved = d["cycle_corrections_m"][-1] * 1e3 if d["cycle_corrections_m"] else float("nan")
+    out.print(f"patent procedure: {d['cycles']} cycle(s) of {len(d['stages'])} stages, "
+              + ("converged" if d["converged"] else "[red]NOT converged[/red]")
+              + f" (last cycle moved the points by {moved:.3g} mm; tolerance "
+              f"{d['tolerance_m'] * 1e3:g} mm)")
+    comp = d.get("comparison")
+    if not comp:
+        return
+    runs = [("patent", comp["patent"]), ("one-stage LM, same parameters", comp["one_stage"]),
+            ("one-stage LM, automatic", comp["automatic"])]
+    keys = sorted({k for _, s in runs for k in s if k.startswith("rms_")})
+    t = Table(title="Patent vs one-stage Levenberg-Marquardt (same data)")
+    t.add_column("solver")
+    for c in ("estimated", "sigma0"):
+        t.add_column(c, justify="right")
+    for k in keys:
+        name, _, unit = quantity(k[4:])
+        t.add_column(f"RMS {name} \\[{unit}]", justify="right")
+    for label, s in runs:
+        t.add_row(label, str(s["estimated"]), f"{s['sigma0']:.4g}",
+                  *(scaled(s.get(k), quantity(k[4:])[1]) for k in keys))
+    out.print(t)
+    same = comp["same_parameters"]
+    out.print(f"same parameters: largest difference {same['max_sigmas']:.3g} standard errors"
+              + (f" ({escape(same['worst'])})" if same["worst"] else ""))

@@ -1,0 +1,155 @@
+"""The ``compensate`` command: joint commands (and filtered targets) from a calibrated robot.
+
+Reads a target CSV (``x y z`` and optionally ``rx ry rz`` roll-pitch-yaw, with units;
+optional joint columns seed the IK), solves the calibrated robot's IK for every target
+(:func:`kincal.compensate.compensate`) and writes the joint commands, plus, with
+``--nominal --filtered``, the targets to send to a controller that only knows the
+nominal model.  Nothing is written unless every target is reached.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.markup import escape
+
+from kincal.cli.app import app
+from kincal.cli.calibration_common import (
+    AngleUnit,
+    BaseLink,
+    IgnoreOpt,
+    JsonOpt,
+    LengthUnit,
+    TipLink,
+    UnitsOpt,
+    check_unit,
+    load,
+    out_console,
+    serial,
+)
+from kincal.errors import KincalError, MeasurementFileError
+
+
+def _target_fields() -> tuple[Any, ...]:
+    from kincal.measure.files import Field
+
+    return (Field(r"[xyz]", "length", "x, y, z"),
+            Field(r"r[xyz]", "angle", "rx, ry, rz (roll-pitch-yaw)"))
+
+
+def read_targets(path: str, robot: Any, units: str | None, ignore: Sequence[str] | None
+                 ) -> tuple[np.ndarray, np.ndarray | None, Any]:
+    """Targets (N, 4, 4) poses or (N, 3) positions [m], optional joint seeds (N, n)
+    [rad / m], and the parsed table (for line numbers in messages)."""
+    from kincal.measure.files import (
+        parse_list_option,
+        parse_units_option,
+        read_header,
+        read_table,
+        split_unit,
+    )
+    from kincal.spatial import homogeneous, rpy_to_matrix
+
+    if not Path(path).is_file():
+        raise MeasurementFileError("no such targets file", source=path)
+    names = read_header(path)[1]
+    has_joints = any(split_unit(n)[0] in robot.joint_names or n in robot.joint_names
+                     for n in names)
+    t = read_table(path, robot, _target_fields(), parse_units_option(units),
+                   parse_list_option(ignore), joints=has_joints)
+    for c in "xyz":
+        if c not in t.values:
+            raise t.error(f"missing target column {c!r} (with its unit, e.g. {c}_mm)")
+    p = np.stack([t.values[c] for c in "xyz"], axis=1)
+    rot = [c for c in ("rx", "ry", "rz") if c in t.values]
+    if rot and len(rot) != 3:
+        raise t.error("orientation targets need all of rx, ry, rz (roll-pitch-yaw)")
+    targets = homogeneous(rpy_to_matrix(np.stack([t.values[c] for c in ("rx", "ry", "rz")],
+                                                 axis=1)), p) if rot else p
+    return targets, (t.q if has_joints else None), t
+
+
+@app.command("compensate")
+def compensate_cmd(
+    calibrated: Annotated[str, typer.Argument(help="The calibrated robot file (from `kincal "
+                                              "calibrate -o`).")],
+    targets: Annotated[str, typer.Option("--targets", "-t", help="Target CSV: x, y, z (and rx, "
+                                         "ry, rz roll-pitch-yaw) with units; optional joint "
+                                         "columns seed the IK.")],
+    output: Annotated[str, typer.Option("-o", "--output", help="Joint commands CSV to write.")],
+    nominal: Annotated[str | None, typer.Option("--nominal", help="The controller's nominal "
+                                                "robot: needed for --filtered, and seeds the IK "
+                                                "on the controller's branch.")] = None,
+    filtered: Annotated[str | None, typer.Option("--filtered", help="Write filtered targets "
+                                                 "here: FK_nominal(q_cmd), to send to a "
+                                                 "controller that only knows the nominal "
+                                                 "model.")] = None,
+    units: UnitsOpt = None, ignore: IgnoreOpt = None,
+    length_unit: LengthUnit = "m", angle_unit: AngleUnit = "rad",
+    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
+) -> None:
+    """Joint commands that put the calibrated (real) robot on the targets, and filtered
+    targets for a controller that only knows the nominal model."""
+    from kincal.compensate import compensate, require_all
+    from kincal.io import atomic_write_text, write_json
+    from kincal.measure.files import UNITS, format_table, joint_columns
+    from kincal.spatial import matrix_to_rpy
+
+    out = out_console(json_out)
+    cal = serial(load(calibrated, base_link, tip_link), "compensate")
+    nom = serial(load(nominal, base_link, tip_link), "compensate") if nominal else None
+    if filtered and nom is None:
+        raise KincalError("--filtered needs --nominal (the controller's model)")
+    check_unit(length_unit, "length", "--length-unit")
+    check_unit(angle_unit, "angle", "--angle-unit")
+    T, seeds, table = read_targets(targets, cal, units, ignore)
+    comp = compensate(cal, T, nominal=nom, q0=seeds)
+    require_all(comp, targets, table.lines)
+    cols = [(name, comp.q[:, k] * f) for k, (name, f) in
+            enumerate(joint_columns(cal, cal.n, angle_unit, length_unit))]
+    jtext = format_table(cols, comments=[f"joint commands for {cal.name} from {targets}: "
+                                         "the calibrated robot reaches each target"])
+    ftext = None
+    if filtered and comp.filtered is not None:
+        lf, af = 1.0 / UNITS[length_unit][1], 1.0 / UNITS[angle_unit][1]
+        F = comp.filtered
+        fcols = [(f"{c}_{length_unit}", F[:, i, 3] * lf) for i, c in enumerate("xyz")]
+        if comp.mask == "pose":
+            rpy = matrix_to_rpy(F[:, :3, :3])
+            fcols += [(f"{c}_{angle_unit}", rpy[:, i] * af)
+                      for i, c in enumerate(("rx", "ry", "rz"))]
+        ftext = format_table(fcols, comments=["filtered targets: send these to the nominal "
+                                              "controller (its IK gives the joint commands)"])
+    atomic_write_text(output, jtext)
+    if ftext is not None and filtered:
+        atomic_write_text(filtered, ftext)
+    out.print(f"{len(comp)} targets ({comp.mask}): calibrated FK of the commands matches the "
+              f"targets to {np.max(comp.position_error) * 1e3:.2e} mm"
+              + (f" / {math.degrees(np.max(comp.orientation_error)):.2e} deg"
+                 if comp.mask == "pose" else ""))
+    if comp.branch_changes.size:
+        lines = ", ".join(str(int(table.lines[i])) for i in comp.branch_changes[:10])
+        out.print(f"[yellow]warning[/yellow]: {comp.branch_changes.size} target(s) (lines "
+                  f"{lines}) needed a different joint configuration than the nominal IK "
+                  "(near a singularity or a limit); check them before sending.")
+    if comp.correction is not None:
+        out.print(f"compensation size |filtered - target|: RMS "
+                  f"{math.sqrt(np.mean(comp.correction**2)) * 1e3:.4f} mm, max "
+                  f"{np.max(comp.correction) * 1e3:.4f} mm")
+    out.print(f"joint commands -> {escape(output)}"
+              + (f"; filtered targets -> {escape(filtered)}" if ftext else ""))
+    if json_out:
+        doc = {"robot": cal.name, "targets": targets, "mask": comp.mask,
+               "branch_changes": comp.branch_changes,
+               "q": comp.q, "position_error_m": comp.position_error,
+               "orientation_error_rad": comp.orientation_error,
+               "joint_names": list(cal.joint_names), "output": output}
+        if comp.filtered is not None:
+            doc["filtered"] = comp.filtered
+            doc["correction_m"] = comp.correction
+        write_json(json_out, doc)

@@ -1,0 +1,305 @@
+"""Simulation commands: ``instruments`` and ``simulate``.
+
+``kincal simulate`` builds a true robot (nominal + random geometric errors), measures
+it with a registered instrument plus noise, and writes the measurement CSV (and the
+truth) for ``kincal calibrate``.  Everything is computed before anything is written;
+every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from collections.abc import Sequence
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from kincal.cli.app import app
+from kincal.cli.calibration_common import (
+    AngleUnit,
+    BaseLink,
+    JsonOpt,
+    LengthUnit,
+    RobotArg,
+    TipLink,
+    check_unit,
+    load,
+    out_console,
+    serial,
+)
+from kincal.cli.common import console
+from kincal.errors import KincalError
+
+#: First-class artifact flags -> the instrument options they set (first one present).
+ARTIFACT_FLAGS: dict[str, tuple[str, ...]] = {
+    "--placements": ("placements",),
+    "--bar-length": ("bar_length_mm", "socket_distance_mm"),
+    "--probe-length": ("probe_length_mm",),
+    "--encoder-noise-deg": ("encoder_noise_deg",),
+}
+
+
+@app.command("instruments")
+def instruments_cmd() -> None:
+    """List the measurement instruments (for `kincal simulate --instrument`) and options."""
+    from kincal.measure.registry import LOAD_ERRORS, instruments
+
+    t = Table(title="Instruments (use with --instrument; options with --option KEY=VALUE)")
+    for c in ("name", "description", "noise unit", "options (default)"):
+        t.add_column(c, overflow="fold")
+    for name, inst in sorted(instruments().items()):
+        opts = "\n".join(f"{k}={v!r}: {h}" for k, (v, h) in inst.options.items())
+        t.add_row(name, inst.description, inst.noise_unit, opts or "-")
+    console.print(t)
+    for mod, err in LOAD_ERRORS.items():
+        console.print(f"[red]{escape(mod)} failed to load[/red]: {escape(err)}")
+
+
+def parse_options(items: Sequence[str] | None, inst: Any) -> dict[str, Any]:
+    """``--option KEY=VALUE`` (repeatable, ``;`` separated) typed like the defaults."""
+    out: dict[str, Any] = {}
+    for item in items or []:
+        for part in item.split(";"):
+            if not part.strip():
+                continue
+            if "=" not in part:
+                raise KincalError(f"option --option: {part!r} is not KEY=VALUE")
+            k, v = (s.strip() for s in part.split("=", 1))
+            if k not in inst.options:
+                raise KincalError(f"instrument {inst.name!r} has no option {k!r} (options: "
+                                  f"{', '.join(inst.options) or 'none'})")
+            default = inst.options[k][0]
+            try:
+                if isinstance(default, bool):
+                    if v.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                        raise ValueError
+                    out[k] = v.lower() in ("true", "1", "yes")
+                elif isinstance(default, int):
+                    out[k] = int(v)
+                elif isinstance(default, float):
+                    out[k] = float(v)
+                else:
+                    out[k] = v
+            except ValueError:
+                raise KincalError(f"option {k}: {v!r} is not a {type(default).__name__}"
+                                  ) from None
+    return out
+
+
+def artifact_options(inst: Any, flags: dict[str, float | int | None]) -> dict[str, Any]:
+    """Map ``--placements``, ``--bar-length`` [mm], ``--probe-length`` [mm] and
+    ``--encoder-noise-deg`` [deg] to ``inst``'s options; an error when it has none."""
+    out: dict[str, Any] = {}
+    for flag, value in flags.items():
+        if value is None:
+            continue
+        key = next((k for k in ARTIFACT_FLAGS[flag] if k in inst.options), None)
+        if key is None:
+            have = [f for f, ks in ARTIFACT_FLAGS.items() if any(k in inst.options for k in ks)]
+            raise KincalError(f"option {flag}: instrument {inst.name!r} has no such option "
+                              f"(it is for cross-bar, ball-bar, two-socket"
+                              + (f"; {inst.name} takes {', '.join(have)}" if have else "")
+                              + ")")
+        if not math.isfinite(value):
+            raise KincalError(f"option {flag}: must be finite")
+        if flag in ("--bar-length",) and not value > 0:
+            raise KincalError(f"option {flag}: must be > 0 mm (got {value:g})")
+        if flag in ("--probe-length", "--encoder-noise-deg") and value < 0:
+            raise KincalError(f"option {flag}: must be >= 0 (got {value:g})")
+        out[key] = type(inst.options[key][0])(value)
+    return out
+
+
+def parse_noise(noise_mm: float | None, noise: str | None, inst: Any) -> float:
+    """The instrument's main noise in its SI unit from --noise-mm or --noise VALUE+UNIT."""
+    from kincal.measure.files import UNITS
+
+    dim = {"m": "length", "rad": "angle", "px": "pixel"}.get(inst.noise_unit, "dimensionless")
+    if noise_mm is not None and noise is not None:
+        raise KincalError("give either --noise-mm or --noise, not both")
+    if noise is not None:
+        m = re.fullmatch(r"\s*([-+0-9.eE]+)\s*([a-z1]+)\s*", noise)
+        if not m or m.group(2) not in UNITS:
+            raise KincalError(f"option --noise: {noise!r} is not VALUE+UNIT (e.g. 0.02mm, "
+                              "1arcsec, 0.3px)")
+        try:
+            v = float(m.group(1))
+        except ValueError:
+            raise KincalError(f"option --noise: {m.group(1)!r} is not a number") from None
+        d, f = UNITS[m.group(2)]
+        if d != dim:
+            raise KincalError(f"option --noise: instrument {inst.name!r} has {dim} noise; "
+                              f"{m.group(2)} is {d}")
+        value = v * f
+    elif noise_mm is not None:
+        if dim != "length":
+            raise KincalError(f"instrument {inst.name!r} has {dim} noise: use --noise "
+                              "VALUE+UNIT")
+        value = noise_mm * 1e-3
+    else:
+        value = {"length": 1e-5, "angle": 2e-6, "pixel": 0.2}.get(dim, 1e-5)
+    if not math.isfinite(value) or value < 0:
+        raise KincalError("the noise must be a finite number >= 0")
+    return float(value)
+
+
+def noise_used(inst: Any, opts: dict[str, Any], sd: float) -> tuple[float, str]:
+    """The noise the simulation really applies, in SI, and a phrase for people.
+
+    Artifact instruments use ``encoder_noise_deg`` when it is >= 0, else ``sd`` [rad].
+    """
+    if "encoder_noise_deg" in inst.options:
+        enc = opts.get("encoder_noise_deg", inst.options["encoder_noise_deg"][0])
+        value = math.radians(enc) if enc >= 0 else sd
+        return value, (f"encoder noise {math.degrees(value):.4g} deg "
+                       f"({value:.4g} rad) per joint")
+    return sd, f"noise {sd:g} {inst.noise_unit}"
+
+
+@app.command()
+def simulate(
+    robot: RobotArg,
+    output: Annotated[str, typer.Option("-o", "--output", help="Measurement CSV to write.")],
+    truth: Annotated[str | None, typer.Option("--truth", help="Write the simulated true robot "
+                                              "here (YAML robot file, SI).")] = None,
+    poses: Annotated[int, typer.Option("--poses", "-n", min=1, help="Number of measured "
+                                       "configurations (artifacts: poses / sockets "
+                                       "placements unless --placements).")] = 100,
+    noise_mm: Annotated[float | None, typer.Option("--noise-mm", help="Measurement noise "
+                                                   "(standard deviation per coordinate) \\[mm]; "
+                                                   "default 0.01.")] = None,
+    noise: Annotated[str | None, typer.Option("--noise", help="Noise with its unit for "
+                                              "non-length instruments: '1arcsec', '0.3px'.")
+                     ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    instrument: Annotated[str, typer.Option("--instrument", "-i", help="Instrument (see "
+                                            "`kincal instruments`): position, pose, "
+                                            "cross-bar, ...")] = "position",
+    option: Annotated[list[str] | None, typer.Option("--option", help="Instrument option "
+                                                     "KEY=VALUE (repeatable), e.g. "
+                                                     "markers=3.")] = None,
+    placements: Annotated[int | None, typer.Option(
+        "--placements", min=1, help="Artifacts (cross-bar, ball-bar, two-socket): number of "
+        "artifact placements.")] = None,
+    bar_length: Annotated[float | None, typer.Option(
+        "--bar-length", help="Artifacts: the known length \\[mm]: cross-bar |AC| = |BD|, "
+        "ball-bar length, two-socket socket distance.")] = None,
+    probe_length: Annotated[float | None, typer.Option(
+        "--probe-length", help="Artifacts: probe length along the flange z axis \\[mm].")
+    ] = None,
+    encoder_noise_deg: Annotated[float | None, typer.Option(
+        "--encoder-noise-deg", help="Artifacts: encoder noise per joint \\[deg] (standard "
+        "deviation; replaces --noise).")] = None,
+    holdout: Annotated[str | None, typer.Option("--holdout", help="Also write held-out "
+                                                "measurements (same robot, same instrument "
+                                                "placement) to this CSV.")] = None,
+    holdout_poses: Annotated[int, typer.Option("--holdout-poses", min=1, help="Poses in the "
+                                               "held-out file.")] = 50,
+    length_error_mm: Annotated[float, typer.Option(help="Std of the injected length errors "
+                                                   "\\[mm].")] = 0.5,
+    angle_error_deg: Annotated[float, typer.Option(help="Std of the injected angle errors "
+                                                   "\\[deg].")] = 0.05,
+    offset_error_deg: Annotated[float, typer.Option(help="Std of the injected joint offset "
+                                                    "errors \\[deg].")] = 0.1,
+    perturb: Annotated[str | None, typer.Option(help="Only perturb these parameters (names or "
+                                                "* patterns, comma separated).")] = None,
+    length_unit: LengthUnit = "m", angle_unit: AngleUnit = "rad",
+    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
+) -> None:
+    """Simulate a calibration experiment: a true robot (nominal + errors) measured by an
+    instrument with noise. Writes the measurements (and the truth) for `kincal calibrate`.
+
+    Artifact instruments (cross-bar, ball-bar, two-socket) seat a probe in the sockets
+    of the artifact by IK on the true robot and record noisy joint readings."""
+    from kincal.io import write_json
+    from kincal.measure.registry import (
+        accepts,
+        get_instrument,
+        simulate_measurements,
+        write_measurements,
+    )
+    from kincal.measure.simulate import perturb_robot
+    from kincal.robots.files import robot_yaml_text
+
+    out = out_console(json_out)
+    nominal = serial(load(robot, base_link, tip_link), "simulate")
+    inst = get_instrument(instrument)
+    opts = parse_options(option, inst)
+    flags = artifact_options(inst, {"--placements": placements, "--bar-length": bar_length,
+                                    "--probe-length": probe_length,
+                                    "--encoder-noise-deg": encoder_noise_deg})
+    both = sorted(set(flags) & set(opts))
+    if both:
+        raise KincalError(f"option {both[0]} is given twice (as a flag and as --option)")
+    opts.update(flags)
+    if encoder_noise_deg is not None and (noise is not None or noise_mm is not None):
+        raise KincalError("give either --encoder-noise-deg or --noise, not both")
+    sd = parse_noise(noise_mm, noise, inst)
+    used, noise_text = noise_used(inst, opts, sd)
+    units = {"length": check_unit(length_unit, "length", "--length-unit"),
+             "angle": check_unit(angle_unit, "angle", "--angle-unit")}
+    rng = np.random.default_rng(seed)
+    names = None
+    if perturb:
+        from kincal.identify.solver import match_names
+
+        names = [nominal.param_names[i] for i in
+                 match_names(nominal.param_names, [p.strip() for p in perturb.split(",")])]
+    true = perturb_robot(nominal, rng, length_std=length_error_mm * 1e-3,
+                         angle_std=math.radians(angle_error_deg),
+                         offset_std=math.radians(offset_error_deg),
+                         base_std=(length_error_mm * 1e-3, math.radians(angle_error_deg)),
+                         tool_std=(length_error_mm * 1e-3, math.radians(angle_error_deg)),
+                         names=names)
+    blocks, inst_truth = simulate_measurements(inst, true, rng, poses, sd, opts)
+    held = None
+    if holdout:
+        hopts = dict(opts)
+        same = accepts(inst.simulate, "truth")
+        if not same and "name" in inst.options:
+            hopts["name"] = f"{opts.get('name', inst.options['name'][0])}_holdout"
+        held, _ = simulate_measurements(inst, true, rng, holdout_poses, sd, hopts,
+                                        truth=inst_truth)
+    note = (f"Simulated by `kincal simulate`: {nominal.name} + errors (seed {seed}), measured "
+            f"by {inst.name} with {noise_text}; instrument truth: "
+            + ", ".join(f"{k}={v:.9g}" for k, v in inst_truth.items()))
+    true = dataclasses.replace(true, meta={**dict(true.meta), "notes": note})
+    truth_text = robot_yaml_text(true) if truth else None
+    write_measurements(inst, blocks, output, units, nominal)
+    if held is not None:
+        write_measurements(inst, held, holdout, units, nominal)
+    if truth and truth_text is not None:
+        from kincal.io import atomic_write_text
+
+        atomic_write_text(truth, truth_text)
+    delta = true.param_values - nominal.param_values
+    rows = sum(int(b.q.shape[0]) for b in blocks)
+    n_pl = sum(len(getattr(b, "placements", ())) for b in blocks)
+    out.print(f"simulated {rows} measurements"
+              + (f" ({n_pl} placements)" if n_pl else "")
+              + f" of {escape(nominal.name)} with {inst.name} ({noise_text}) -> "
+              f"{escape(output)}")
+    if held is not None:
+        hrows = sum(int(b.q.shape[0]) for b in held)
+        out.print(f"held-out: {hrows} measurements -> {escape(str(holdout))}")
+    lin = np.array([u == "m" for u in nominal.param_units])
+    out.print(f"injected errors: {int(np.count_nonzero(delta))} parameters, largest "
+              f"{np.max(np.abs(delta[lin]), initial=0) * 1e3:.3f} mm / "
+              f"{math.degrees(np.max(np.abs(delta[~lin]), initial=0)):.4f} deg"
+              + (f"; truth -> {escape(truth)}" if truth else ""))
+    if json_out:
+        doc: dict[str, Any] = {
+            "robot": nominal.name, "instrument": inst.name, "poses": poses,
+            "measurements": rows, "noise": sd, "noise_unit": inst.noise_unit,
+            "seed": seed, "output": output, "holdout": holdout, "truth_file": truth,
+            "instrument_options": opts, "instrument_truth": inst_truth,
+            "true_parameters": true.params(), "nominal_parameters": nominal.params()}
+        if "encoder_noise_deg" in inst.options:
+            doc["encoder_noise_rad"] = used
+            doc["placements"] = n_pl
+        write_json(json_out, doc)
