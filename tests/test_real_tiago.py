@@ -2,15 +2,42 @@
 
 Protocol (data README): calibrate on the training session only; the motion-capture
 frame (6) and the marker point in ``wrist_ft_tool_link`` (3) are estimated with the
-robot parameters; RMS of the 3-D position error norm on the training file and on the
-validation file, the latter with the frames and parameters from training (no refit).
-FIGAROH publishes (mm, train / validation): registration only 3.37 / 4.87; joint
-offsets 2.88 / 4.23; full joint placements 1.64 / 3.07.
+robot parameters; RMS of the 3-D position error norm of point 1 (x1, y1, z1) on the
+training file and on the validation file, the latter with the frames and parameters
+from training (no refit).  FIGAROH publishes (mm, train / validation): registration
+only 3.37 / 4.87; joint offsets 2.88 / 4.23; full joint placements (31) 1.64 / 3.07.
+
+Full calibration, four variants (every choice made without the validation file):
+
+* ``least squares, point 1``: ``calibrate(robot, [train])``, the strict protocol;
+* ``MAP, point 1``: the same with a Gaussian prior from manufacturing tolerances,
+  fixed before looking at any result: 1 mm on every origin translation, 0.1 deg on
+  every origin error rotation; encoder offsets, the mocap frame and the marker free;
+* ``... all markers``: the four points x1..x4 are one rigid body on the hand, so
+  training may use all four (the hand's orientation too); validation stays on point
+  1 with the training frames, exactly as in the protocol.
+
+The variant kincal uses for this data is the one with the lowest 10-fold
+cross-validation RMS *within the 37 training postures* (test_cross_validation_...):
+``MAP, point 1``.  None of the four reaches FIGAROH's 3.07 mm on validation; each
+keeps a strict xfail with its measured numbers (see ``BELOW_FIGAROH``).
+
+Why (diagnosed afterwards, with FIGAROH's posture groups; nothing was chosen by it):
+the validation RMS is dominated by the 9 postures outside the training joint ranges.
+Two of them (arm_6 = -1.18 / arm_7 = +1.77 rad; arm_3 = -3.14 / arm_7 = -1.58 rad)
+are off by 9-21 mm for every calibrated model and by 12 mm after registration only.
+Inside the training ranges kincal's least squares matches FIGAROH's full model
+(test_validation_by_posture_group).  What is left is non-geometric: a diagnostic
+gravity-compliance term (joint deflection k * gravity torque from the URDF inertias;
+not part of kincal) finds arm_6 at 30-46 mrad/Nm in every variant, i.e. the ~40 mrad
+arm_6 backlash loaded by gravity that FIGAROH's report names.
 """
 
 from __future__ import annotations
 
 import csv
+import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +52,28 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tiago_mocap"
 pytestmark = pytest.mark.skipif(not DATA.is_dir(),
                                 reason=f"real TIAGo data not found at {DATA}")
 
+FIGAROH_FULL = (1.64, 3.07)   # mm, train / validation, "full joint placements (31)"
+#: Prior standard deviations (manufacturing tolerances, chosen a priori, not tuned):
+#: 1 mm on origin translations, 0.1 deg on origin error rotations.
+PRIOR = {"*.origin.x": 1e-3, "*.origin.y": 1e-3, "*.origin.z": 1e-3,
+         "*.origin.r?": math.radians(0.1)}
+#: variant -> (markers used in training, calibrate options)
+VARIANTS = {
+    "least squares, point 1": (1, {}),
+    "MAP, point 1": (1, {"prior": PRIOR}),
+    "least squares, all markers": (4, {}),
+    "MAP, all markers": (4, {"prior": PRIOR}),
+}
+#: The variant kincal uses for this data: lowest cross-validation RMS on training.
+DEFAULT = "MAP, point 1"
+#: Measured (mm, train point 1 / validation point 1); none is below FIGAROH's 3.07.
+BELOW_FIGAROH = {
+    "least squares, point 1": "1.591 / 4.172",
+    "MAP, point 1": "2.117 / 3.530",
+    "least squares, all markers": "1.842 / 3.609",
+    "MAP, all markers": "1.967 / 3.387",
+}
+
 
 def tiago():
     from kincal.robots.urdf import load_urdf
@@ -32,13 +81,14 @@ def tiago():
     return load_urdf(DATA / "tiago_48_schunk.urdf", tip_link="wrist_ft_tool_link")
 
 
-def session(robot, name):
-    """Marker 1 (x1, y1, z1 [m]) and the joint readings (torso [m], arm [rad])."""
+def session(robot, name, markers=1):
+    """Marker points (x1, y1, z1 [m], ... up to ``markers``) and the joint readings."""
     with open(DATA / name, newline="") as f:
         rows = list(csv.DictReader(f))
     q = np.array([[float(r[j]) for j in robot.joint_names] for r in rows])
-    y = np.array([[float(r[c]) for c in ("x1", "y1", "z1")] for r in rows])
-    return PositionMeasurement(q, y, sigma=1e-3, name="mocap")
+    y = np.array([[[float(r[f"{c}{k}"]) for c in "xyz"] for k in range(1, markers + 1)]
+                  for r in rows])
+    return PositionMeasurement(q, y[:, 0] if markers == 1 else y, sigma=1e-3, name="mocap")
 
 
 @pytest.fixture(scope="module")
@@ -48,17 +98,24 @@ def data():
             session(robot, "validation_2021-11-26.csv"))
 
 
-def rms_mm(result, block):
-    train = np.sqrt(np.mean(result.errors()["mocap"]["position_m"] ** 2)) * 1e3
-    val = validate(result.robot, [block], extras=result.extras())
-    return train, val["overall"]["rms_position_m"] * 1e3
+def point1_extras(extras):
+    """Block parameters for a point-1 block: frames as given, marker 1 as ``mocap.marker``."""
+    out = {k: v for k, v in extras.items() if ".marker" not in k}
+    for c in "xyz":
+        out[f"mocap.marker.{c}"] = extras.get(f"mocap.marker1.{c}", extras.get(f"mocap.marker.{c}"))
+    return out
+
+
+def rms_mm(robot, block, extras):
+    """RMS [mm] of the point-1 error norm of ``block`` with frames ``extras`` (no refit)."""
+    return validate(robot, [block], extras=point1_extras(extras))["overall"]["rms_position_m"] * 1e3
 
 
 def test_registration_only_reproduces_figaroh(data):
     robot, train, val = data
     res = calibrate(robot, [train], free=["mocap.*"])        # no user guess anywhere
     assert res.converged and len(res.estimated) == 9
-    t, v = rms_mm(res, val)
+    t, v = rms_mm(res.robot, train, res.extras()), rms_mm(res.robot, val, res.extras())
     print(f"\nTIAGo registration only (9): train {t:.3f} mm, validation {v:.3f} mm "
           "(FIGAROH 3.37 / 4.87)")
     assert t == pytest.approx(3.37, abs=0.02), f"train RMS {t:.4f} mm vs FIGAROH 3.37"
@@ -68,7 +125,7 @@ def test_registration_only_reproduces_figaroh(data):
 def test_joint_offsets_reproduce_figaroh(data):
     robot, train, val = data
     res = calibrate(robot, [train], free=["*.offset", "mocap.*"])
-    t, v = rms_mm(res, val)
+    t, v = rms_mm(res.robot, train, res.extras()), rms_mm(res.robot, val, res.extras())
     print(f"\nTIAGo joint offsets ({len(res.estimated)}): train {t:.3f} mm, validation "
           f"{v:.3f} mm (FIGAROH 14: 2.88 / 4.23)")
     assert len(res.estimated) == 14
@@ -78,22 +135,171 @@ def test_joint_offsets_reproduce_figaroh(data):
     assert t == pytest.approx(2.88, abs=0.02) and v == pytest.approx(4.23, abs=0.02)
 
 
-def test_full_automatic_calibration(data):
+@pytest.fixture(scope="module")
+def full(data):
+    """Every variant fitted on training: ``{variant: (result, train mm, validation mm, s)}``."""
     robot, train, val = data
+    train4 = session(robot, "train_2021-11-30.csv", markers=4)
+    out = {}
+    for name, (markers, options) in VARIANTS.items():
+        start = time.perf_counter()
+        res = calibrate(robot, [train if markers == 1 else train4], **options)
+        took = time.perf_counter() - start
+        out[name] = (res, rms_mm(res.robot, train, res.extras()),
+                     rms_mm(res.robot, val, res.extras()), took)
     reg = calibrate(robot, [train], free=["mocap.*"])
-    res = calibrate(robot, [train])                        # automatic parameter selection
-    t, v = rms_mm(res, val)
-    t0, v0 = rms_mm(reg, val)
-    msg = (f"TIAGo full automatic ({len(res.estimated)} of {len(res.names)} parameters): "
-           f"train {t:.3f} mm, validation {v:.3f} mm (FIGAROH full 31: 1.64 / 3.07); "
-           f"registration only {t0:.3f} / {v0:.3f} mm")
-    print("\n" + msg)
+    out["registration only"] = (reg, rms_mm(reg.robot, train, reg.extras()),
+                                rms_mm(reg.robot, val, reg.extras()), 0.0)
+    lines = [f"TIAGo full automatic calibration, point-1 RMS [mm] (FIGAROH full 31: "
+             f"{FIGAROH_FULL[0]:.2f} / {FIGAROH_FULL[1]:.2f}):"]
+    for name, (res, t, v, s) in out.items():
+        tag = " <- kincal's choice (cross-validation on training)" if name == DEFAULT else ""
+        lines.append(f"  {name:27s} {len(res.estimated):2d} params  train {t:.3f}  "
+                     f"validation {v:.3f}   ({res.iterations} iterations, {s:.2f} s){tag}")
+    print("\n" + "\n".join(lines))
+    return out
+
+
+def test_full_calibration_is_well_posed(full):
+    """The URDF origins (fixed nominal rotation + error rotations) are well conditioned:
+    33 identifiable parameters, scaled condition number ~250, ~10 LM iterations."""
+    res, t, v, _ = full["least squares, point 1"]
+    assert res.converged, res.message
+    assert len(res.estimated) == 33 and len(res.names) == 100
+    assert res.identifiability.cond_scaled < 300
+    assert res.iterations <= 20
+    assert np.all(np.isfinite(res.std))
+    # the torso slide's direction relative to the arm is identified (as arm_1's origin
+    # tilt); the torso's own origin and offset are absorbed by the mocap frame
+    assert {"arm_1_joint.origin.rx", "arm_1_joint.origin.ry"} <= set(res.estimated)
+    assert not any(n.startswith("torso_lift_joint.") for n in res.estimated)
+    assert res.identifiability.dependent["torso_lift_joint.offset"] == ["mocap.z"]
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_full_calibration_variants(full, variant):
+    res, t, v, _ = full[variant]
+    _, t0, v0, _ = full["registration only"]
     assert res.converged, res.message
     assert np.all(np.isfinite(res.std))
-    assert t < 0.55 * t0, msg             # the geometric model explains half the error
-    assert v < v0, msg                    # and generalises to another day
-    if v >= 3.07:
-        pytest.xfail("validation RMS above FIGAROH's 3.07 mm: " + msg + ". The converged "
-                     "least-squares optimum of the full geometric model over-fits the 37 "
-                     "training postures (the URDF rpy origins at pitch = -pi/2 also hide two "
-                     "directions); see the issue report")
+    assert t < 0.65 * t0 and v < v0, (t, v, t0, v0)   # better on both days
+    if "MAP" in variant:
+        assert set(res.prior) == {n for n in res.estimated if ".origin." in n}
+        # the prior does not change which parameters are estimated
+        assert res.estimated == full[variant.replace("MAP", "least squares")][0].estimated
+
+
+def test_map_is_the_prior_augmented_least_squares_optimum(data, full):
+    """``calibrate(prior=...)`` against scipy's least_squares on the same residuals with
+    the rows ``(theta_j - nominal_j) / s_j`` appended, over the same estimated set."""
+    from scipy.optimize import least_squares
+
+    from kincal.errors import KincalError
+
+    robot, train, _ = data
+    res = full["MAP, point 1"][0]
+    prob, theta0 = res.problem, res.theta0
+    est = [prob.names.index(n) for n in res.estimated]
+    pri = [k for k, i in enumerate(est) if prob.names[i] in res.prior]
+    inv = np.array([1.0 / res.prior[prob.names[est[k]]] for k in pri])
+
+    def fun(x):
+        theta = theta0.copy()
+        theta[est] = x
+        return np.concatenate([prob.residuals(theta), (x[pri] - theta0[est][pri]) * inv])
+
+    ref = least_squares(fun, theta0[est], x_scale="jac", xtol=1e-15, ftol=1e-15,
+                        gtol=1e-15, method="trf")
+    units = np.array([1e3 if prob.units[i] == "m" else math.degrees(1.0) for i in est])
+    assert np.abs((res.theta[est] - ref.x) * units).max() < 1e-5    # mm / deg
+    assert res.cost == pytest.approx(0.5 * np.sum(ref.fun**2), rel=1e-9)
+    # a very wide prior is least squares; a very narrow one holds the nominal origins
+    wide = calibrate(robot, [train], prior={"*.origin.*": 1e3})
+    ls = full["least squares, point 1"][0]
+    assert np.abs((wide.theta - ls.theta)[est] * units).max() < 1e-3
+    tight = calibrate(robot, [train], prior={"*.origin.*": 1e-9})
+    i = [k for k, n in enumerate(tight.names) if ".origin." in n]
+    assert np.abs(tight.theta[i] - tight.theta0[i]).max() < 1e-8
+    with pytest.raises(KincalError, match="positive and finite"):
+        calibrate(robot, [train], prior={"*.origin.x": 0.0})
+    with pytest.raises(KincalError, match="no parameter matches"):
+        calibrate(robot, [train], prior={"*.origin.yaw": 1e-3})
+
+
+def posture_groups(train, val, tol=0.01, margin=0.05):
+    """FIGAROH's groups of validation postures: repeated (every joint within ``tol`` of a
+    training posture), out of range (some joint beyond the training range by more than
+    ``margin``), new (the rest)."""
+    nearest = np.array([np.min(np.max(np.abs(train.q - x), axis=1)) for x in val.q])
+    repeated = nearest < tol
+    outside = np.any((val.q < train.q.min(0) - margin) | (val.q > train.q.max(0) + margin), 1)
+    return {"repeated": repeated, "new": ~repeated & ~outside,
+            "out of range": outside & ~repeated}
+
+
+def test_validation_by_posture_group(data, full):
+    """FIGAROH's full model (31), validation by group: repeated 2.34, new 2.84, out of
+    range 5.31 mm (37 / 16 / 9 postures).  kincal's least squares matches it inside the
+    training ranges; the difference is in the extrapolated postures.  (A diagnosis on
+    the validation file; no variant or setting is chosen from it.)"""
+    robot, train, val = data
+    groups = posture_groups(train, val)
+    assert [int(m.sum()) for m in groups.values()] == [37, 16, 9]
+    figaroh = {"repeated": 2.34, "new": 2.84, "out of range": 5.31}
+    lines = ["TIAGo validation by posture group, point-1 RMS [mm] "
+             f"(FIGAROH full 31: {', '.join(f'{k} {v:.2f}' for k, v in figaroh.items())}):"]
+    got = {}
+    for name in [*VARIANTS, "registration only"]:
+        res = full[name][0]
+        extras = point1_extras(res.extras())
+        e = val.errors(res.robot, np.array([extras[n] for n in val.parameters().names]))
+        got[name] = {k: float(np.sqrt(np.mean(e["position_m"][m] ** 2))) * 1e3
+                     for k, m in groups.items()}
+        lines.append(f"  {name:27s} " + ", ".join(f"{k} {v:.2f}" for k, v in got[name].items()))
+    print("\n" + "\n".join(lines))
+    # registration only reproduces FIGAROH's groups too: 3.93 / 5.12 / 7.34
+    reg = got["registration only"]
+    for k, v in zip(groups, (3.93, 5.12, 7.34), strict=True):
+        assert reg[k] == pytest.approx(v, abs=0.02), (k, reg[k])
+    ls = got["least squares, point 1"]
+    assert ls["repeated"] == pytest.approx(figaroh["repeated"], abs=0.1)
+    assert ls["new"] == pytest.approx(figaroh["new"], abs=0.1)
+    assert ls["out of range"] > figaroh["out of range"] + 2.0
+
+
+def _cv_rms_mm(robot, block, options, folds=10, seed=0):
+    """K-fold cross-validation inside one session: point-1 RMS [mm] of held-out postures,
+    each fold predicted with the frames and parameters fitted on the other folds."""
+    parts = np.array_split(np.random.default_rng(seed).permutation(block.N), folds)
+    errs = []
+    for part in parts:
+        test = np.sort(part)
+        res = calibrate(robot, [block.subset(np.setdiff1d(np.arange(block.N), test))],
+                        **options)
+        e = block.subset(test).errors(res.robot, res.theta[res.problem.slices[0]])
+        errs.append(e["position_m"].reshape(len(test), -1)[:, 0])
+    return float(np.sqrt(np.mean(np.concatenate(errs) ** 2))) * 1e3
+
+
+def test_cross_validation_on_training_chooses_the_variant(data):
+    """kincal's variant for this data is chosen on the 37 training postures only."""
+    robot, _, _ = data
+    blocks = {1: session(robot, "train_2021-11-30.csv"),
+              4: session(robot, "train_2021-11-30.csv", markers=4)}
+    cv = {name: _cv_rms_mm(robot, blocks[m], opts) for name, (m, opts) in VARIANTS.items()}
+    print("\nTIAGo 10-fold cross-validation on training, point-1 RMS [mm]: "
+          + ", ".join(f"{k} {v:.3f}" for k, v in cv.items()))
+    assert min(cv, key=cv.__getitem__) == DEFAULT
+
+
+@pytest.mark.parametrize("variant", [
+    pytest.param(name, marks=pytest.mark.xfail(
+        strict=True, reason=f"measured {BELOW_FIGAROH[name]} mm (train / validation) vs "
+        "FIGAROH 1.64 / 3.07: the validation RMS is dominated by postures outside the "
+        "training joint ranges and a non-geometric arm_6 error (see the module docstring)"))
+    if name in BELOW_FIGAROH else name for name in VARIANTS])
+def test_validation_below_figaroh(full, variant):
+    res, t, v, _ = full[variant]
+    print(f"\nTIAGo {variant} ({len(res.estimated)}): train {t:.3f} mm, validation {v:.3f} mm; "
+          f"FIGAROH full 31: {FIGAROH_FULL[0]:.2f} / {FIGAROH_FULL[1]:.2f} mm")
+    assert v < FIGAROH_FULL[1], f"{variant}: validation {v:.3f} mm >= FIGAROH's 3.07"

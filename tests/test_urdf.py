@@ -91,14 +91,17 @@ def reference_chain(path: Path, base: str, tip: str) -> list[dict]:
     return chain[::-1]
 
 
-def reference_fk(chain: list[dict], q: np.ndarray) -> np.ndarray:
-    """T = prod_j [Trans(xyz) Rz(yaw) Ry(pitch) Rx(roll)] [motion about/along axis]."""
+def reference_fk(chain: list[dict], q: np.ndarray, post: dict | None = None) -> np.ndarray:
+    """T = prod_j [Trans(xyz) Rz(yaw) Ry(pitch) Rx(roll) E_j] [motion about/along axis].
+
+    ``post`` maps joint names to a 3x3 rotation ``E_j`` (identity when absent).
+    """
     T = np.eye(4)
     i = 0
     for j in chain:
         O = np.eye(4)
         r, p, y = j["rpy"]
-        O[:3, :3] = _rz(y) @ _ry(p) @ _rx(r)
+        O[:3, :3] = _rz(y) @ _ry(p) @ _rx(r) @ (post or {}).get(j["name"], np.eye(3))
         O[:3, 3] = j["xyz"]
         T = T @ O
         if j["type"] == "fixed":
@@ -139,8 +142,16 @@ def test_tiago_chain_and_fk():
     np.testing.assert_array_equal(robot.joint_limits[1], [0.0, 2.74889357189])
     chain = reference_chain(path, "base_footprint", "wrist_ft_tool_link")
     assert len(chain) == 13  # 8 moving + 5 fixed joints on the path
-    assert robot.num_params == 12 + 6 * 13 + 8
-    assert "arm_tool_joint.origin.roll" in robot.param_names  # fixed joints are candidates
+    # base, tool; xyz per joint; 3 error rotations per fixed (5) or prismatic (1) joint,
+    # 2 per revolute joint (the third is its offset); 8 offsets
+    assert robot.num_params == 12 + 3 * 13 + 3 * 6 + 2 * 7 + 8
+    assert "arm_tool_joint.origin.rx" in robot.param_names  # fixed joints are candidates
+    assert "torso_lift_joint.origin.rz" in robot.param_names  # prismatic: all three
+    assert "arm_4_joint.origin.rx" in robot.param_names
+    assert "arm_4_joint.origin.rz" not in robot.param_names  # axis z: that is the offset
+    assert not any(n.endswith((".yaw", ".pitch", ".roll")) for n in robot.param_names)
+    assert robot.param_roles[robot.param_index("arm_4_joint.origin.ry")] == "angle"
+    assert robot.param_values[robot.param_index("arm_1_joint.origin.x")] == 0.15505
     assert robot.param_units[robot.param_index("torso_lift_joint.offset")] == "m"
     assert robot.param_roles[robot.param_index("arm_3_joint.offset")] == "offset"
     q = random_q(robot, np.random.default_rng(1), 50)
@@ -168,10 +179,21 @@ def test_fixture_axes_and_branches():
     assert [j.kind for j in robot.joints] == ["revolute", "revolute", "prismatic",
                                               "revolute", "revolute"]
     assert np.isinf(robot.joint_limits[3]).all()  # continuous
-    # the general axes use fixed constants that are not parameters
-    assert sum(et.param < 0 for et in robot.ets) == 6
+    # the general axes (6) and the non-zero nominal rpy angles are fixed constants
+    chain = reference_chain(ARM, "world", "tool0")
+    assert sum(et.param < 0 for et in robot.ets) == 6 + sum(
+        int(np.count_nonzero(j["rpy"])) for j in chain)
+    # revolute joints drop the error rotation closest to the axis: j1 (z), j2 (-y),
+    # j4 (1 1 1: the first largest, x), j5 (-x); the prismatic j3 keeps all three
+    rot = {n.split(".")[0]: [] for n in robot.param_names if ".origin.r" in n}
+    for n in robot.param_names:
+        if ".origin.r" in n:
+            rot[n.split(".")[0]].append(n.rsplit(".", 1)[1])
+    assert rot["j1"] == ["rx", "ry"] and rot["j2"] == ["rx", "rz"]
+    assert rot["j3"] == ["rx", "ry", "rz"] and rot["j4"] == ["ry", "rz"]
+    assert rot["j5"] == ["ry", "rz"] and rot["tool_joint"] == ["rx", "ry", "rz"]
     q = random_q(robot, np.random.default_rng(3), 100)
-    assert fk_error(robot, reference_chain(ARM, "world", "tool0"), q) < 1e-12
+    assert fk_error(robot, chain, q) < 1e-12
     # single-configuration call
     assert robot.fk(q[0]).shape == (4, 4)
 
@@ -196,6 +218,54 @@ def test_offsets_are_encoder_offsets():
     moved = robot.with_params({"j2.offset": 0.1})
     np.testing.assert_allclose(moved.fk(q), robot.fk(q - np.array([0, 0.1, 0, 0, 0])),
                                atol=1e-13)
+
+
+@pytest.mark.parametrize("which", ["fixture", "tiago"])
+def test_origin_error_rotations_about_own_axes(which):
+    """``<joint>.origin.rx .ry .rz`` turn the frame about its own axes after the nominal
+    origin: checked against the independent chain with ``E_j = Rx Ry Rz`` inserted."""
+    path, base, tip = {"fixture": (ARM, "world", "tool0"),
+                       "tiago": (TIAGO, "base_footprint", "wrist_ft_tool_link")}[which]
+    robot = load_urdf(_need(path), base_link=base, tip_link=tip)
+    chain = reference_chain(path, base, tip)
+    rng = np.random.default_rng(14)
+    values, post = {}, {}
+    for j in chain:  # large angles: the order Rx Ry Rz matters and is checked
+        a = {f: rng.uniform(-0.5, 0.5) for f in ("rx", "ry", "rz")
+             if f"{j['name']}.origin.{f}" in robot.param_names}
+        values.update({f"{j['name']}.origin.{f}": v for f, v in a.items()})
+        post[j["name"]] = _rx(a.get("rx", 0.0)) @ _ry(a.get("ry", 0.0)) @ _rz(a.get("rz", 0.0))
+    moved = robot.with_params(values)
+    q = random_q(robot, rng, 30)
+    ref = np.stack([reference_fk(chain, qi, post) for qi in q])
+    assert np.abs(moved.fk(q) - ref).max() < 1e-12
+
+
+@pytest.mark.parametrize("which", ["fixture", "tiago", "panda"])
+def test_origin_rotations_are_well_conditioned(which):
+    """At the nominal model the rotation columns of every origin (error rotations and
+    the offset of a revolute joint) span all three rotation directions.
+
+    For coordinate axes they are three orthonormal axes (singular values 1); the
+    fixture's general axes keep at least ``1/sqrt(3)``.  (With roll-pitch-yaw
+    parameters TIAGo's arm_4/5/6 origins, at pitch = -pi/2, had a zero singular value.)
+    """
+    path, tip = {"fixture": (ARM, "tool0"), "tiago": (TIAGO, "wrist_ft_tool_link"),
+                 "panda": (PANDA, "ball_link")}[which]
+    robot = load_urdf(_need(path), tip_link=tip)
+    q = random_q(robot, np.random.default_rng(15), 5)
+    Jw = robot.param_jacobian(q)[:, 3:, :]
+    for j in reference_chain(path, robot.meta["base_link"], tip):
+        cols = [i for i, n in enumerate(robot.param_names)
+                if n.startswith(j["name"] + ".origin.r")
+                or (n == j["name"] + ".offset" and j["type"] in ("revolute", "continuous"))]
+        assert len(cols) == 3, j["name"]
+        s = np.linalg.svd(Jw[:, :, cols], compute_uv=False)    # (N, 3) per configuration
+        general = np.count_nonzero(j["axis"]) > 1 and j["type"] != "prismatic"
+        if general:
+            assert s.min() > 0.3, (j["name"], s)
+        else:
+            np.testing.assert_allclose(s, 1.0, atol=1e-12, err_msg=j["name"])
 
 
 def _fd_param_jacobian(robot, q: np.ndarray, h: float = 1e-6) -> np.ndarray:
@@ -370,6 +440,10 @@ def test_write_calibrated_urdf_rejects_other_robots(tmp_path):
     robot = load_urdf(ARM, tip_link="tool0")
     with pytest.raises(RobotFileError, match="does not match the chain world -> tool0"):
         write_calibrated_urdf(edited, robot, out)
+    # the same parameters, but another nominal rotation of j4's origin
+    edited.write_text(ARM.read_text().replace('rpy="-0.3 0.2 -0.1"', 'rpy="-0.3 0.2 -0.2"'))
+    with pytest.raises(RobotFileError, match="different nominal origins"):
+        write_calibrated_urdf(edited, robot, out)
     assert not out.exists()
 
 
@@ -526,7 +600,7 @@ def test_cli_show_and_fk():
               "--json", "-")
     out, err = show.communicate(timeout=60)
     assert show.returncode == 0, err
-    assert "tiago: 8 joints (urdf)" in out and "98 parameters" in out
+    assert "tiago: 8 joints (urdf)" in out and "91 parameters" in out
     for name in TIAGO_JOINTS:
         assert name in out
     assert "arm_7_joint.offset" in out

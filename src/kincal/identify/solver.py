@@ -37,6 +37,24 @@ solution (weighted ``J``).  By default ``sigma0^2 = sum w r^2 / (M - p)`` (the
 a-posteriori variance factor: honest even when the stated sigmas are only nominal);
 ``trust_sigma=True`` uses ``sigma0 = 1`` (the Cramér-Rao bound of the stated noise).
 
+Prior (MAP, optional): ``prior={name or pattern: s}`` adds, for every *estimated*
+parameter it names, the pseudo-observation ``(theta_j - c_j) / s_j`` to the residuals,
+``c_j`` the parameter's value before calibration (the robot's value, or the block's
+closed-form guess; ``initial`` moves the start, not the centre).  The minimiser is then
+the maximum a-posteriori estimate under independent Gaussian priors
+``theta_j ~ N(c_j, s_j^2)`` and Gaussian measurement noise of the stated sigmas:
+
+    theta_hat = argmin 1/2 [ sum_i w_i r_i^2 + sum_j ((theta_j - c_j) / s_j)^2 ].
+
+Use it with standard deviations that come from outside the data, e.g. manufacturing
+tolerances (1 mm on link lengths, 0.1 deg on origin angles): parameters that the data
+determine well hardly move from their least-squares values, weakly determined
+combinations (which a least-squares fit sets from noise) stay near their nominal
+values.  The prior does not change *which* parameters are estimated: the base set is
+chosen from the measurements alone, as without a prior.  ``cost``, ``sigma0`` and the
+covariance are those of the augmented problem (the prior rows count as observations;
+the covariance is the posterior one); ``residuals`` are the measurements' only.
+
 Parameter selection: ``free=None`` (automatic) makes every robot and block
 parameter a candidate; ``free`` lists names or glob patterns (``theta_offset[*]``,
 ``tracker.*``; brackets are literal, only ``*`` and ``?`` are wildcards); ``fixed``
@@ -51,7 +69,7 @@ from __future__ import annotations
 
 import difflib
 import re
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -175,6 +193,8 @@ class CalibrationResult:
         history: one :class:`IterationRecord` per iteration, all stages.
         stages: ``(label, estimated names)`` per stage.
         converged, iterations, message: as in scipy.
+        prior: ``{name: prior standard deviation}`` of the estimated parameters that
+            had a prior (empty for a plain least-squares fit).
     """
 
     robot: Robot
@@ -199,6 +219,7 @@ class CalibrationResult:
     stages: list[tuple[str, list[str]]] = field(default_factory=list)
     method: str = "lm"
     loss: str = "linear"
+    prior: dict[str, float] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ access
     @property
@@ -264,6 +285,7 @@ class CalibrationResult:
                 "std": float(self.std[i]) if n in est else None,
                 "identifiable": n in ident, "estimated": n in est,
                 "status": self._status(n),
+                "prior_std": self.prior.get(n),
             })
         return {
             "parameters": params,
@@ -302,6 +324,9 @@ class CalibrationResult:
             lines.append(f"{n:<34}{u:>5}{self.theta0[i] * f:13.5f}{self.theta[i] * f:13.5f}"
                          f"{(self.theta[i] - self.theta0[i]) * f:11.5f}{std}  "
                          f"{self._status(n)}")
+        if self.prior:
+            lines += ["", f"MAP estimate: {len(self.prior)} estimated parameter(s) have a "
+                      "Gaussian prior centred on their initial value (cost and std include it)"]
         held = self.identifiability.describe()
         if held:
             lines += ["", "Not identifiable from these measurements:"]
@@ -326,10 +351,19 @@ class CalibrationResult:
 
 
 # --------------------------------------------------------------------------- robust weights
-def _robust_weights(r: Array, ids: Array, dims: Array, loss: str, loss_scale: float) -> Array:
-    """Per-residual IRLS weights from per-measurement RMS whitened residuals."""
+def _robust_weights(r: Array, ids: Array, dims: Array, loss: str, loss_scale: float,
+                    n_fixed: int = 0) -> Array:
+    """Per-residual IRLS weights from per-measurement RMS whitened residuals.
+
+    The last ``n_fixed`` residuals (prior rows) always weigh 1 and do not enter the
+    robust scale.
+    """
     if loss == "linear":
         return np.ones_like(r)
+    if n_fixed:
+        w = np.ones_like(r)
+        w[:-n_fixed] = _robust_weights(r[:-n_fixed], ids, dims, loss, loss_scale)
+        return w
     sq = np.bincount(ids, weights=r * r, minlength=len(dims))
     e = np.sqrt(sq / dims)
     # Gaussian reference: median of sqrt(chi2_d / d)
@@ -356,6 +390,53 @@ class _State:
     cost: float
 
 
+class _WithPrior:
+    """A stacked problem with prior rows ``(theta_j - c_j) / s_j`` appended (j in ``idx``).
+
+    Offers the two methods the iteration uses (``residuals``,
+    ``residuals_and_jacobian``); with an empty ``idx`` it is the problem itself.
+    """
+
+    def __init__(self, prob: StackedProblem, idx: Sequence[int], sigma: Array,
+                 center: Array) -> None:
+        self.prob = prob
+        self.idx = np.asarray(idx, dtype=np.intp)
+        self.inv = 1.0 / np.asarray(sigma, dtype=float)
+        self.center = center[self.idx]
+
+    @property
+    def rows(self) -> int:
+        return len(self.idx)
+
+    def _prior(self, theta: Array) -> Array:
+        return (theta[self.idx] - self.center) * self.inv
+
+    def residuals(self, theta: Array) -> Array:
+        r = self.prob.residuals(theta)
+        return np.concatenate([r, self._prior(theta)]) if self.rows else r
+
+    def residuals_and_jacobian(self, theta: Array) -> tuple[Array, Array]:
+        r, J = self.prob.residuals_and_jacobian(theta)
+        if not self.rows:
+            return r, J
+        P = np.zeros((self.rows, J.shape[1]))
+        P[np.arange(self.rows), self.idx] = self.inv
+        return np.concatenate([r, self._prior(theta)]), np.vstack([J, P])
+
+
+def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> dict[int, float]:
+    """``{parameter index: sigma}`` from ``{name or pattern: sigma}`` (later keys win)."""
+    out: dict[int, float] = {}
+    for pattern, sigma in (prior or {}).items():
+        s = float(sigma)
+        if not (np.isfinite(s) and s > 0):
+            raise KincalError(f"prior standard deviation of {pattern!r} must be positive and "
+                              f"finite, got {sigma!r}")
+        for i in match_names(names, pattern):
+            out[i] = s
+    return out
+
+
 def _scaled_step(dx: Array, x: Array) -> float:
     return float(np.max(np.abs(dx) / (1.0 + np.abs(x)))) if dx.size else 0.0
 
@@ -363,11 +444,15 @@ def _scaled_step(dx: Array, x: Array) -> float:
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
                loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
                ids: Array, dims: Array, history: list[IterationRecord],
-               progress: Callable[[IterationRecord], Any] | None
+               progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0
                ) -> tuple[Array, bool, int, str]:
-    """Iterate one stage to convergence; returns (theta, converged, iterations, message)."""
+    """Iterate one stage to convergence; returns (theta, converged, iterations, message).
+
+    ``prob`` is a :class:`StackedProblem` or a :class:`_WithPrior` whose ``n_fixed``
+    trailing prior rows keep weight 1.
+    """
     r, J = prob.residuals_and_jacobian(theta)
-    w = _robust_weights(r, ids, dims, loss, loss_scale)
+    w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
 
     def cost_of(res: Array, wt: Array) -> float:
         return 0.5 * float(np.sum(wt * res * res))
@@ -410,7 +495,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             step = _scaled_step(dx, theta[est])
             theta = new
             r, J = prob.residuals_and_jacobian(theta)
-            w = _robust_weights(r, ids, dims, loss, loss_scale)
+            w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
             if step <= tol_step:
                 return theta, True, it, f"stage {label!r}: step below tol_step"
@@ -465,7 +550,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         theta = new
         r, J = prob.residuals_and_jacobian(theta)
         w_old = w
-        w = _robust_weights(r, ids, dims, loss, loss_scale)
+        w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
         if step <= tol_step:
             return theta, True, it, f"stage {label!r}: step below tol_step"
@@ -483,7 +568,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
               tol_step: float = 1e-10, tol_cost: float = 1e-14,
               progress: Callable[[IterationRecord], Any] | None = None, *,
               trust_sigma: bool = False, tol_rank: float | None = None,
-              initial: dict[str, float] | None = None) -> CalibrationResult:
+              initial: dict[str, float] | None = None,
+              prior: Mapping[str, float] | None = None) -> CalibrationResult:
     """Calibrate ``robot`` from measurement ``blocks``.
 
     Args:
@@ -504,6 +590,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         tol_rank: tolerance of the identifiability analysis (default 1e-8).
         initial: starting values ``{name: value}`` overriding nominal / closed-form
             initial guesses.
+        prior: prior standard deviations ``{name or pattern: s}`` [m / rad] of a
+            maximum a-posteriori estimate centred on the values before calibration
+            (see the module docstring); a later key overrides an earlier one for
+            the names both match.  Only estimated parameters are affected.
 
     Returns:
         A :class:`CalibrationResult`.  Parameters that cannot be identified are never
@@ -517,6 +607,13 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     if isinstance(blocks, MeasurementModel):
         blocks = [blocks]
     prob, theta0 = stack(robot, list(blocks))
+    center = theta0.copy()
+    prior_s = _prior_sigmas(prob.names, prior)
+
+    def with_prior(est: Sequence[int]) -> _WithPrior:
+        idx = [i for i in est if i in prior_s]
+        return _WithPrior(prob, idx, np.array([prior_s[i] for i in idx]), center)
+
     if initial:
         for k, v in initial.items():
             theta0[prob.index(k)] = float(v)
@@ -527,6 +624,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     specs: list[str | Sequence[str]] = list(stages) if stages else ["all"]
     ids = prob.measurement_ids()
     dims = np.bincount(ids).astype(float)
+    M = len(ids)
     history: list[IterationRecord] = []
     theta = theta0.copy()
     stage_info: list[tuple[str, list[str]]] = []
@@ -546,9 +644,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         est = [names.index(n) for n in report.identifiable]
         est.sort()
         stage_info.append((label, [names[i] for i in est]))
-        theta, ok, its, msg = _run_stage(prob, theta, est, label, method, loss, loss_scale,
+        aug = with_prior(est)
+        theta, ok, its, msg = _run_stage(aug, theta, est, label, method, loss, loss_scale,
                                          max_iter, tol_step, tol_cost, ids, dims, history,
-                                         progress)
+                                         progress, aug.rows)
         total_it += its
         # The base set was chosen at the stage's start.  If, at the solution, some
         # estimated parameters have become dependent (e.g. nominal axes that are exactly
@@ -567,16 +666,18 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             stage_info[-1] = (label, [names[i] for i in est])
             messages.append(f"stage {label!r}: {len(check.not_identifiable)} parameter(s) "
                             "became dependent at the solution; re-selected the base set")
-            theta, ok, its, msg = _run_stage(prob, theta, est, label, method, loss,
+            aug = with_prior(est)
+            theta, ok, its, msg = _run_stage(aug, theta, est, label, method, loss,
                                              loss_scale, max_iter, tol_step, tol_cost, ids,
-                                             dims, history, progress)
+                                             dims, history, progress, aug.rows)
             total_it += its
         converged &= ok
         messages.append(msg)
     assert report is not None
-    # final statistics over the last stage's estimated set
-    r, J = prob.residuals_and_jacobian(theta)
-    w = _robust_weights(r, ids, dims, loss, loss_scale)
+    # final statistics over the last stage's estimated set (prior rows included)
+    aug = with_prior(est)
+    r, J = aug.residuals_and_jacobian(theta)
+    w = _robust_weights(r, ids, dims, loss, loss_scale, aug.rows)
     Jw = J[:, est] * np.sqrt(w)[:, None]
     dof = len(r) - len(est)
     if trust_sigma:
@@ -606,7 +707,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         std[est] = standard_errors(cov)
         corr = correlation(cov)
     wm = np.ones(len(dims))
-    wm[ids] = w
+    wm[ids] = w[:M]
     outliers = []
     if loss != "linear":
         bnames = prob.block_names
@@ -622,9 +723,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     return CalibrationResult(
         robot=robot_cal, robot_initial=robot, problem=prob, theta0=theta0, theta=theta,
         names=names, estimated=[names[i] for i in est], identifiability=report, std=std,
-        covariance=cov, correlation=corr, sigma0=sigma0, residuals=r, weights=w,
+        covariance=cov, correlation=corr, sigma0=sigma0, residuals=r[:M], weights=w[:M],
         outliers=outliers, history=history, converged=bool(converged), iterations=total_it,
-        message="; ".join(messages), stages=stage_info, method=method, loss=loss)
+        message="; ".join(messages), stages=stage_info, method=method, loss=loss,
+        prior={names[i]: prior_s[i] for i in est if i in prior_s})
 
 
 class Calibration:

@@ -13,12 +13,33 @@ where ``(xyz, rpy)`` is the joint's ``<origin>`` [m, rad] and ``M`` is a rotatio
 
     base frame (6, zero)
     for every joint on the path, base to tip:
-        Tx Ty Tz Rz Ry Rx      <joint>.origin.x .y .z .yaw .pitch .roll   (length / angle)
-        X(c + s q)             <joint>.offset                             (moving joints)
+        Tx Ty Tz           <joint>.origin.x .y .z     (length; values from the file)
+        Rz Ry Rx           yaw, pitch, roll           (fixed constants, not parameters)
+        Rx Ry Rz           <joint>.origin.rx .ry .rz  (angle; value 0, see below)
+        X(c + s q)         <joint>.offset             (moving joints)
     tool frame (6, zero)
 
-Fixed joints keep their six origin parameters (they are calibration candidates:
-a flange or a marker mount is as uncertain as a link).  The motion factor
+The origin's rotation is the file's ``Rz(yaw) Ry(pitch) Rx(roll)`` held fixed, followed
+by small *error* rotations about the frame's own axes, zero at nominal.  Why not make
+roll, pitch and yaw the parameters?  Many URDFs place axes with ``pitch = +-pi/2``
+(TIAGo's arm_4/5/6, most ``xacro`` wrists); there ``Rz(yaw)`` and ``Rx(roll)`` turn
+about the same axis, the rpy Jacobian loses a column, one real rotation direction
+per such origin becomes invisible to the identification, and the solver crawls
+along the lock.  Error rotations at zero are well conditioned for any nominal
+origin (their Jacobian columns are three orthogonal unit axes), and the calibrated
+origin is still exactly a URDF origin (:func:`write_calibrated_urdf` composes it).
+
+Which error rotations: all three for fixed and prismatic joints.  A revolute joint
+drops the one about the frame axis closest to its own axis: for ``axis = +-e_k``,
+``Rk(r) Rk(c + q) = Rk(r + c + q)``, so that rotation *is* the encoder offset and
+would only duplicate its column (automatic selection would then keep the origin angle
+and call the offset dependent).  For a general axis ``a`` the two kept rotations and
+the offset still span every small rotation (``det[e_i, e_j, a] = +-a_k``, ``|a_k| >=
+1/sqrt 3``).  So a joint has ``.origin.x .y .z``, two or three of ``.origin.rx .ry
+.rz``, and ``.offset`` when it moves.
+
+Fixed joints keep their origin parameters (they are calibration candidates: a
+flange or a marker mount is as uncertain as a link).  The motion factor
 ``X(c + s q)`` carries the joint variable; its constant ``c`` is the encoder zero
 offset, zero in the file.  An axis ``+-x, +-y, +-z`` gives ``X = Rx, Ry, Rz`` (``Tx ..``
 for prismatic joints) with ``s = +-1``; note that ``c`` turns about (or slides
@@ -33,9 +54,11 @@ whose chain from ``base_link`` to ``tool_link`` has the robot's forward kinemati
 the constant transforms before each joint become that joint's ``<origin>``, the
 trailing ones a fixed ``tool_joint``.  :func:`write_calibrated_urdf` copies the
 original URDF and rewrites the ``<origin>`` of every joint on the chain with
-calibrated values, folding each encoder offset ``c`` into it:
-``T_origin' = T_origin Rot(u, c)`` (revolute) or ``T_origin Trans(c u)`` (prismatic),
-``u`` the axis that ``c`` acts on.
+calibrated values, composing the error rotations and folding each encoder offset
+``c`` into it: ``T_origin' = Trans(x, y, z) R_nominal R_error Rot(u, c)`` (revolute)
+or ``... R_error Trans(c u)`` (prismatic), ``u`` the axis that ``c`` acts on, written
+back as xyz / rpy (:func:`rpy_of` is accurate at ``pitch = +-pi/2``).  Reloading the
+written file gives the calibrated kinematics with zero error rotations and offsets.
 
 Every problem with a file is one :class:`~kincal.errors.RobotFileError` line naming
 the file, the line and the element.  Only the standard library's ElementTree is used.
@@ -58,7 +81,7 @@ from numpy.typing import NDArray
 
 from kincal.errors import KincalError, RobotFileError
 from kincal.io import atomic_write_text
-from kincal.robots.chain import ROTATIONS, ChainBuilder, Robot
+from kincal.robots.chain import ChainBuilder, Robot
 from kincal.spatial import rotx, roty, rotz
 
 Array = NDArray[np.float64]
@@ -70,8 +93,10 @@ __all__ = ["UrdfJoint", "UrdfModel", "load_urdf", "parse_urdf", "rpy_of", "urdf_
 URDF_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
 #: Joint types that can be on a serial chain.
 CHAIN_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
-#: Suffixes of the six origin parameters, in chain order (Tx Ty Tz Rz Ry Rx).
-ORIGIN_FIELDS = ("x", "y", "z", "yaw", "pitch", "roll")
+#: Suffixes of the origin parameters, in chain order: translation, then the error
+#: rotations about the frame's own axes after the nominal rotation (a revolute joint
+#: has two of the three, see :func:`_error_axes`).
+ORIGIN_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
 
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\Z")
 _MAX_LISTED = 10
@@ -423,15 +448,33 @@ def _offset_axis(axis: Sequence[float]) -> Array:
     return np.asarray(axis, dtype=float) * s if k >= 0 else np.asarray(axis, dtype=float)
 
 
+def _error_axes(j: UrdfJoint) -> tuple[int, ...]:
+    """Frame axes (0, 1, 2 = x, y, z) of the origin error rotations of joint ``j``.
+
+    All three for fixed and prismatic joints.  A revolute joint drops the one closest
+    to its axis (``argmax |a_k|``): for ``a = +-e_k`` the error rotation about ``e_k``
+    is the very transform the encoder offset is (``Rk(r) Rk(c + q) = Rk(r + c + q)``);
+    for a general axis the two kept ones and the offset still span every small
+    rotation (``det[e_i, e_j, a] = +-a_k != 0``).
+    """
+    if j.type in ("revolute", "continuous"):
+        k = max(range(3), key=lambda i: abs(j.axis[i]))
+        return tuple(i for i in range(3) if i != k)
+    return (0, 1, 2)
+
+
 def _compile(model: UrdfModel, base: str, tip: str, path: list[UrdfJoint]) -> Robot:
     b = ChainBuilder(model.name)
     b.frame("base", [0.0] * 6)
     for j in path:
-        (x, y, z), (roll, pitch, yaw) = j.xyz, j.rpy
-        for kind, fld, v in (("Tx", "x", x), ("Ty", "y", y), ("Tz", "z", z),
-                             ("Rz", "yaw", yaw), ("Ry", "pitch", pitch), ("Rx", "roll", roll)):
-            b.transform(kind, f"{j.name}.origin.{fld}", v,
-                        role="angle" if kind in ROTATIONS else "length")
+        for fld, v in zip("xyz", j.xyz, strict=True):
+            b.transform("T" + fld, f"{j.name}.origin.{fld}", v, role="length")
+        roll, pitch, yaw = j.rpy
+        for kind, v in (("Rz", yaw), ("Ry", pitch), ("Rx", roll)):
+            if v != 0.0:
+                b.transform(kind, None, v)            # nominal rotation: fixed constants
+        for k in _error_axes(j):
+            b.transform("R" + "xyz"[k], f"{j.name}.origin.r{'xyz'[k]}", 0.0, role="angle")
         if not j.moving:
             continue
         revolute = j.type != "prismatic"
@@ -469,13 +512,15 @@ def load_urdf(path: str | os.PathLike[str], base_link: str | None = None,
             error lists the leaves when there are several).
 
     Returns:
-        A robot with zero base and tool frames, six origin parameters per joint on
-        the path (``<joint>.origin.x .y .z`` [m], ``.yaw .pitch .roll`` [rad]) and an
-        encoder offset ``<joint>.offset`` [rad or m] per moving joint (see the module
-        docstring for the compiled sequence).  Joint limits come from
-        ``<limit lower upper>`` (a missing bound is infinite; continuous joints are
-        unlimited).  ``meta`` holds ``convention="urdf"``, ``source``, ``urdf_file``,
-        ``base_link``, ``tip_link`` and ``urdf_robot_name``.
+        A robot with zero base and tool frames; per joint on the path the origin
+        translation ``<joint>.origin.x .y .z`` [m] (the file's values), error
+        rotations ``<joint>.origin.rx .ry .rz`` [rad] (zero; a revolute joint lacks
+        the one about its own axis, which is its offset) after the file's fixed
+        nominal rotation, and an encoder offset ``<joint>.offset`` [rad or m] per
+        moving joint (see the module docstring for the compiled sequence).  Joint
+        limits come from ``<limit lower upper>`` (a missing bound is infinite;
+        continuous joints are unlimited).  ``meta`` holds ``convention="urdf"``,
+        ``source``, ``urdf_file``, ``base_link``, ``tip_link`` and ``urdf_robot_name``.
 
     Raises:
         RobotFileError: one line naming the file, line and element (see
@@ -643,12 +688,13 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
     """Copy a URDF with the calibrated joint origins of ``robot`` written in.
 
     ``robot`` must come from :func:`load_urdf` on ``original_urdf`` (same chain, same
-    parameter names), with any parameter values.  For every joint on its chain the
-    ``<origin>`` becomes ``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` from the
-    calibrated values, times the folded encoder offset ``c``: ``Rot(u, c)`` for a
-    revolute joint, ``Trans(c u)`` for a prismatic one, ``u`` the axis ``c`` acts on
-    (so the joint readings ``q`` are unchanged).  Everything else in the file
-    (other branches, inertias, meshes, comments) is kept.
+    parameter names and nominal origins), with any parameter values.  For every joint
+    on its chain the ``<origin>`` becomes ``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)``
+    (the file's nominal rotation) times the calibrated error rotations
+    (``Rx(rx) Ry(ry) Rz(rz)``, those the joint has), times the folded encoder offset
+    ``c``: ``Rot(u, c)`` for a revolute joint, ``Trans(c u)`` for a prismatic one,
+    ``u`` the axis ``c`` acts on (so the joint readings ``q`` are unchanged).
+    Everything else in the file (other branches, inertias, meshes, comments) is kept.
 
     A non-zero calibrated base frame is written as a new root link ``base_name``
     with a fixed joint to ``base_link`` (which must then be the URDF's root); a
@@ -673,15 +719,19 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
     if nominal.param_names != robot.param_names:
         raise RobotFileError(f"robot {robot.name!r} does not match the chain {base} -> {tip} "
                              "of this file (different parameters)", source=source)
+    if nominal.ets != robot.ets:
+        raise RobotFileError(f"robot {robot.name!r} does not match the chain {base} -> {tip} "
+                             "of this file (different nominal origins or axes)", source=source)
     v = robot.params()
     elems = {e.get("name"): e for e in root if e.tag == "joint"}
     for j in chain:
         pre = f"{j.name}.origin."
         T = np.eye(4)
-        for fld in ORIGIN_FIELDS:
-            kind = {"x": "Tx", "y": "Ty", "z": "Tz", "yaw": "Rz", "pitch": "Ry",
-                    "roll": "Rx"}[fld]
-            T = T @ _et_matrix(kind, v[pre + fld])
+        T[:3, 3] = [v[pre + fld] for fld in "xyz"]
+        roll, pitch, yaw = j.rpy
+        T[:3, :3] = rotz(yaw) @ roty(pitch) @ rotx(roll)
+        for k in _error_axes(j):
+            T = T @ _et_matrix("R" + "xyz"[k], v[f"{pre}r{'xyz'[k]}"])
         if j.moving:
             c = v[f"{j.name}.offset"]
             u = _offset_axis(j.axis)
