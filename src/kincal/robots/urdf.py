@@ -60,6 +60,13 @@ or ``... R_error Trans(c u)`` (prismatic), ``u`` the axis that ``c`` acts on, wr
 back as xyz / rpy (:func:`rpy_of` is accurate at ``pitch = +-pi/2``).  Reloading the
 written file gives the calibrated kinematics with zero error rotations and offsets.
 
+Masses.  :func:`load_urdf_inertials` reads the ``<inertial>`` of every link that rides on
+the chain (mass [kg] and centre of mass ``<origin xyz>`` [m]; the inertia tensor is not
+read) as :class:`~kincal.robots.gravity.PointMass` values for
+:func:`~kincal.robots.gravity.gravity_torques`: the chain's own links, and every link
+hanging off them (fixed joints and side branches with their own moving joints, the
+latter held at their zero configuration).
+
 Every problem with a file is one :class:`~kincal.errors.RobotFileError` line naming
 the file, the line and the element.  Only the standard library's ElementTree is used.
 """
@@ -82,12 +89,14 @@ from numpy.typing import NDArray
 from kincal.errors import KincalError, RobotFileError
 from kincal.io import atomic_write_text
 from kincal.robots.chain import ChainBuilder, Robot
+from kincal.robots.gravity import PointMass
 from kincal.spatial import rotx, roty, rotz
 
 Array = NDArray[np.float64]
 
-__all__ = ["UrdfJoint", "UrdfModel", "load_urdf", "parse_urdf", "rpy_of", "urdf_text",
-           "write_calibrated_urdf", "write_urdf"]
+__all__ = ["UrdfInertial", "UrdfJoint", "UrdfModel", "load_urdf", "load_urdf_inertials",
+           "parse_urdf", "parse_urdf_inertials", "rpy_of", "urdf_text", "write_calibrated_urdf",
+           "write_urdf"]
 
 #: Joint types of the URDF specification.
 URDF_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
@@ -133,6 +142,26 @@ class UrdfJoint:
     @property
     def moving(self) -> bool:
         return self.type in ("revolute", "continuous", "prismatic")
+
+
+@dataclass(frozen=True)
+class UrdfInertial:
+    """The mass properties of one ``<link>`` that :mod:`kincal` uses, SI units.
+
+    Attributes:
+        link: the link's name.
+        mass: ``<mass value>`` [kg].
+        xyz: centre of mass in the link frame, ``<inertial><origin xyz>`` [m].
+        rpy: orientation of the inertia frame, ``<origin rpy>`` [rad] (read and
+            checked; the centre of mass does not depend on it).
+        line: line of the ``<inertial>`` element in the file.
+    """
+
+    link: str
+    mass: float
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    line: int = 0
 
 
 @dataclass(frozen=True)
@@ -427,6 +456,44 @@ def parse_urdf(path: str | os.PathLike[str]) -> UrdfModel:
     return _model(root, lines, source)
 
 
+def _inertials(root: ET.Element, lines: dict[int, int], source: str) -> dict[str, UrdfInertial]:
+    """``{link: UrdfInertial}`` of the links that have an ``<inertial>``."""
+    f = _Fields(source, lines)
+    out: dict[str, UrdfInertial] = {}
+    for elem in root:
+        if elem.tag != "link" or elem.find("inertial") is None:
+            continue
+        ln = elem.get("name", "")
+        inert = elem.find("inertial")
+        assert inert is not None
+        what = f"link {ln!r} <inertial>"
+        mass_elem = inert.find("mass")
+        if mass_elem is None or mass_elem.get("value") is None:
+            raise f.fail(inert, what, "has no <mass value=...>")
+        mass = f.number(mass_elem, "value", what)
+        if mass < 0.0:
+            raise f.fail(mass_elem, what, f"<mass value> is negative ({mass} kg)")
+        origin = inert.find("origin")
+        xyz = f.vector(origin, "xyz", what, (0.0, 0.0, 0.0))
+        rpy = f.vector(origin, "rpy", what, (0.0, 0.0, 0.0))
+        out[ln] = UrdfInertial(ln, mass, xyz, rpy, lines.get(id(inert), 0))
+    return out
+
+
+def parse_urdf_inertials(path: str | os.PathLike[str]) -> dict[str, UrdfInertial]:
+    """The ``<inertial>`` mass and centre of mass of every link that has one.
+
+    Links without ``<inertial>`` are absent (massless).  Raises a one-line
+    :class:`RobotFileError` (file, line, link) for everything :func:`parse_urdf`
+    rejects, and for an ``<inertial>`` without ``<mass value>``, a non-numeric or
+    negative mass, or a malformed ``<origin xyz/rpy>``.
+    """
+    source = str(path)
+    root, lines = _parse_xml(_read_text(path), source)
+    _model(root, lines, source)                     # the tree must be valid too
+    return _inertials(root, lines, source)
+
+
 # --------------------------------------------------------------------------- compiling
 def _motion_axis(axis: Sequence[float]) -> tuple[int, float, float, float]:
     """How a unit ``axis`` is compiled: ``(k, s, f, t)``.
@@ -530,6 +597,92 @@ def load_urdf(path: str | os.PathLike[str], base_link: str | None = None,
     model = parse_urdf(path)
     base, tip, chain = model.chain(base_link, tip_link)
     return _compile(model, base, tip, chain)
+
+
+def _origin_matrix(j: UrdfJoint) -> Array:
+    """``Trans(xyz) Rz(yaw) Ry(pitch) Rx(roll)`` of a joint's nominal ``<origin>``."""
+    T = np.eye(4)
+    roll, pitch, yaw = j.rpy
+    T[:3, :3] = rotz(yaw) @ roty(pitch) @ rotx(roll)
+    T[:3, 3] = j.xyz
+    return T
+
+
+def _carrier_to_link(j: UrdfJoint) -> Array:
+    """Child link frame of moving joint ``j`` in the frame just after its motion factor.
+
+    Identity for a coordinate axis (the factor ends the joint); for a general axis the
+    alignment is undone after ``Rz(c + q)``: ``Ry(-t) Rz(-f)`` (see :func:`_compile`).
+    """
+    k, _, f, t = _motion_axis(j.axis)
+    if k >= 0:
+        return np.eye(4)
+    T = np.eye(4)
+    for kind, v in (("Ry", t), ("Rz", f)):
+        if v != 0.0:
+            T = T @ _et_matrix(kind, -v)
+    return T
+
+
+def load_urdf_inertials(path: str | os.PathLike[str], base_link: str | None = None,
+                        tip_link: str | None = None) -> list[PointMass]:
+    """The masses riding on the chain ``base_link -> tip_link`` of a URDF, for
+    :func:`kincal.robots.gravity.gravity_torques` with ``load_urdf(path, base_link,
+    tip_link)``.
+
+    Which links: ``base_link``, every link of the chain, and every link below a chain
+    link that is not itself on the chain (a flange, a sensor or a gripper attached by
+    fixed joints; a side branch with moving joints of its own, such as fingers or a
+    head, *held at its zero configuration*: its joints are not part of the model).
+    Links above ``base_link`` or in other subtrees of the root are not included.
+    Links without ``<inertial>`` are massless and omitted.
+
+    Each link gives ``PointMass(joint, mass, com, name=link)``: ``joint`` is the index
+    (in ``robot.joints``) of the last moving joint between ``base_link`` and the link,
+    ``-1`` before the first one; ``com`` [m] is the link's ``<inertial><origin xyz>``
+    carried, through the nominal ``<origin>`` transforms of the joints in between (side
+    joints at zero), into the frame just after that joint's motion factor ``X(c + s q)``
+    (for ``-1``: the frame of ``base_link``, which is the robot's reference frame with
+    zero base parameters).  Origins use the file's nominal values; a calibration's
+    small corrections move the masses by the same small amounts (negligible in the
+    torques).
+
+    Raises:
+        RobotFileError: as :func:`load_urdf` and :func:`parse_urdf_inertials`.
+    """
+    source = str(path)
+    root, lines = _parse_xml(_read_text(path), source)
+    model = _model(root, lines, source)
+    inertials = _inertials(root, lines, source)
+    base, _, chain = model.chain(base_link, tip_link)
+    on_chain = {j.name for j in chain}
+    out: list[PointMass] = []
+
+    def collect(link: str, T: Array, rider: int) -> None:
+        """``link`` and everything hanging off it (not the chain's next joint)."""
+        stack = [(link, T)]
+        while stack:
+            name, Tl = stack.pop()
+            inert = inertials.get(name)
+            if inert is not None and inert.mass > 0.0:
+                c = Tl[:3, :3] @ np.asarray(inert.xyz) + Tl[:3, 3]
+                out.append(PointMass(rider, inert.mass, (float(c[0]), float(c[1]), float(c[2])),
+                                     name))
+            for jn in reversed(model.child_joints.get(name, [])):
+                if jn not in on_chain:
+                    sub = model.joints[jn]
+                    stack.append((sub.child, Tl @ _origin_matrix(sub)))
+
+    rider = -1
+    T = np.eye(4)
+    collect(base, T, rider)
+    for j in chain:
+        T = T @ _origin_matrix(j)
+        if j.moving:
+            rider += 1
+            T = _carrier_to_link(j)
+        collect(j.child, T, rider)
+    return out
 
 
 # --------------------------------------------------------------------------- geometry
