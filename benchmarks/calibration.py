@@ -19,11 +19,18 @@ pose = the 3-D error norm).  kincal: ``kincal.identify.solver.calibrate`` with a
 ``PositionMeasurement`` block (analytic Jacobian, Levenberg-Marquardt).
 
 Then the scaling run: kincal alone for N = 1k, 10k, 100k position measurements,
-each in a fresh process to report its wall time and peak resident memory.
+each in a fresh process to report its wall time (and CPU time: on a shared machine
+the steadier number), time per measurement and peak resident memory (``ru_maxrss``:
+the whole process, data included).  The problem is
+the one above (UR10, its estimated set) or, with ``--scaling-robot puma560``, the
+PUMA 560 of kincal's library with a tool point, a perturbed "true" robot and the
+automatic parameter selection (``free=None``: 26 identifiable of 45).  The target
+(issue 3): time linear in N, 100k measurements in well under 10 s and < 1 GB.
 
 Run (pybotics lives in the benchmark environment)::
 
     /work/benchvenv/bin/python benchmarks/calibration.py [--poses 1000] [--skip-pybotics]
+        [--scaling 1000,10000,100000] [--scaling-robot ur10|puma560] [--skip-comparison]
 """
 
 from __future__ import annotations
@@ -171,19 +178,64 @@ def rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2)))
 
 
-def child(n: int) -> None:
-    """One scaling point in a fresh process: print time and peak RSS as JSON."""
+def puma_problem(n: int) -> tuple[object, object]:
+    """PUMA 560 (library) with a tool point, measured by a tracker: (robot, block)."""
+    from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+    from kincal.robots.dh import dh_links
+    from kincal.robots.files import load_robot
+
+    robot = from_dh(dh_links(load_robot("puma560")), name="puma560",
+                    tool=[0.05, 0.03, 0.1, 0, 0, 0])
     rng = np.random.default_rng(n)
-    table = true_table(np.random.default_rng(0))
-    q = rng.uniform(-np.pi, np.pi, (n, 6))
-    y = measure(table, q, rng)
-    free = estimated_set(q[:300], y[:300])
-    run_kincal(q[:50], y[:50], free)                      # warm-up (lazy imports)
-    seconds, res = run_kincal(q, y, free)
+    true = perturb_robot(robot, np.random.default_rng(0))
+    q = random_configurations(robot, n, rng)
+    block = simulate_positions(true, q, rng, NOISE_MM * 1e-3,
+                               [0.8, -0.4, 0.2, math.radians(-3), math.radians(5),
+                                math.radians(20)], [0.01, -0.02, 0.03])
+    return robot, block
+
+
+def child(n: int, robot_name: str) -> None:
+    """One scaling point in a fresh process: print time and peak RSS as JSON."""
+    if robot_name == "puma560":
+        robot, block = puma_problem(n)
+        calibrate(*puma_problem(50))                      # warm-up (lazy imports)
+        c0, t0 = time.process_time(), time.perf_counter()
+        res = calibrate(robot, [block], method="lm")
+        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+        rms_mm = float(np.sqrt(np.mean(res.errors()[block.name]["position_m"] ** 2))) * 1e3
+    else:
+        rng = np.random.default_rng(n)
+        table = true_table(np.random.default_rng(0))
+        q = rng.uniform(-np.pi, np.pi, (n, 6))
+        y = measure(table, q, rng)
+        free = estimated_set(q[:300], y[:300])
+        run_kincal(q[:50], y[:50], free)                  # warm-up (lazy imports)
+        c0 = time.process_time()
+        seconds, res = run_kincal(q, y, free)
+        cpu = time.process_time() - c0
+        rms_mm = rms(kincal_errors(res, q, y)) * 1e3
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    print(json.dumps({"n": n, "seconds": seconds, "peak_mb": peak,
+    print(json.dumps({"n": n, "seconds": seconds, "cpu_seconds": cpu, "peak_mb": peak,
                       "iterations": res.iterations, "params": len(res.estimated),
-                      "rms_mm": rms(kincal_errors(res, q, y)) * 1e3}))
+                      "rms_mm": rms_mm}))
+
+
+def scaling(sizes: list[int], robot_name: str) -> None:
+    """The scaling table: one fresh process per N."""
+    print(f"\nscaling (kincal, {robot_name}, position measurements, fresh process per N):")
+    head = (f"{'N':>8}{'time [s]':>10}{'CPU [s]':>9}{'time/N [us]':>13}{'peak RSS [MB]':>15}"
+            f"{'iterations':>12}{'params':>8}{'RMS [mm]':>10}")
+    print(head)
+    print("-" * len(head))
+    for n in sizes:
+        out = subprocess.run([sys.executable, __file__, "--child", str(n), "--scaling-robot",
+                              robot_name], capture_output=True, text=True, check=True).stdout
+        d = json.loads(out.strip().splitlines()[-1])
+        print(f"{d['n']:>8}{d['seconds']:>10.3f}{d['cpu_seconds']:>9.3f}"
+              f"{d['seconds'] / n * 1e6:>13.2f}"
+              f"{d['peak_mb']:>15.0f}{d['iterations']:>12}{d['params']:>8}"
+              f"{d['rms_mm']:>10.4f}", flush=True)
 
 
 def main() -> None:
@@ -191,11 +243,19 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=1000)
     ap.add_argument("--holdout", type=int, default=200)
     ap.add_argument("--skip-pybotics", action="store_true")
-    ap.add_argument("--scaling", default="1000,10000,100000")
+    ap.add_argument("--scaling", default="1000,10000,100000",
+                    help="comma-separated N of the scaling run (empty: skip it)")
+    ap.add_argument("--scaling-robot", choices=("ur10", "puma560"), default="ur10")
+    ap.add_argument("--skip-comparison", action="store_true",
+                    help="only the scaling run")
     ap.add_argument("--child", type=int, default=0, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        child(a.child)
+        child(a.child, a.scaling_robot)
+        return
+    sizes = [int(s) for s in a.scaling.split(",") if s]
+    if a.skip_comparison:
+        scaling(sizes, a.scaling_robot)
         return
     rng = np.random.default_rng(2024)
     table = true_table(rng)
@@ -239,15 +299,8 @@ def main() -> None:
     if len(rows) == 2:
         print(f"\nspeed-up kincal vs pybotics: {rows[1][1] / rows[0][1]:.0f}x; validation RMS "
               f"ratio {rows[0][4] / rows[1][4]:.3f}")
-    print("\nscaling (kincal, fresh process per N):")
-    print(f"{'N':>8}{'time [s]':>10}{'s per 1k':>10}{'peak RSS [MB]':>15}{'iterations':>12}"
-          f"{'RMS [mm]':>10}")
-    for n in (int(s) for s in a.scaling.split(",") if s):
-        out = subprocess.run([sys.executable, __file__, "--child", str(n)], capture_output=True,
-                             text=True, check=True).stdout
-        d = json.loads(out.strip().splitlines()[-1])
-        print(f"{d['n']:>8}{d['seconds']:>10.3f}{d['seconds'] / n * 1e3:>10.4f}"
-              f"{d['peak_mb']:>15.0f}{d['iterations']:>12}{d['rms_mm']:>10.4f}")
+    if sizes:
+        scaling(sizes, a.scaling_robot)
 
 
 if __name__ == "__main__":

@@ -124,3 +124,50 @@ def test_nearly_dependent_columns_use_the_tolerance():
     assert rep.identifiable == ["p", "q"]
     J = np.column_stack([a, a + 1e-3 * b])
     assert analyze(J, ["p", "q"]).identifiable == ["p", "q"]
+
+
+def _same_report(a, b, tol=1e-10):
+    assert a.identifiable == b.identifiable and a.unobservable == b.unobservable
+    assert a.dependent == b.dependent and a.rank == b.rank
+    for n, comb in a.combinations.items():
+        for k, c in comb.items():
+            assert b.combinations[n][k] == pytest.approx(c, rel=tol, abs=1e-12)
+    assert np.allclose(a.singular_values, b.singular_values, rtol=0,
+                       atol=tol * a.singular_values[0])
+    assert np.allclose(a.column_scale, b.column_scale, rtol=tol, atol=0)
+    assert a.cond_scaled == pytest.approx(b.cond_scaled, rel=1e-8)
+    assert a.cond_unscaled == pytest.approx(b.cond_unscaled, rel=1e-8)
+
+
+def test_the_compressed_triangle_gives_the_same_report():
+    """analyze(J) == analyze(R) for J = Q R: the analysis depends only on J^T J.
+
+    A tall J (tiled QR inside analyze), its triangle from StackedProblem.compressed (never
+    forming J), and the same triangle with weights all give one report.
+    """
+    robot = puma()
+    rng = np.random.default_rng(4)
+    blk = simulate_positions(robot, random_configurations(robot, 1500, rng), rng, 1e-5,
+                             [1, 0.5, 0.2, 0.1, 0.2, 0.3], [0.01, 0.02, 0.03])
+    prob, theta = stack(robot, [blk])
+    _, J = prob.residuals_and_jacobian(theta)
+    ref = analyze(J, prob.names, roles=prob.roles)
+    assert ref.rank == 26
+    tri = prob.compressed(theta)
+    assert tri.R.shape == (45, 45)
+    _same_report(ref, analyze(tri.R, prob.names, roles=prob.roles))
+    w = rng.uniform(0.5, 1.0, J.shape[0])
+    Jw = J * np.sqrt(w)[:, None]
+    _same_report(analyze(Jw, prob.names, roles=prob.roles),
+                 analyze(prob.compressed(theta, w).R, prob.names, roles=prob.roles))
+
+
+@pytest.mark.parametrize("hayati,pose,expected", [
+    (False, True, 29), (False, False, 26), (True, True, 30), (True, False, 27)])
+def test_counts_from_many_measurements(hayati, pose, expected):
+    """The theory's counts hold with thousands of rows (the tiled path of analyze)."""
+    robot = puma(hayati)
+    J, names, roles = robot_jacobian(robot, pose, n=1200)
+    rep = analyze(J, names, roles=roles)
+    assert rep.rank == expected
+    assert rep.dependent["d[3]"] == ["d[2]"]

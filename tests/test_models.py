@@ -230,3 +230,155 @@ def test_random_configurations_and_perturbation():
 def test_paramspec_helpers():
     s = ParamSpec.frame("cam") + ParamSpec.point("cam.tip")
     assert len(s) == 9 and s.units[:3] == ("m",) * 3 and s.roles[-1] == "tool_point"
+
+
+# --------------------------------------------------------------------------- large problems
+def _problem(n, seed=11):
+    """PUMA 560, n configurations, three blocks (1 marker, 3 markers, poses)."""
+    rng = np.random.default_rng(seed)
+    robot = puma()
+    true = perturb_robot(robot, rng)
+    q = random_configurations(robot, n, rng)
+    blks = [
+        simulate_positions(true, q, rng, 1e-5, INSTRUMENT, [0.02, -0.03, 0.07]),
+        simulate_positions(true, q[: n // 2], rng, 1e-5, INSTRUMENT,
+                           [[0.02, -0.03, 0.07], [-0.05, 0.01, 0.1], [0.0, 0.06, 0.02]],
+                           name="mocap"),
+        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.3, -0.2, 0.4],
+                       name="laser"),
+    ]
+    prob, theta = stack(robot, blks)
+    return prob, theta + 1e-4 * rng.standard_normal(theta.size), rng
+
+
+@pytest.mark.parametrize("which", [0, 1, 2])
+def test_chunks_are_pieces_of_evaluate(which):
+    """evaluate_chunks covers the rows in order with evaluate's values (several pieces)."""
+    prob, theta, _ = _problem(3000)
+    robot, extras = prob.split(theta)
+    blk, extra = prob.blocks[which], extras[which]
+    r, Jr, Je = blk.evaluate(robot, extra)
+    assert r.size == blk.num_residuals() == len(blk.residual_owner())
+    assert np.allclose(r, blk.evaluate(robot, extra, jacobian=False)[0], rtol=0, atol=1e-9)
+    stop = 0
+    pieces = list(blk.evaluate_chunks(robot, extra, rows=500))
+    assert len(pieces) > 3
+    for sl, rc, Jrc, Jec in pieces:
+        assert sl.start == stop and sl.stop - sl.start == rc.size <= 500
+        assert np.array_equal(rc, r[sl]) and np.array_equal(Jrc, Jr[sl])
+        assert np.array_equal(Jec, Je[sl])
+        stop = sl.stop
+    assert stop == r.size
+
+
+def test_compressed_triangle_matches_the_full_jacobian():
+    """R^T R = J^T W J, R^T z = J^T W r, ||z||^2 + rho^2 = r^T W r, on a column subset."""
+    prob, theta, rng = _problem(2500)
+    r, J = prob.residuals_and_jacobian(theta)
+    w = rng.uniform(0.2, 1.0, r.size)
+    cols = [int(c) for c in rng.permutation(len(prob.names))[:30]]
+    c = prob.compressed(theta, w, cols, rows=700)
+    Jw = J[:, cols] * np.sqrt(w)[:, None]
+    rw = r * np.sqrt(w)
+    N = Jw.T @ Jw
+    assert np.allclose(c.R, np.triu(c.R)) and c.R.shape == (30, 30)
+    assert np.allclose(c.R.T @ c.R, N, rtol=0, atol=1e-10 * np.abs(N).max())
+    g = Jw.T @ rw
+    assert np.allclose(c.R.T @ c.z, g, rtol=0, atol=1e-10 * np.abs(g).max())
+    assert c.z @ c.z + c.rho**2 == pytest.approx(rw @ rw, rel=1e-10)
+    assert c.cost == pytest.approx(0.5 * rw @ rw, rel=1e-12)
+    assert np.array_equal(c.r, r) and list(c.columns) == cols
+    # the Gauss-Newton step equals the minimum-norm least-squares step of the full system
+    assert np.allclose(c.solve(), -np.linalg.lstsq(Jw, rw, rcond=None)[0], rtol=1e-8, atol=0)
+    A, b, cost = prob.normal_equations(theta, w, cols)
+    assert np.allclose(A, N, rtol=0, atol=1e-10 * np.abs(N).max()) and cost == c.cost
+    # a subset of columns, and extra rows, without re-evaluating
+    sub = c.select([3, 0, 7])
+    ref = prob.compressed(theta, w, [cols[3], cols[0], cols[7]])
+    assert np.allclose(sub.R.T @ sub.R, ref.R.T @ ref.R, rtol=1e-12, atol=0)
+    assert np.allclose(sub.R.T @ sub.z, ref.R.T @ ref.z, rtol=1e-10, atol=1e-12)
+    assert sub.rho == pytest.approx(ref.rho, rel=1e-10)
+    X, y = rng.standard_normal((4, 30)), rng.standard_normal(4)
+    more = c.with_rows(X, y, [1.0, 2.0, 0.5, 1.0])
+    sw = np.sqrt([1.0, 2.0, 0.5, 1.0])
+    Jx, rx = np.vstack([Jw, X * sw[:, None]]), np.concatenate([rw, y * sw])
+    assert np.allclose(more.R.T @ more.R, Jx.T @ Jx, rtol=0, atol=1e-10 * np.abs(N).max())
+    assert np.allclose(more.R.T @ more.z, Jx.T @ rx, rtol=0, atol=1e-10 * np.abs(g).max())
+    assert more.r.size == r.size + 4 and more.cost == pytest.approx(0.5 * rx @ rx, rel=1e-12)
+
+
+def test_compressed_never_forms_the_jacobian():
+    """Peak memory of compressed() is a small fraction of the (M, P) Jacobian."""
+    import tracemalloc
+
+    prob, theta, _ = _problem(8000)
+    M, P = prob.num_residuals(), len(prob.names)
+    prob.compressed(theta)                                   # warm-up (caches, plans)
+    tracemalloc.start()
+    try:
+        c = prob.compressed(theta)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert c.R.shape == (P, P)
+    assert peak < 0.25 * M * P * 8, f"peak {peak / 1e6:.1f} MB for a {M * P * 8 / 1e6:.1f} MB J"
+
+
+def test_measurement_ids_match_the_unique_pairs():
+    prob, _, _ = _problem(50)
+    bi, rows = prob.owners()
+    _, ref = np.unique(np.stack([bi, rows], 1), axis=0, return_inverse=True)
+    assert np.array_equal(prob.measurement_ids(), ref.reshape(-1))
+
+    class Shuffled:                                        # rows not in order
+        def __init__(self, owner):
+            self.owner = owner
+
+        def residual_owner(self):
+            return self.owner
+
+    prob2 = type(prob)(prob.robot, [Shuffled(np.array([3, 3, 0, 7, 0])),
+                                    Shuffled(np.array([1, 1]))], (), (), (), [])
+    assert prob2.measurement_ids().tolist() == [1, 1, 0, 2, 0, 3, 3]
+
+
+@pytest.mark.parametrize("M,p", [(9001, 12), (5000, 40), (300, 7), (4096, 1)])
+def test_tiled_qr_svd_and_lstsq_on_tall_matrices(M, p):
+    from kincal.measure.base import r_factor, singular_values
+
+    rng = np.random.default_rng(M + p)
+    A = rng.standard_normal((M, p)) * np.logspace(0, -4, p)
+    if p > 3:
+        A[:, 2] = 0.0                                       # a zero column stays zero
+        A[:, 3] = A[:, 0] - 2 * A[:, 1]                     # and a dependent one
+    R = r_factor(A)
+    assert R.shape == (p, p) and np.allclose(R, np.triu(R))
+    assert np.allclose(R.T @ R, A.T @ A, rtol=0, atol=1e-12 * M)
+    if p > 3:
+        assert np.all(R[:, 2] == 0.0)
+    S_ref = np.linalg.svd(A, compute_uv=False)
+    U, S, Vt = svd_thin(A)
+    assert np.allclose(S, S_ref, rtol=0, atol=1e-12 * S_ref[0])
+    assert np.allclose(singular_values(A), S_ref, rtol=0, atol=1e-12 * S_ref[0])
+    assert np.allclose((U * S) @ Vt, A, rtol=0, atol=1e-12 * np.abs(A).max())
+    keep = S > 1e-10 * S[0]
+    assert np.allclose(U[:, keep].T @ U[:, keep], np.eye(keep.sum()), atol=1e-12)
+    b = rng.standard_normal(M)
+    x_ref = np.linalg.lstsq(A, b, rcond=1e-10)[0]
+    assert np.allclose(lstsq(A, b), x_ref, rtol=0, atol=1e-9 * np.abs(x_ref).max())
+
+
+def test_residual_free_triangle():
+    """CompressedSystem.residual_free() has the Gram matrix of (I - u u^T) W^1/2 J."""
+    prob, theta, rng = _problem(600)
+    r, J = prob.residuals_and_jacobian(theta)
+    w = rng.uniform(0.2, 1.0, r.size)
+    cols = list(range(10, 40))
+    c = prob.compressed(theta, w, cols)
+    Jw, rw = J[:, cols] * np.sqrt(w)[:, None], r * np.sqrt(w)
+    u = rw / np.linalg.norm(rw)
+    Pj = Jw - np.outer(u, u @ Jw)
+    F = c.residual_free()
+    assert F.shape == (30, 30) and np.allclose(F, np.triu(F))
+    G = Pj.T @ Pj
+    assert np.allclose(F.T @ F, G, rtol=0, atol=1e-10 * np.abs(G).max())

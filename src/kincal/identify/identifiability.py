@@ -13,8 +13,15 @@ Given the whitened identification Jacobian ``J`` (M, P) of a calibration problem
   tell them apart; the solver holds the dependent ones at their initial value and
   the base parameters absorb their effect.
 
-Algorithm.  Columns are scaled to unit norm (``scale=True``; otherwise divided by the
-largest column norm), which makes the test independent of units (m vs rad) and of
+Algorithm.  A tall ``J`` is first compressed to the triangle ``R`` of ``J = Q R``
+(tiled QR, :func:`kincal.measure.base.r_factor`; ``O(M P^2)`` time, ``O(P^2)`` memory).
+Every quantity below (column norms, projections of one column on others, singular
+values) depends on ``J`` only through ``J^T J = R^T R``, so the analysis then runs on
+the (P, P) triangle and costs nothing in M; passing the triangle itself (e.g. ``R`` of
+:meth:`kincal.measure.base.StackedProblem.compressed`) gives the same report.
+
+Columns are scaled to unit norm (``scale=True``; otherwise divided by the largest
+column norm), which makes the test independent of units (m vs rad) and of
 the noise level.  Candidates are visited in priority order; a column joins the base
 set when the smallest singular value of the selected scaled columns stays above
 ``tol`` (default ``1e-8``; a parameter whose best-separated direction is weaker than
@@ -48,7 +55,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.measure.base import singular_values
+from kincal.measure.base import r_factor, singular_values
 
 Array = NDArray[np.float64]
 
@@ -180,7 +187,8 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
     """Identifiability of the parameters ``names`` from the Jacobian ``J`` (M, P).
 
     Args:
-        J: whitened identification Jacobian (rows: measurements; columns: ``names``).
+        J: whitened identification Jacobian (rows: measurements; columns: ``names``),
+            or any matrix with the same ``J^T J`` such as its QR triangle ``R``.
         names: one name per column.
         tol: smallest admissible singular value of the scaled base set (default 1e-8).
         scale: scale columns to unit norm first (recommended; otherwise all columns
@@ -198,6 +206,8 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
         raise ValueError(f"J has shape {J.shape} but {len(names)} names were given")
     tol = DEFAULT_TOL if tol is None else float(tol)
     P = len(names)
+    if J.shape[0] > P:
+        J = r_factor(J)                         # same J^T J, (P, P)
     norms = np.linalg.norm(J, axis=0)
     big = norms.max() if P else 0.0
     zero = norms <= ZERO_TOL * big if big > 0 else np.ones(P, dtype=bool)

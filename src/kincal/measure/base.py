@@ -14,22 +14,40 @@ its own parameters.  The solver, the identifiability analysis, the uncertainty
 propagation and the experiment design work only on the stacked whitened system
 built by :func:`stack`, so any new instrument plugs in by implementing
 :class:`MeasurementModel`.
+
+Large problems never need the whole (M, P) Jacobian.  A block may hand out its
+residuals and Jacobian in pieces (:meth:`MeasurementModel.evaluate_chunks`, a few
+thousand rows each), and :meth:`StackedProblem.compressed` folds the pieces, as they
+come, into the triangle of a QR factorisation (tall-skinny QR): with weights ``W``,
+
+    [W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]],
+
+``R`` (P, P) upper triangular, ``z = Q^T W^1/2 r``.  Everything the solver and the
+identifiability analysis need follows from ``(R, z)``: ``J^T W J = R^T R``,
+``J^T W r = R^T z``, the singular values and right singular vectors of ``W^1/2 J``
+(those of ``R``), and the least-squares step ``argmin ||W^1/2 (J dx + r)||``
+(= ``argmin ||R dx + z||``).  Memory is ``O(P^2)`` beyond the residuals, time
+``O(M P^2)``.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
 from kincal.spatial import homogeneous, rpy_to_matrix
 
 Array = NDArray[np.float64]
+
+#: Residual rows per piece of :meth:`MeasurementModel.evaluate_chunks` (a piece's
+#: Jacobian, a few thousand rows by a few dozen columns, stays in the CPU caches).
+CHUNK_ROWS = 4096
 
 #: Field order of a 6-parameter frame, as in the robot's ``base.*`` / ``tool.*``:
 #: ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``.
@@ -169,6 +187,22 @@ class MeasurementModel(ABC):
         Used to flag outlier measurements by index and to hold out rows.
         """
 
+    def num_residuals(self) -> int:
+        """Number of residuals ``M`` of the block (default: ``len(residual_owner())``)."""
+        return len(self.residual_owner())
+
+    def evaluate_chunks(self, robot: Robot, extra: Array, rows: int = CHUNK_ROWS
+                        ) -> Iterator[tuple[slice, Array, Array, Array]]:
+        """:meth:`evaluate` with the Jacobian in consecutive pieces of about ``rows`` rows.
+
+        Yields ``(sl, r, J_robot, J_extra)``: the residual rows ``sl`` of the block and
+        their values and Jacobians as :meth:`evaluate` defines them, the pieces in order
+        and covering all rows.  The default yields :meth:`evaluate`'s result as one
+        piece; blocks with many rows override it so that no (M, P) array is formed.
+        """
+        r, Jr, Je = self.evaluate(robot, extra, jacobian=True)
+        yield slice(0, r.size), r, Jr, Je  # type: ignore[misc]
+
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         """Physical errors per measurement for reports, e.g. ``{"position_m": (N,)}``.
 
@@ -239,11 +273,25 @@ class StackedProblem:
         """A unique integer per (block, row) for every residual, 0 .. num_measurements - 1.
 
         Residuals with the same id belong to one physical measurement (the three
-        coordinates of a point, the six of a pose).
+        coordinates of a point, the six of a pose).  Ids follow the blocks' order, then
+        the rows' order within a block (``O(M)`` when a block's rows are sorted).
         """
-        bi, rows = self.owners()
-        _, ids = np.unique(np.stack([bi, rows], 1), axis=0, return_inverse=True)
-        return ids.reshape(-1).astype(np.intp)
+        out = []
+        base = 0
+        for b in self.blocks:
+            rows = np.asarray(b.residual_owner(), dtype=np.intp)
+            if rows.size == 0:
+                continue
+            if np.all(rows[1:] >= rows[:-1]):               # sorted: rank by run starts
+                new = np.empty(rows.size, dtype=bool)
+                new[0] = True
+                np.not_equal(rows[1:], rows[:-1], out=new[1:])
+                ids = np.cumsum(new, dtype=np.intp) - 1
+            else:
+                _, ids = np.unique(rows, return_inverse=True)
+            out.append(ids.reshape(-1) + base)
+            base += int(ids.max()) + 1
+        return np.concatenate(out) if out else np.zeros(0, dtype=np.intp)
 
     def errors(self, theta: Array) -> dict[str, dict[str, Array]]:
         """Physical errors of every block at ``theta``: ``{block name: block.errors(...)}``."""
@@ -256,19 +304,205 @@ class StackedProblem:
         return np.concatenate([b.evaluate(robot, e, jacobian=False)[0]
                                for b, e in zip(self.blocks, extras, strict=True)])
 
-    def residuals_and_jacobian(self, theta: Array) -> tuple[Array, Array]:
-        """Stacked ``r`` (M,) and the full Jacobian ``dr/dtheta`` (M, len(theta))."""
+    def num_residuals(self) -> int:
+        """Total number of stacked residuals ``M``."""
+        return sum(b.num_residuals() for b in self.blocks)
+
+    def _pieces(self, theta: Array, rows: int
+                ) -> Iterator[tuple[int, int, slice, Array, Array, Array]]:
+        """Every block's residual/Jacobian pieces: (block index, row offset, sl, r, Jr, Je)."""
         robot, extras = self.split(theta)
-        rs, Js = [], []
-        total = len(self.names)
-        for b, e, s in zip(self.blocks, extras, self.slices, strict=True):
-            r, Jr, Je = b.evaluate(robot, e, jacobian=True)
-            J = np.zeros((r.size, total))
-            J[:, : self.num_robot] = Jr
-            J[:, s] = Je
-            rs.append(r)
-            Js.append(J)
-        return np.concatenate(rs), np.vstack(Js)
+        offset = 0
+        for i, (b, e) in enumerate(zip(self.blocks, extras, strict=True)):
+            m = b.num_residuals()
+            for sl, r, Jr, Je in b.evaluate_chunks(robot, e, rows):
+                if sl.stop > m:
+                    raise KincalError(f"measurement block {b.name!r} returned more residuals "
+                                      f"than its residual_owner() lists ({m})")
+                yield i, offset, sl, r, Jr, Je
+            offset += m
+
+    def residuals_and_jacobian(self, theta: Array) -> tuple[Array, Array]:
+        """Stacked ``r`` (M,) and the full Jacobian ``dr/dtheta`` (M, len(theta)).
+
+        Built piece by piece (:meth:`MeasurementModel.evaluate_chunks`) into one array;
+        for large problems prefer :meth:`compressed`, which never forms it.
+        """
+        M = self.num_residuals()
+        r = np.empty(M)
+        J = np.zeros((M, len(self.names)))
+        P = self.num_robot
+        for i, off, sl, rc, Jr, Je in self._pieces(np.asarray(theta, dtype=float), CHUNK_ROWS):
+            rows = slice(off + sl.start, off + sl.stop)
+            r[rows] = rc
+            J[rows, :P] = Jr
+            J[rows, self.slices[i]] = Je
+        return r, J
+
+    def compressed(self, theta: Array, weights: ArrayLike | None = None,
+                   columns: Sequence[int] | None = None, rows: int = CHUNK_ROWS
+                   ) -> CompressedSystem:
+        """The weighted least-squares problem at ``theta`` compressed to a triangle.
+
+        With ``W = diag(weights)`` (default 1) and ``J`` the columns ``columns`` of
+        ``dr/dtheta`` (default all), factorises ``[W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]``
+        piece by piece: each block's pieces of about ``rows`` rows are reduced by a
+        tiled QR (:func:`r_factor`) and merged, ``R <- triangle of [R; piece]``, so
+        neither ``J`` nor ``Q`` is ever formed (memory ``O(P^2 + M)``, time ``O(M P^2)``).
+
+        Everything a Gauss-Newton / Levenberg-Marquardt step, the identifiability
+        analysis and the covariance need follows from the triangle:
+        ``||W^1/2 (J dx + r)||^2 = ||R dx + z||^2 + rho^2``, ``J^T W J = R^T R``,
+        ``J^T W r = R^T z``, and ``W^1/2 J = Q_1 R`` with orthonormal ``Q_1``, so ``R``
+        has the singular values, right singular vectors and column norms of ``W^1/2 J``
+        (``analyze(R, ...)`` gives the same report as ``analyze(W^1/2 J, ...)``).
+
+        Returns:
+            A :class:`CompressedSystem` (``R``, ``z``, ``rho``, ``r``, ``cost``).
+        """
+        theta = np.asarray(theta, dtype=float)
+        cols = np.arange(len(self.names)) if columns is None else np.asarray(columns, np.intp)
+        p = cols.size
+        M = self.num_residuals()
+        w = None if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+        if w is not None and w.size != M:
+            raise ValueError(f"{w.size} weights for {M} residuals")
+        # where each block's robot / own columns go among the selected ones
+        P = self.num_robot
+        where = np.full(len(self.names), -1, dtype=np.intp)
+        where[cols] = np.arange(p)
+        rob_src = np.flatnonzero(where[:P] >= 0)
+        rob_dst = where[rob_src]
+        r = np.empty(M)
+        R = np.zeros((0, p + 1))
+        pending: list[Array] = []
+        pending_rows = 0
+        for i, off, sl, rc, Jr, Je in self._pieces(theta, rows):
+            n = rc.size
+            idx = slice(off + sl.start, off + sl.stop)
+            r[idx] = rc
+            own = self.slices[i]
+            own_src = np.flatnonzero(where[own] >= 0)
+            A = np.zeros((n, p + 1))
+            if rob_src.size:
+                A[:, rob_dst] = Jr[:, rob_src]
+            if own_src.size:
+                A[:, where[own][own_src]] = Je[:, own_src]
+            A[:, p] = rc
+            if w is not None:
+                A *= np.sqrt(w[idx])[:, None]
+            pending.append(r_factor(A))
+            pending_rows += pending[-1].shape[0]
+            if pending_rows > 64 * (p + 1):
+                R = r_factor(np.concatenate([R, *pending]))
+                pending, pending_rows = [], 0
+        if pending:
+            R = r_factor(np.concatenate([R, *pending]))
+        rw2 = r * r if w is None else w * r * r
+        return CompressedSystem._from_triangle(R, r, 0.5 * float(np.sum(rw2)), cols)
+
+    def normal_equations(self, theta: Array, weights: ArrayLike | None = None,
+                         columns: Sequence[int] | None = None) -> tuple[Array, Array, float]:
+        """``(J^T W J, J^T W r, cost)`` over ``columns``, ``cost = 1/2 r^T W r``.
+
+        Formed from the triangle of :meth:`compressed` (``R^T R``, ``R^T z``), i.e. in
+        pieces of configurations, never from the (M, P) Jacobian.  Solving with them
+        squares the condition number; prefer the triangle itself for the step.
+        """
+        c = self.compressed(theta, weights, columns)
+        return c.R.T @ c.R, c.R.T @ c.z, c.cost
+
+
+@dataclass(frozen=True)
+class CompressedSystem:
+    """A weighted least-squares problem ``min ||W^1/2 (J dx + r)||`` reduced to a triangle.
+
+    ``[W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]`` (see :meth:`StackedProblem.compressed`).
+
+    Attributes:
+        R: (p, p) upper triangular: ``R^T R = J^T W J``; same singular values, right
+            singular vectors and column norms as ``W^1/2 J``.
+        z: (p,) ``Q^T W^1/2 r``: ``R^T z = J^T W r``.
+        rho: ``||W^1/2 r||`` outside the range of ``W^1/2 J`` (the residual norm of the
+            linearised least-squares solution; ``rho^2 + ||z||^2 = r^T W r``).
+        r: (M,) the unweighted whitened residuals at ``theta``.
+        cost: ``1/2 r^T W r``.
+        columns: the indices of ``theta`` the columns of ``R`` stand for.
+    """
+
+    R: Array
+    z: Array
+    rho: float
+    r: Array
+    cost: float
+    columns: NDArray[np.intp]
+
+    def _triangle(self) -> Array:
+        """``[[R, z], [0, rho]]`` (p + 1, p + 1)."""
+        p = self.z.size
+        T = np.zeros((p + 1, p + 1))
+        T[:p, :p], T[:p, p], T[p, p] = self.R, self.z, self.rho
+        return T
+
+    @staticmethod
+    def _from_triangle(T: Array, r: Array, cost: float, columns: NDArray[np.intp]
+                       ) -> CompressedSystem:
+        p = T.shape[1] - 1
+        F = np.zeros((p + 1, p + 1))
+        F[: T.shape[0]] = T[: p + 1]
+        return CompressedSystem(R=F[:p, :p], z=F[:p, p], rho=abs(float(F[p, p])), r=r,
+                                cost=cost, columns=columns)
+
+    def select(self, positions: Sequence[int]) -> CompressedSystem:
+        """The system over a subset of its columns (positions into ``columns``), without
+        re-evaluating: ``[W^1/2 J_S | W^1/2 r] = Q [[R_S, z], [0, rho]]``, so its triangle
+        is that of ``[[R_S, z], [0, rho]]`` (a (p + 1)-row QR)."""
+        pos = np.asarray(positions, dtype=np.intp)
+        T = self._triangle()
+        A = np.concatenate([T[:, pos], T[:, -1:]], axis=1)
+        return self._from_triangle(np.linalg.qr(A, mode="r"), self.r, self.cost,
+                                   self.columns[pos])
+
+    def with_rows(self, J_rows: ArrayLike, r_rows: ArrayLike,
+                  weights: ArrayLike | None = None) -> CompressedSystem:
+        """The system with more rows ``(J_rows, r_rows)`` (e.g. a prior's pseudo-
+        observations; ``J_rows`` (m, p) over the same columns): the triangle of
+        ``[[R, z], [0, rho]; W^1/2 [J_rows, r_rows]]``; ``r`` and ``cost`` extended."""
+        Jx = np.asarray(J_rows, dtype=float).reshape(-1, self.z.size)
+        rx = np.asarray(r_rows, dtype=float).reshape(-1)
+        wx = np.ones(rx.size) if weights is None else np.asarray(weights, float).reshape(-1)
+        A = np.concatenate([Jx, rx[:, None]], axis=1) * np.sqrt(wx)[:, None]
+        T = np.linalg.qr(np.concatenate([self._triangle(), A]), mode="r")
+        return self._from_triangle(T, np.concatenate([self.r, rx]),
+                                   self.cost + 0.5 * float(np.sum(wx * rx * rx)), self.columns)
+
+    def residual_free(self) -> Array:
+        """The triangle of ``(I - u u^T) W^1/2 J``, ``u = W^1/2 r / |W^1/2 r|``: the columns
+        without their component along the residual (``R`` itself when ``r = 0``).
+
+        In the coordinates of ``Q`` the columns are ``[R; 0]`` and the residual is
+        ``t = [z; rho]``, so the projected columns are ``Q (I - t t^T / |t|^2) [R; 0]``;
+        its triangle (:func:`r_factor`) has their Gram matrix
+        ``R^T R - (R^T z)(R^T z)^T / (|z|^2 + rho^2)``, so the identifiability analysis
+        (``analyze``) of it equals that of the projected (M, p) columns.
+        """
+        T = self._triangle()
+        t = T[:, -1]
+        n2 = float(t @ t)
+        if not np.isfinite(n2) or n2 == 0.0:
+            return self.R.copy()
+        C = T[:, :-1]
+        return r_factor(C - np.outer(t, (t @ C) / n2))
+
+    def solve(self, rcond: float = 1e-12) -> Array:
+        """The Gauss-Newton step ``dx = -argmin ||R dx + z||`` (minimum norm, singular
+        values of ``R D^-1`` below ``rcond`` times the largest dropped; ``D`` the column
+        norms, so the cut is unit-free)."""
+        D = np.linalg.norm(self.R, axis=0)
+        Ds = np.where(D > 0, D, 1.0)
+        Ur, S, Vt = np.linalg.svd(self.R / Ds)
+        keep = S > rcond * (S[0] if S.size else 0.0)
+        return -(Vt[keep].T @ ((Ur[:, keep].T @ self.z) / S[keep])) / Ds
 
 
 def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProblem, Array]:
@@ -309,35 +543,118 @@ def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProb
 
 
 # --------------------------------------------------------------------------- linear algebra
-def svd_thin(A: Array) -> tuple[Array, Array, Array]:
-    """Thin SVD ``A = U diag(S) V^T`` of a tall (M, p) matrix through its QR factor.
+#: Rows per tile of the tall-skinny QR (:func:`r_factor`, :func:`svd_thin`): a tile of
+#: ``TILE_ROWS x p`` doubles stays in the CPU cache while LAPACK factorises it.  A
+#: performance setting only; the factors do not depend on it beyond round-off.
+TILE_ROWS = 1024
+#: Tiles factorised per LAPACK call (bounds the working copy to a few MB).
+_TILE_GROUP = 32
 
-    ``A = Q R``, ``R = U_r S V^T``, ``U = Q U_r``.  Same result as
-    ``numpy.linalg.svd(A, full_matrices=False)`` but LAPACK's tall SVD is slow when
-    the BLAS threads compete for few cores; the QR + small SVD path is not.
+
+def _tile_rows(p: int) -> int:
+    return max(TILE_ROWS, 4 * p)
+
+
+def r_factor(A: ArrayLike) -> Array:
+    """Upper-triangular ``R`` of ``A = Q R`` for a tall (M, p) matrix, by tiles (TSQR).
+
+    The rows are cut into tiles ``A_1 .. A_k`` of :data:`TILE_ROWS` rows; each tile is
+    factorised on its own, ``A_i = Q_i R_i``, and the stacked triangles are factorised
+    again (recursively): ``[R_1; ...; R_k] = Q' R``.  Then ``A = diag(Q_i) Q' R`` with
+    ``diag(Q_i) Q'`` orthonormal, so ``R^T R = A^T A``: ``R`` has the singular values,
+    right singular vectors, column norms and column inner products of ``A`` (it is
+    LAPACK's ``R`` up to the signs of its rows).  Cost ``O(M p^2)``, memory a few tiles.
+
+    Returns:
+        ``R`` (min(M, p), p), upper triangular.
+    """
+    A = np.asarray(A, dtype=float)
+    M, p = A.shape
+    m = _tile_rows(p)
+    if p == 0:
+        return np.zeros((0, 0))
+    if M <= 2 * m:
+        return np.linalg.qr(A, mode="r")
+    k = M // m
+    parts = []
+    for start in range(0, k, _TILE_GROUP):
+        stop = min(k, start + _TILE_GROUP)
+        tiles = A[start * m: stop * m].reshape(stop - start, m, p)
+        parts.append(np.linalg.qr(tiles, mode="r").reshape(-1, p))
+    if k * m < M:
+        parts.append(np.linalg.qr(A[k * m:], mode="r"))
+    return r_factor(np.concatenate(parts))
+
+
+def svd_thin(A: ArrayLike) -> tuple[Array, Array, Array]:
+    """Thin SVD ``A = U diag(S) V^T`` of a tall (M, p) matrix through a tiled QR.
+
+    With the tiles of :func:`r_factor`, ``A_i = Q_i R_i`` and ``[R_1; ...; R_k] = U' S V^T``
+    (itself by this function, recursively), ``U_i = Q_i U'_i``: the same factors as
+    ``numpy.linalg.svd(A, full_matrices=False)`` (up to the signs of singular vector
+    pairs), at the cost of one cache-resident QR per tile instead of LAPACK's tall SVD,
+    which is slow when the BLAS threads compete for few cores.
     """
     A = np.asarray(A, dtype=float)
     M, p = A.shape
     if M < p or p == 0:
         return np.linalg.svd(A, full_matrices=False)
-    Q, R = np.linalg.qr(A, mode="reduced")
-    Ur, S, Vt = np.linalg.svd(R)
-    return Q @ Ur, S, Vt
+    m = _tile_rows(p)
+    if M <= 2 * m:
+        Q, R = np.linalg.qr(A, mode="reduced")
+        Ur, S, Vt = np.linalg.svd(R)
+        return Q @ Ur, S, Vt
+    k = M // m
+    U = np.empty((M, p))
+    Ut = U[: k * m].reshape(k, m, p)
+    parts = []
+    for start in range(0, k, _TILE_GROUP):
+        stop = min(k, start + _TILE_GROUP)
+        Q, R = np.linalg.qr(A[start * m: stop * m].reshape(stop - start, m, p))
+        Ut[start:stop] = Q
+        parts.append(R.reshape(-1, p))
+    tail = None
+    if k * m < M:
+        tail, Rt = np.linalg.qr(A[k * m:])
+        parts.append(Rt)
+    U2, S, Vt = svd_thin(np.concatenate(parts))
+    W = U2[: k * p].reshape(k, p, p)
+    for start in range(0, k, _TILE_GROUP):
+        stop = min(k, start + _TILE_GROUP)
+        Ut[start:stop] = Ut[start:stop] @ W[start:stop]
+    if tail is not None:
+        U[k * m:] = tail @ U2[k * p:]
+    return U, S, Vt
 
 
-def singular_values(A: Array) -> Array:
-    """Singular values of ``A`` (descending), via the R factor for tall matrices."""
+def singular_values(A: ArrayLike) -> Array:
+    """Singular values of ``A`` (descending), via :func:`r_factor` for tall matrices."""
     A = np.asarray(A, dtype=float)
     if A.size == 0:
         return np.zeros(0)
     if A.shape[0] > A.shape[1]:
-        A = np.linalg.qr(A, mode="r")
+        A = r_factor(A)
     return np.linalg.svd(A, compute_uv=False)
 
 
-def lstsq(A: Array, b: Array, rcond: float = 1e-10) -> Array:
+def lstsq(A: ArrayLike, b: ArrayLike, rcond: float = 1e-10) -> Array:
     """Minimum-norm least-squares solution of ``A x = b`` (singular values below
-    ``rcond * S_max`` are treated as zero), via :func:`svd_thin`."""
-    U, S, Vt = svd_thin(A)
-    keep = S > rcond * (S[0] if S.size else 0.0)
-    return Vt[keep].T @ ((U[:, keep].T @ b) / S[keep])
+    ``rcond * S_max`` are treated as zero).
+
+    For tall ``A`` (M > p) through the triangle of ``[A b] = Q [[R, z], [0, rho]]``
+    (:func:`r_factor`): ``z = Q^T b``, ``R = U_r S V^T`` and
+    ``x = V S^+ U_r^T z``, the same solution as ``V S^+ U^T b`` with ``U = Q U_r``.
+    """
+    A = np.asarray(A, dtype=float)
+    b = np.asarray(b, dtype=float)
+    M, p = A.shape
+    if M <= p or p == 0:
+        U, S, Vt = svd_thin(A)
+        keep = S > rcond * (S[0] if S.size else 0.0)
+        return Vt[keep].T @ ((U[:, keep].T @ b) / S[keep].reshape((-1,) + (1,) * (b.ndim - 1)))
+    B = b.reshape(M, -1)
+    Rab = r_factor(np.concatenate([A, B], axis=1))
+    Ur, S, Vt = np.linalg.svd(Rab[:p, :p])
+    keep = S > rcond * S[0]
+    x = Vt[keep].T @ ((Ur[:, keep].T @ Rab[:p, p:]) / S[keep][:, None])
+    return x.reshape((p,) + b.shape[1:])

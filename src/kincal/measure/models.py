@@ -28,6 +28,14 @@ moves the observation by ``R_I^T ((p - t_I) x omega)``.  For the orientation res
 ``e = log(R_pred R_obs^T)``, a left perturbation ``R_pred -> exp(delta) R_pred`` changes
 ``e`` by ``J_l^-1(e) delta`` (the inverse left Jacobian of SO(3)).
 
+Evaluation runs over pieces of about :data:`~kincal.measure.base.CHUNK_ROWS` residual
+rows (a thousand or so configurations): the chain's Jacobian of a piece is rotated
+into the instrument frame with one (3, 3) x (3, P n) product, the cross products are
+written out component by component on (P, n) planes, and nothing of size
+(N, K, 3, P) besides the output is formed.  :meth:`evaluate_chunks` hands the pieces
+out one at a time, so :meth:`kincal.measure.base.StackedProblem.compressed` never
+holds the whole Jacobian.
+
 Closed-form initial guesses make the user's first guess unnecessary: the position
 model solves the linear problem ``A y + t - R_e m = p_e`` for a general matrix ``A``,
 projects ``A`` onto SO(3) and alternates Kabsch registration with a linear solve
@@ -37,11 +45,14 @@ of its Kronecker form, then the translations linearly.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.measure.base import (
+    CHUNK_ROWS,
     MeasurementModel,
     ParamSpec,
     frame_matrix,
@@ -120,6 +131,46 @@ def _check_q(q: ArrayLike, name: str) -> Array:
     return q
 
 
+def _configuration_slices(N: int, rows_per_configuration: int, rows: int) -> Iterator[slice]:
+    """Consecutive slices of the N configurations, at most ``rows`` residual rows each."""
+    step = max(1, rows // max(rows_per_configuration, 1))
+    for start in range(0, N, step):
+        yield slice(start, min(N, start + step))
+
+
+class _Scratch:
+    """Working arrays reused by the pieces of one evaluation.
+
+    A fresh array of a few hundred kB per piece costs page faults comparable to the
+    arithmetic on it; the pieces of one evaluation share these instead.
+    """
+
+    def __init__(self) -> None:
+        self._flat: dict[str, Array] = {}
+
+    def get(self, name: str, shape: tuple[int, ...]) -> Array:
+        """A C-contiguous array of ``shape`` (uninitialised), named ``name``."""
+        size = int(np.prod(shape))
+        b = self._flat.get(name)
+        if b is None or b.size < size:
+            b = self._flat[name] = np.empty(size)
+        return b[:size].reshape(shape)
+
+
+def _rotate_twists(G: Array, Jp: Array, ws: _Scratch) -> tuple[Array, Array]:
+    """``G Jv`` and ``G Jw`` (3, P, n) for the chain's parameter Jacobian ``Jp`` (n, 6, P).
+
+    Computed in the chain's storage order (component, parameter, configuration): one
+    (3, 3) x (3, P n) product each.
+    """
+    n, _, P = Jp.shape
+    J6 = Jp.transpose(1, 2, 0)                                    # (6, P, n)
+    V, W = ws.get("V", (3, P, n)), ws.get("W", (3, P, n))
+    np.matmul(G, J6[:3].reshape(3, -1), out=V.reshape(3, -1))
+    np.matmul(G, J6[3:].reshape(3, -1), out=W.reshape(3, -1))
+    return V, W
+
+
 # --------------------------------------------------------------------------- position
 class PositionMeasurement(MeasurementModel):
     """Positions of K points on the tool measured in an instrument frame.
@@ -192,45 +243,106 @@ class PositionMeasurement(MeasurementModel):
         return PositionMeasurement(self.q[rows], self._y[rows], self.sigma[rows], self.name,
                                    self.K)
 
+    def num_residuals(self) -> int:
+        return 3 * self.K * self.N
+
     def predict(self, robot: Robot, extra: ArrayLike) -> Array:
         """Predicted observations ``y_pred`` (N, K, 3) [m]."""
-        return self._predict(robot, np.asarray(extra, dtype=float), False)[0]
+        extra = np.asarray(extra, dtype=float)
+        return self._points(robot.fk(self.q), self._frames(extra))[1]
 
-    def _predict(self, robot: Robot, extra: Array, jac: bool
-                 ) -> tuple[Array, Array, Array, Array | None]:
-        T, _, Jp = robot.fk_with_jacobians(self.q, joints=False, params=jac)
+    def _frames(self, extra: Array) -> tuple[Array, Array, Array, Array]:
+        """Constants of one evaluation: ``R_I^T``, ``t_I``, the markers ``m`` (K, 3) and
+        the instrument's rotation axes in its own frame ``E' = R_I^T E`` (columns)."""
         TI = frame_matrix(extra[:6])
-        m = extra[6:].reshape(self.K, 3)
-        a = np.einsum("nij,kj->nki", T[:, :3, :3], m)            # R_e m_k   (N, K, 3)
-        d = T[:, None, :3, 3] + a - TI[:3, 3]                     # p - t_I   (N, K, 3)
-        y = d @ TI[:3, :3]                                        # R_I^T d
-        return y, d, a, (T, Jp) if jac else None  # type: ignore[return-value]
+        G = TI[:3, :3].T
+        return G, TI[:3, 3], extra[6:].reshape(self.K, 3), G @ frame_rotation_axes(extra[:6])
+
+    @staticmethod
+    def _points(T: Array, frames: tuple[Array, Array, Array, Array]) -> tuple[Array, Array]:
+        """``a = R_e m_k`` (tool points relative to the flange, base frame) and
+        ``y = R_I^T (p_e + a - t_I)`` (predictions), both (n, K, 3), for frames ``T``."""
+        G, tI, m, _ = frames
+        a = np.matmul(T[:, None, :3, :3], m[None, :, :, None])[..., 0]  # (n, K, 3)
+        d = T[:, None, :3, 3] + a - tI
+        return a, d @ G.T
 
     def evaluate(self, robot: Robot, extra: Array, jacobian: bool = True
                  ) -> tuple[Array, Array | None, Array | None]:
         extra = np.asarray(extra, dtype=float)
-        y, d, a, aux = self._predict(robot, extra, jacobian)
-        w = 1.0 / self.sigma[:, :, None]                          # (N, K, 1)
-        r = ((y - self._y) * w).reshape(-1)
         if not jacobian:
-            return r, None, None
-        T, Jp = aux  # type: ignore[misc]
-        N, K, P = self.N, self.K, robot.num_params
-        RI = frame_matrix(extra[:6])[:3, :3]
-        # robot: dp = Jv + Jw x a, dy = R_I^T dp
-        Jv, Jw = Jp[:, :3, :], Jp[:, 3:, :]
-        dp = Jv[:, None] + np.cross(Jw[:, None], a[:, :, :, None], axis=2)  # (N, K, 3, P)
-        Jr = np.einsum("ji,nkjp->nkip", RI, dp) * w[..., None]
-        Je = np.zeros((N, K, 3, 6 + 3 * K))
-        Je[:, :, :, 0:3] = -RI.T
-        E = frame_rotation_axes(extra[:6])                        # (3, 3) axes rz, ry, rx
-        Je[:, :, :, 3:6] = np.einsum("ji,nkjc->nkic", RI, np.cross(d[..., None], E[None, None],
-                                                                     axis=2))
-        RiRe = np.einsum("ji,njl->nil", RI, T[:, :3, :3])         # R_I^T R_e  (N, 3, 3)
+            y = self.predict(robot, extra)
+            return ((y - self._y) / self.sigma[:, :, None]).reshape(-1), None, None
+        M, P = self.num_residuals(), robot.num_params
+        r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 6 + 3 * self.K))
+        ws, frames = _Scratch(), self._frames(extra)
+        for cs in _configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
+            rs = slice(3 * self.K * cs.start, 3 * self.K * cs.stop)
+            self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
+        return r, Jr, Je
+
+    def evaluate_chunks(self, robot: Robot, extra: Array, rows: int = CHUNK_ROWS
+                        ) -> Iterator[tuple[slice, Array, Array, Array]]:
+        extra = np.asarray(extra, dtype=float)
+        step, P, E = 3 * self.K, robot.num_params, 6 + 3 * self.K
+        ws, frames = _Scratch(), self._frames(extra)
+        for cs in _configuration_slices(self.N, step, rows):
+            n = (cs.stop - cs.start) * step
+            r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, E))
+            self._fill(robot, frames, cs, r, Jr, Je, ws)
+            yield slice(step * cs.start, step * cs.stop), r, Jr, Je
+
+    def _fill(self, robot: Robot, frames: tuple[Array, Array, Array, Array], cs: slice,
+              r: Array, Jr: Array, Je: Array, ws: _Scratch) -> None:
+        """Residuals and Jacobians of configurations ``cs`` into ``r`` (3nK,), ``Jr``
+        (3nK, P), ``Je`` (3nK, 6 + 3K) (rows ordered configuration, marker, coordinate).
+
+        With ``a = R_e m_k``, ``y = R_I^T (p_e + a - t_I)`` and the chain's twist columns
+        ``[Jv; Jw]``, rotated into the instrument frame (``Jv' = R_I^T Jv``,
+        ``Jw' = R_I^T Jw``, ``a' = R_I^T a``):
+
+        * robot: ``dy = Jv' + Jw' x a'``, component-wise
+          ``dy_i = Jv'_i + Jw'_j a'_k - Jw'_k a'_j`` for ``(i, j, k)`` cyclic;
+        * instrument translation: ``dy/dt_I = -R_I^T``;
+        * instrument rotation about axis ``E_c`` (:func:`frame_rotation_axes`):
+          ``dy/dw_c = R_I^T ((p - t_I) x E_c) = y x E'_c``, ``E'_c = R_I^T E_c``;
+        * marker ``k``: ``dy/dm_k = R_I^T R_e``;
+
+        every row divided by its ``sigma``.
+        """
+        K = self.K
+        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True)
+        n, P = T.shape[0], robot.num_params
+        G, Ep = frames[0], frames[3]                              # R_I^T, R_I^T E
+        a, y = self._points(T, frames)
+        w = 1.0 / self.sigma[cs]                                  # (n, K)
+        np.multiply(y - self._y[cs], w[:, :, None], out=r.reshape(n, K, 3))
+        # robot columns: computed as (P, n) planes, written transposed into the rows
+        V, W = _rotate_twists(G, Jp, ws)
+        ar = np.ascontiguousarray((a @ G.T).transpose(1, 2, 0))  # a' (K, 3, n)
+        out = Jr.reshape(n, K, 3, P)
+        buf, tmp = ws.get("buf", (P, n)), ws.get("tmp", (P, n))
         for k in range(K):
-            Je[:, k, :, 6 + 3 * k: 9 + 3 * k] = RiRe
-        Je *= w[..., None]
-        return r, Jr.reshape(N * K * 3, P), Je.reshape(N * K * 3, 6 + 3 * K)
+            for i in range(3):
+                j, l = (i + 1) % 3, (i + 2) % 3
+                np.multiply(W[j], ar[k, l], out=buf)
+                np.multiply(W[l], ar[k, j], out=tmp)
+                buf -= tmp
+                buf += V[i]
+                buf *= w[:, k]
+                out[:, k, i, :] = buf.T
+        # block columns
+        ex = Je.reshape(n, K, 3, 6 + 3 * K)
+        if K > 1:
+            ex[..., 6:] = 0.0
+        ex[..., 0:3] = -G
+        for i in range(3):
+            j, l = (i + 1) % 3, (i + 2) % 3
+            ex[..., i, 3:6] = y[..., j, None] * Ep[l] - y[..., l, None] * Ep[j]
+        RiRe = G @ T[:, :3, :3]                                   # (n, 3, 3)
+        for k in range(K):
+            ex[:, k, :, 6 + 3 * k: 9 + 3 * k] = RiRe
+        ex *= w[:, :, None, None]
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         y = self.predict(robot, extra)
@@ -267,14 +379,15 @@ class PositionMeasurement(MeasurementModel):
         R = project_so3(sol[:9].reshape(3, 3, order="F"))
         m = sol[12:].reshape(K, 3)
         t = sol[9:12]
+        # linear solve for t, m with R fixed: t - R_e m_k = p_e - R y (same A every time)
+        A = np.zeros((N, K, 3, 3 + 3 * K))
+        A[:, :, :, :3] = eye
+        for k in range(K):
+            A[:, k, :, 3 + 3 * k: 6 + 3 * k] = -Re
+        A = A.reshape(-1, 3 + 3 * K)
         for _ in range(iterations):
-            # linear solve for t, m with R fixed: t - R_e m_k = p_e - R y
-            A = np.zeros((N, K, 3, 3 + 3 * K))
-            A[:, :, :, :3] = eye
-            for k in range(K):
-                A[:, k, :, 3 + 3 * k: 6 + 3 * k] = -Re
             b = pe[:, None, :] - y @ R.T
-            sol = lstsq(A.reshape(-1, 3 + 3 * K), b.reshape(-1))
+            sol = lstsq(A, b.reshape(-1))
             m = sol[3:].reshape(K, 3)
             world = pe[:, None, :] + np.einsum("nij,kj->nki", Re, m)
             R_new, t = kabsch(y.reshape(-1, 3), world.reshape(-1, 3),
@@ -344,47 +457,117 @@ class PoseMeasurement(MeasurementModel):
         Tt = frame_matrix(extra[6:12])
         return np.linalg.inv(TI) @ robot.fk(self.q) @ Tt
 
-    def _raw(self, robot: Robot, extra: Array, jac: bool) -> tuple[Array, Array, tuple]:
-        T, _, Jp = robot.fk_with_jacobians(self.q, joints=False, params=jac)
-        TI, Tt = frame_matrix(extra[:6]), frame_matrix(extra[6:12])
+    def num_residuals(self) -> int:
+        return 6 * self.N
+
+    @staticmethod
+    def _frames(extra: Array) -> tuple[Array, Array, Array, Array]:
+        """Constants of one evaluation: ``T_I``, ``T_t`` and their rotation axes ``E_I``,
+        ``E_t`` (:func:`frame_rotation_axes`)."""
+        return (frame_matrix(extra[:6]), frame_matrix(extra[6:12]),
+                frame_rotation_axes(extra[:6]), frame_rotation_axes(extra[6:12]))
+
+    def _raw(self, T: Array, frames: tuple[Array, Array, Array, Array], cs: slice
+             ) -> tuple[Array, Array, Array, Array]:
+        """For frames ``T`` of configurations ``cs``: position errors ``y - p_obs``
+        (n, 3) [m], rotation errors ``e = log(R_pred R_obs^T)`` (n, 3) [rad], the target
+        offset ``a = R_e t_t`` and the prediction ``y = R_I^T (p_e + a - t_I)`` (n, 3)."""
+        TI, Tt = frames[0], frames[1]
         RI, tI = TI[:3, :3], TI[:3, 3]
         Re = T[:, :3, :3]
         a = Re @ Tt[:3, 3]                                         # target origin offset
-        d = T[:, :3, 3] + a - tI
-        y = d @ RI                                                 # R_I^T d
-        Rp = RI.T @ Re @ Tt[:3, :3]                                # R_pred (N, 3, 3)
-        e = log_so3(Rp @ np.swapaxes(self.poses[:, :3, :3], 1, 2))
-        return y - self.poses[:, :3, 3], e, (T, Jp, RI, Re, a, d)
+        y = (T[:, :3, 3] + a - tI) @ RI                            # R_I^T d
+        Rp = RI.T @ Re @ Tt[:3, :3]                                # R_pred (n, 3, 3)
+        e = log_so3(Rp @ np.swapaxes(self.poses[cs, :3, :3], 1, 2))
+        return y - self.poses[cs, :3, 3], e, a, y
 
     def evaluate(self, robot: Robot, extra: Array, jacobian: bool = True
                  ) -> tuple[Array, Array | None, Array | None]:
         extra = np.asarray(extra, dtype=float)
-        dy, e, (T, Jp, RI, Re, a, d) = self._raw(robot, extra, jacobian)
-        wp, wo = 1.0 / self.sigma_position, 1.0 / self.sigma_orientation
-        r = np.concatenate([dy * wp[:, None], e * wo[:, None]], 1).reshape(-1)
         if not jacobian:
-            return r, None, None
-        N, P = self.N, robot.num_params
-        L = inverse_left_jacobian_so3(e)                           # (N, 3, 3)
-        Jv, Jw = Jp[:, :3, :], Jp[:, 3:, :]
-        Jr = np.empty((N, 6, P))
-        Jr[:, :3] = np.einsum("ji,njp->nip", RI, Jv + np.cross(Jw, a[:, :, None], axis=1))
-        Jr[:, 3:] = L @ np.einsum("ji,njp->nip", RI, Jw)
-        Je = np.zeros((N, 6, 12))
-        Je[:, :3, 0:3] = -RI.T
-        EI = frame_rotation_axes(extra[:6])
-        Je[:, :3, 3:6] = np.einsum("ji,njc->nic", RI, np.cross(d[:, :, None], EI[None], axis=1))
-        Je[:, 3:, 3:6] = L @ (-RI.T @ EI)
-        RiRe = np.einsum("ji,njl->nil", RI, Re)
-        Je[:, :3, 6:9] = RiRe
-        Je[:, 3:, 9:12] = L @ (RiRe @ frame_rotation_axes(extra[6:12]))
-        wv = np.concatenate([np.repeat(wp[:, None], 3, 1), np.repeat(wo[:, None], 3, 1)], 1)
-        Jr *= wv[:, :, None]
-        Je *= wv[:, :, None]
-        return r, Jr.reshape(6 * N, P), Je.reshape(6 * N, 12)
+            dy, e, _, _ = self._raw(robot.fk(self.q), self._frames(extra), slice(None))
+            wp, wo = 1.0 / self.sigma_position, 1.0 / self.sigma_orientation
+            return np.concatenate([dy * wp[:, None], e * wo[:, None]], 1).reshape(-1), None, None
+        M, P = self.num_residuals(), robot.num_params
+        r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 12))
+        ws, frames = _Scratch(), self._frames(extra)
+        for cs in _configuration_slices(self.N, 6, CHUNK_ROWS):
+            rs = slice(6 * cs.start, 6 * cs.stop)
+            self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
+        return r, Jr, Je
+
+    def evaluate_chunks(self, robot: Robot, extra: Array, rows: int = CHUNK_ROWS
+                        ) -> Iterator[tuple[slice, Array, Array, Array]]:
+        extra = np.asarray(extra, dtype=float)
+        P = robot.num_params
+        ws, frames = _Scratch(), self._frames(extra)
+        for cs in _configuration_slices(self.N, 6, rows):
+            n = 6 * (cs.stop - cs.start)
+            r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, 12))
+            self._fill(robot, frames, cs, r, Jr, Je, ws)
+            yield slice(6 * cs.start, 6 * cs.stop), r, Jr, Je
+
+    def _fill(self, robot: Robot, frames: tuple[Array, Array, Array, Array], cs: slice,
+              r: Array, Jr: Array, Je: Array, ws: _Scratch) -> None:
+        """Residuals and Jacobians of configurations ``cs`` into ``r`` (6n,), ``Jr``
+        (6n, P), ``Je`` (6n, 12) (rows: position x y z, then rotation, per pose).
+
+        With ``Jv' = R_I^T Jv``, ``Jw' = R_I^T Jw``, ``a' = R_I^T R_e t_t``,
+        ``y = R_I^T (p_e + a - t_I)``, ``L = J_l^-1(e)`` (:func:`inverse_left_jacobian_so3`),
+        ``E'_c = R_I^T E_c`` (instrument rotation axes) and ``F_c`` the target's:
+
+        * robot: position ``Jv'_i + Jw'_j a'_k - Jw'_k a'_j`` ((i, j, k) cyclic),
+          rotation ``L Jw'`` (``R_pred`` turns by ``R_I^T dphi_e``);
+        * instrument: position ``[-R_I^T, y x E'_c]``, rotation ``[0, -L E'_c]``;
+        * target: position ``[R_I^T R_e, 0]``, rotation ``[0, L R_I^T R_e F_c]``;
+
+        position rows divided by ``sigma_position``, rotation rows by ``sigma_orientation``.
+        """
+        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True)
+        n, P = T.shape[0], robot.num_params
+        G = frames[0][:3, :3].T                                   # R_I^T
+        dy, e, a, y = self._raw(T, frames, cs)
+        wp, wo = 1.0 / self.sigma_position[cs], 1.0 / self.sigma_orientation[cs]
+        rr = r.reshape(n, 6)
+        np.multiply(dy, wp[:, None], out=rr[:, :3])
+        np.multiply(e, wo[:, None], out=rr[:, 3:])
+        L = inverse_left_jacobian_so3(e)                           # (n, 3, 3)
+        V, W = _rotate_twists(G, Jp, ws)                           # R_I^T Jv, R_I^T Jw
+        ar = np.ascontiguousarray((a @ G.T).T)                    # a' (3, n)
+        Lc = np.ascontiguousarray(L.transpose(1, 2, 0))           # (3, 3, n)
+        out = Jr.reshape(n, 6, P)
+        buf, tmp = ws.get("buf", (P, n)), ws.get("tmp", (P, n))
+        for i in range(3):
+            j, l = (i + 1) % 3, (i + 2) % 3
+            np.multiply(W[j], ar[l], out=buf)
+            np.multiply(W[l], ar[j], out=tmp)
+            buf -= tmp
+            buf += V[i]
+            buf *= wp
+            out[:, i, :] = buf.T
+            np.multiply(W[0], Lc[i, 0], out=buf)
+            for c in (1, 2):
+                np.multiply(W[c], Lc[i, c], out=tmp)
+                buf += tmp
+            buf *= wo
+            out[:, 3 + i, :] = buf.T
+        ex = Je.reshape(n, 6, 12)
+        ex[...] = 0.0
+        ex[:, :3, 0:3] = -G
+        Ep = G @ frames[2]                                        # E'_c as columns
+        for i in range(3):
+            j, l = (i + 1) % 3, (i + 2) % 3
+            ex[:, i, 3:6] = y[:, j, None] * Ep[l] - y[:, l, None] * Ep[j]
+        ex[:, 3:, 3:6] = L @ -Ep
+        RiRe = G @ T[:, :3, :3]
+        ex[:, :3, 6:9] = RiRe
+        ex[:, 3:, 9:12] = L @ (RiRe @ frames[3])
+        ex[:, :3] *= wp[:, None, None]
+        ex[:, 3:] *= wo[:, None, None]
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
-        dy, e, _ = self._raw(robot, np.asarray(extra, dtype=float), False)
+        frames = self._frames(np.asarray(extra, dtype=float))
+        dy, e, _, _ = self._raw(robot.fk(self.q), frames, slice(None))
         return {"position_m": np.linalg.norm(dy, axis=1),
                 "orientation_rad": np.linalg.norm(e, axis=1)}
 
