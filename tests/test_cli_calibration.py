@@ -205,6 +205,60 @@ def test_moved_instrument_is_flagged_and_reregistered(flow, capsys, tmp_path):
     assert "re-registered" in v["note"] and "marker/target from training" in v["note"]
 
 
+def test_calibrate_with_a_prior(flow, capsys, tmp_path):
+    """--prior PATTERN=SIGMA_WITH_UNIT: SI standard deviations in the JSON, a column in
+    the summary, the data's estimated set, and the values applied in their unit."""
+    j = tmp_path / "map.json"
+    code, stdout, err = run(capsys, "calibrate", "puma560", "--data", flow["train"], "--json",
+                            j, "--stages", "offsets,all",
+                            "--prior", "a[*]=1mm,d[*]=1000um,alpha[*]=0.1deg")
+    assert code == 0, err
+    doc = json.loads(j.read_text())
+    by = {p["name"]: p for p in doc["parameters"]}
+    est = [n for n, p in by.items() if p["estimated"]]
+    for n in est:
+        want = {"a[": 1e-3, "d[": 1e-3, "al": math.radians(0.1)}.get(n[:2])
+        assert by[n]["prior_std"] == (pytest.approx(want, rel=1e-12) if want else None), n
+    assert by["d[3]"]["prior_std"] is None and not by["d[3]"]["estimated"]
+    assert doc["inputs"]["prior"] == "a[*]=1mm,d[*]=1000um,alpha[*]=0.1deg"
+    # the prior does not change which parameters are estimated
+    plain = json.loads(flow["res"].read_text())
+    assert est == [p["name"] for p in plain["parameters"] if p["estimated"]]
+    text = " ".join(stdout.split())
+    assert "MAP estimate: 13 estimated parameter(s) have a Gaussian prior" in text
+    assert "prior (1σ)" in text
+    # a prior far tighter than the data holds the link lengths at their nominal values
+    # (1e-6 um = 1e-12 m), while the least-squares fit moves them by ~0.1 mm or more
+    j2 = tmp_path / "tight.json"
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", flow["train"], "--json", j2,
+                       "--prior", "a[*]=1e-6um")
+    assert code == 0, err
+    tight = {p["name"]: p for p in json.loads(j2.read_text())["parameters"]}
+    moved = [abs(p["estimate"] - p["nominal"]) for p in plain["parameters"]
+             if p["name"].startswith("a[") and p["estimated"]]
+    held = [abs(p["estimate"] - p["nominal"]) for n, p in tight.items()
+            if n.startswith("a[") and p["estimated"]]
+    assert max(moved) > 1e-4 and max(held) < 1e-9
+
+
+@pytest.mark.parametrize("prior,message", [
+    ("a[*]=1", "'a[*]=1' needs a unit (e.g. a[*]=1mm or a[*]=1deg)"),
+    ("a[*]=0.1deg", "'a[*]' matches no angle parameter"),
+    ("a[*]=1furlong", "unknown unit 'furlong'"),
+    ("a[*]=0mm", "must be positive"),
+    ("a[*]", "is not PATTERN=SIGMA with a unit"),
+    ("b[*]=1mm", "no parameter matches 'b[*]'"),
+])
+def test_bad_prior_one_line_exit_2_nothing_written(flow, capsys, tmp_path, prior, message):
+    out = tmp_path / "res.json"
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", flow["train"], "--json", out,
+                       "--prior", prior)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: option --prior: ")
+    assert message in lines[0] and not out.exists()
+
+
 BAD = {
     "wrong joint count": ("q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,x_mm,y_mm,z_mm\n1,2,3,4,5,1,2,3\n",
                           "line 2: no column for joint 'q6'"),

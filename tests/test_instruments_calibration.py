@@ -75,15 +75,6 @@ def test_calibrate_on_noisy_simulation_matches_harness(key: str) -> None:
     assert np.all((got > 0.75) & (got < 1.33))       # sigma0 differs per draw; J the same
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "identify/solver.py analyses identifiability only at the starting point. Contacts with "
-    "unknown planes cannot see the scale, but away from a consistent point the scale "
-    "direction v has J v = r (shrinking the scene shrinks every contact distance), so it "
-    "looks identifiable, is estimated, and LM shrinks the robot towards zero size (cost -> "
-    "0, no convergence). At a least-squares solution J^T r = 0 makes v exactly dependent. "
-    "Fix: re-run analyze() at the end of each stage and, if the base set shrinks or the "
-    "stage did not converge, re-solve from the stage start with the smaller set; or treat "
-    "as dependent any scaled direction with |J v| <= |r|-level. Workaround: fixed=['d[4]']."))
 def test_unknown_planes_with_automatic_selection_hold_the_scale() -> None:
     sim, n, opts, noise = CASES["plane"]
     sc = get("plane")

@@ -224,3 +224,169 @@ def test_result_objects_and_estimator():
             "identifiability"} <= set(d)
     json.dumps(d)
     assert "estimated" in res.summary()
+
+
+# --------------------------------------------------------------------------- identifiability
+def test_gauss_newton_holds_the_scale_of_unknown_planes():
+    """Contacts with planes of unknown offset cannot see the scale: J v = r for the
+    direction that shrinks the robot, the marker and the planes together.  Gauss-Newton
+    jumps along it to a zero-size robot ("converged", zero residual, a collapsed base
+    set); the solver names d[4] (the last length of that direction) and solves again
+    without it: the set of the noise-free analysis, the truth within its std."""
+    from test_instruments_support import NOMINAL, cases, scenario
+
+    sim, n, opts, noise = cases()["plane"]
+    sc = scenario(sim, n, 11, noise, **opts)
+    blocks, _ = sim(sc.true, np.random.default_rng(11), n, noise, **opts)
+    res = calibrate(NOMINAL, blocks, method="gauss-newton")
+    assert res.converged and 0.7 < res.sigma0 < 1.3, res.message
+    assert sorted(res.estimated) == sorted(sc.free)
+    assert "d[4] only rescale(s) the residuals" in res.message
+    by = {p["name"]: p for p in res.to_dict()["parameters"]}
+    assert by["d[4]"]["status"].startswith("dependent on") and not by["d[4]"]["identifiable"]
+    assert res.params["d[4]"] == NOMINAL.params()["d[4]"]
+    est = [res.names.index(p) for p in res.estimated]
+    z = (res.theta[est] - np.array([sc.truth[p] for p in res.estimated])) / res.std[est]
+    assert np.max(np.abs(z)) < 4.5
+
+
+def test_a_stage_stopped_by_max_iter_keeps_its_set():
+    """A consistent linear model has r in the range of J everywhere (a residual-
+    rescaling direction for the test); stopped by max_iter it must keep every
+    parameter: solving without one does not converge either, so nothing changes."""
+    from test_solver_prior import ROBOT, LinearBlock
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(40, 4))
+    blk = LinearBlock(A, A @ np.array([0.1, -0.2, 0.05, 0.3]))
+    res = calibrate(ROBOT, [blk], max_iter=1)
+    assert not res.converged and res.iterations == 1 and len(res.history) == 2
+    assert res.estimated == [f"lin.b{j}" for j in range(4)]
+    full = calibrate(ROBOT, [blk])
+    assert full.converged and full.estimated == res.estimated
+    assert np.allclose(full.theta[-4:], [0.1, -0.2, 0.05, 0.3], rtol=1e-12)
+
+
+# --------------------------------------------------------------------------- termination
+def test_levenberg_marquardt_stops_with_one_failed_trial():
+    """At the minimum the last trial step fails and is already shorter than tol_step:
+    the stage ends there (one residual evaluation per iteration in all), at the
+    solution scipy's least_squares finds with the tightest tolerances."""
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(7)
+    robot = puma()
+    q = random_configurations(robot, 40, rng)
+    blk = make_block(perturb_robot(robot, rng), q, rng, "pose", noise=1e-5)
+    calls = [0]
+    evaluate = blk.evaluate
+
+    def counted(robot, extra, jacobian=True):
+        calls[0] += not jacobian
+        return evaluate(robot, extra, jacobian)
+
+    blk.evaluate = counted
+    res = calibrate(robot, [blk])
+    assert res.converged and "no descent step longer than tol_step" in res.message
+    assert calls[0] <= res.iterations                  # was 11 extra at the last iteration
+    prob, th0 = res.problem, res.theta0
+    est = [prob.names.index(n) for n in res.estimated]
+
+    def fun(x, jac=False):
+        th = th0.copy()
+        th[est] = x
+        return prob.residuals_and_jacobian(th)[1][:, est] if jac else prob.residuals(th)
+
+    ref = least_squares(fun, th0[est], jac=lambda x: fun(x, True), x_scale="jac",
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    assert np.max(np.abs(res.theta[est] - ref.x) / (1 + np.abs(ref.x))) < 1e-10
+
+
+# --------------------------------------------------------------------------- summary
+def test_summary_shows_every_error_kind_in_its_unit():
+    from test_solver_prior import ROBOT, LinearBlock
+
+    from kincal.identify.solver import format_error
+
+    class Reporting(LinearBlock):
+        def errors(self, robot, extra):
+            return {"image_px": np.array([3.0, 4.0]), "range_m": np.array([1e-3, -1e-3]),
+                    "tilt_rad": np.array([np.pi / 180]), "count": np.array([2.0])}
+
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(10, 2))
+    res = calibrate(ROBOT, [Reporting(A, A @ [0.1, 0.2])])
+    line = res.summary().splitlines()[-1]
+    assert line == ("Training errors: image RMS 3.5355 px, range RMS 1.0000 mm, "
+                    "tilt RMS 1.00000 deg, count RMS 2")
+    assert format_error("position_m", 2e-5) == "position 0.0200 mm"
+    assert format_error("x_unknown", 0.5, "max") == "x_unknown max 0.5"
+
+
+# --------------------------------------------------------------------------- validation
+@pytest.fixture(scope="module")
+def cross_bar():
+    """Noise-free cross-bar placements (exact IK) of a perturbed PUMA: training (12
+    placements) and held-out (4).  The tool-origin probe and one seating per socket
+    leave the block without parameters of its own."""
+    from kincal.measure.artifacts import ArtifactGeometry
+    from kincal.measure.artifacts.simulate import simulate_artifact
+
+    nominal = load_robot("puma560")
+    rng = np.random.default_rng(21)
+    true = perturb_robot(nominal, rng)
+    cross = ArtifactGeometry.cross_bar(0.3)
+    train, _ = simulate_artifact(true, cross, 12, rng, model_robot=nominal, name="cross")
+    held, _ = simulate_artifact(true, cross, 4, rng, model_robot=nominal, name="cross",
+                                label_prefix="v")
+    return nominal, true, train, held, cross, rng
+
+
+def test_validate_artifact_blocks(cross_bar):
+    from kincal.identify.validation import validate
+    from kincal.measure.artifacts.simulate import simulate_artifact
+
+    nominal, true, train, held, cross, rng = cross_bar
+    assert len(held.parameters()) == 0
+    # nothing to re-register: the true robot reproduces the held-out artifact exactly
+    exact = validate(true, [held])["overall"]
+    assert exact["n"] == 8 and exact["rms_distance_m"] < 1e-9
+    assert exact["rms_perpendicularity_rad"] < 1e-9
+    before = validate(nominal, [held])["overall"]
+    res = calibrate(nominal, [train])
+    after = validate(res.robot, [held], extras=res)["overall"]
+    assert after["rms_distance_m"] < 0.05 * before["rms_distance_m"]
+    # seated twice: socket frames (role artifact) belong to the held-out placements;
+    # they are fitted on the held-out data, never looked up in the training extras
+    held2, _ = simulate_artifact(true, cross, 3, rng, model_robot=nominal, name="cross",
+                                 visits=2, label_prefix="w")
+    assert held2.parameters().names[0] == "cross.w1.A.rz"
+    v = validate(true, [held2], extras=res)
+    assert v["overall"]["rms_coincidence_m"] < 1e-9 and v["overall"]["rms_distance_m"] < 1e-9
+    assert set(v["extras"]["cross"]) == set(held2.parameters().names)
+    # a tracker frame is no placement parameter: missing from extras is an error
+    blk = make_block(true, random_configurations(nominal, 5, rng), rng, "position")
+    with pytest.raises(KincalError, match="no value for 'tracker.x'"):
+        validate(true, [blk], extras={"cross.x": 0.0})
+
+
+def test_cross_validation_holds_out_whole_placements(cross_bar):
+    from kincal.identify.validation import cross_validate
+
+    nominal, true, train, held, cross, rng = cross_bar
+    cv = cross_validate(nominal, train, folds=3)
+    assert cv["split"] == "placements" and len(cv["results"]) == 3
+    seen: list[str] = []
+    for res in cv["results"]:
+        used = res.problem.blocks[0].placements
+        assert len(used) == 8
+        seen += [p for p in train.placements if p not in used]
+    assert sorted(seen, key=int) == list(train.placements)     # each held out once
+    nominal_cv = cross_validate(nominal, train, folds=3, fixed="*")
+    assert cv["rms_distance_m"] < 0.05 * nominal_cv["rms_distance_m"]
+    # the protocol adds no error of its own: the true robot, nothing estimated
+    exact = cross_validate(true, train, folds=3, fixed="*")
+    assert exact["rms_distance_m"] < 1e-9 and exact["rms_perpendicularity_rad"] < 1e-9
+    with pytest.raises(KincalError, match="folds must be between 2 and its number of "
+                                          "placements"):
+        cross_validate(nominal, train, folds=13)

@@ -30,6 +30,7 @@ import dataclasses
 import html
 import json
 import math
+import re
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -44,7 +45,7 @@ from kincal.errors import KincalError, MeasurementFileError
 Array = NDArray[np.float64]
 
 __all__ = ["FlowResult", "read_blocks", "ignored_columns", "check_options_used",
-           "parse_selection", "parse_stages", "check_flow_options", "run_flow",
+           "parse_selection", "parse_stages", "parse_prior", "check_flow_options", "run_flow",
            "validate_blocks", "reregister", "errors_with", "block_values", "truth_values",
            "extras_from_result", "render_outputs", "write_outputs", "patent_section_html",
            "figures_section_html", "PROCEDURES", "METHODS", "LOSSES"]
@@ -172,6 +173,66 @@ def parse_selection(names: Sequence[str], roles: Sequence[str], free: str | None
     return expand(free), expand(fix) or []
 
 
+_PRIOR_VALUE = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]+)?\s*\Z")
+
+
+def parse_prior(text: str | None, names: Sequence[str], units: Sequence[str]
+                ) -> dict[str, float]:
+    """``--prior`` text -> prior standard deviations ``{parameter name: s}`` [m / rad].
+
+    ``text`` is ``PATTERN=SIGMA_WITH_UNIT`` entries, comma separated, e.g.
+    ``"*.origin.*=1mm,*.origin.*=0.1deg"``: names or ``*`` / ``?`` patterns
+    (:func:`~kincal.identify.solver.match_names`), each with a value and its unit (any
+    unit of measurement files: ``mm``, ``um``, ``m``, ``deg``, ``mrad``, ``arcsec`` ...;
+    required, so that ``1`` is never read as 1 m).  An entry applies to the parameters
+    its pattern matches *whose unit is of the entry's dimension* (a length to lengths,
+    an angle to angles), so one pattern can take both; a later entry overrides an
+    earlier one for the names both give a value.  The value becomes SI,
+    ``s = value * unit factor`` (``1mm -> 0.001``, ``0.1deg -> 0.001745``).
+
+    Raises one-line :class:`~kincal.errors.KincalError` for an entry that is not
+    ``PATTERN=VALUE UNIT``, a missing or unknown unit, a value that is not positive, or
+    a pattern that matches no parameter of the unit's dimension.
+    """
+    from kincal.identify.solver import match_names
+    from kincal.measure.files import UNITS
+
+    out: dict[str, float] = {}
+    if not text:
+        return out
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        pattern, eq, value = (x.strip() for x in part.partition("="))
+        m = _PRIOR_VALUE.match(value) if eq and pattern else None
+        if m is None:
+            raise KincalError(f"option --prior: {part!r} is not PATTERN=SIGMA with a unit "
+                              "(e.g. '*.origin.*=1mm,*.origin.r?=0.1deg')")
+        number, unit = float(m.group(1)), m.group(2)
+        if unit is None:
+            raise KincalError(f"option --prior: {part!r} needs a unit (e.g. {pattern}="
+                              f"{m.group(1)}mm or {pattern}={m.group(1)}deg)")
+        if unit not in UNITS:
+            raise KincalError(f"option --prior: unknown unit {unit!r} in {part!r} (known: "
+                              f"{', '.join(UNITS)})")
+        if not (math.isfinite(number) and number > 0):
+            raise KincalError(f"option --prior: the standard deviation in {part!r} must be "
+                              "positive")
+        dim, factor = UNITS[unit]
+        try:
+            matched = match_names(names, pattern)
+        except KincalError as exc:
+            raise KincalError(f"option --prior: {exc}") from None
+        hit = [i for i in matched if units[i] in UNITS and UNITS[units[i]][0] == dim]
+        if not hit:
+            article = "an" if dim[0] in "aeiou" else "a"
+            raise KincalError(f"option --prior: {pattern!r} matches no {dim} parameter "
+                              f"(the unit of {part!r} is {article} {dim})")
+        for i in hit:
+            out[names[i]] = number * factor
+    return out
+
+
 def parse_stages(text: str | None) -> list[str] | None:
     """``"offsets,all"`` -> ``["offsets", "all"]`` (the one-stage solver's stages)."""
     if not text:
@@ -240,7 +301,7 @@ def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixe
     return calibrate(robot, blocks, free=free_names, fixed=fixed, method=options["method"],
                      stages=options.get("stages"), loss=options["loss"],
                      loss_scale=options["loss_scale"], max_iter=options.get("max_iter") or 100,
-                     progress=progress)
+                     progress=progress, prior=options.get("prior") or None)
 
 
 def _with_origin(kept: Sequence[Any], original: Sequence[Any]) -> list[Any]:
@@ -259,7 +320,7 @@ def _with_origin(kept: Sequence[Any], original: Sequence[Any]) -> list[Any]:
 def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str = "linear",
                        stages: Sequence[str] | None = None, validation_frames: str = "auto",
                        condition_growth: float | None = None, cycles: int | None = None,
-                       tolerance: float | None = None) -> None:
+                       tolerance: float | None = None, prior: str | None = None) -> None:
     """One-line errors for options of :func:`run_flow` that do not fit together (checked
     before any file is read; ``tolerance`` in m, reported in mm as ``--tolerance-mm``)."""
     _choice(procedure, "--procedure", PROCEDURES)
@@ -267,9 +328,9 @@ def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str =
     _choice(loss, "--loss", LOSSES)
     _choice(validation_frames, "--validation-frames", ("auto", "training", "register"))
     if procedure == "patent":
-        if method != "lm" or loss != "linear" or stages:
-            raise KincalError("--method, --loss and --stages choose the one-stage solver "
-                              "(--procedure lm); the patent has its own two stages")
+        if method != "lm" or loss != "linear" or stages or prior:
+            raise KincalError("--method, --loss, --stages and --prior choose the one-stage "
+                              "solver (--procedure lm); the patent has its own two stages")
     elif condition_growth is not None or cycles is not None or tolerance is not None:
         raise KincalError("--condition-growth, --cycles and --tolerance-mm need "
                           "--procedure patent")
@@ -287,6 +348,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              max_iter: int | None = None, validation_frames: str = "auto",
              procedure: str = "lm", condition_growth: float | None = None,
              cycles: int | None = None, tolerance: float | None = None,
+             prior: str | None = None,
              progress: Callable[[Any], Any] | None = None) -> FlowResult:
     """Calibrate, then compute the errors before/after on the training and held-out data.
 
@@ -307,6 +369,9 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             None = until converged).
         tolerance: patent only: stop when no predicted point moves more than this [m]
             (default 1e-7 m).
+        prior: ``--prior`` text (:func:`parse_prior`, e.g. ``"*.origin.*=1mm"``): a
+            maximum a-posteriori estimate with Gaussian priors centred on the nominal
+            values (``procedure="lm"``).
         progress: called with every :class:`~kincal.identify.solver.IterationRecord`.
 
     *Before* = the nominal robot with the instruments registered to it (only the
@@ -333,15 +398,16 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
 
     check_flow_options(procedure=procedure, method=method, loss=loss, stages=stages,
                        validation_frames=validation_frames, condition_growth=condition_growth,
-                       cycles=cycles, tolerance=tolerance)
+                       cycles=cycles, tolerance=tolerance, prior=prior)
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
+    prior_s = parse_prior(prior, prob.names, prob.units)
     t0 = time.perf_counter()
     res = _calibrate(robot, blocks, free_names, fixed, procedure, progress,
                      {"method": method, "stages": stages, "loss": loss,
                       "loss_scale": loss_scale, "max_iter": max_iter,
                       "condition_growth": condition_growth, "cycles": cycles,
-                      "tolerance": tolerance})
+                      "tolerance": tolerance, "prior": prior_s})
     seconds = time.perf_counter() - t0
     train = _with_origin(res.problem.blocks, blocks)
     before = {b.name: reregister(robot, b, None, None) for b in train}

@@ -151,6 +151,12 @@ def calibrate_cmd(
     max_iter: Annotated[int | None, typer.Option(
         "--max-iter", min=1, help="Iterations: in all (lm, default 100) or per stage and "
         "cycle (patent, default 20).")] = None,
+    prior: Annotated[str | None, typer.Option(
+        "--prior", metavar="PATTERN=SIGMA,...", help="Maximum a-posteriori estimate: "
+        "Gaussian priors centred on the nominal values, standard deviations with their "
+        "unit, e.g. '*.origin.*=1mm,*.origin.r?=0.1deg' (a length applies to the matched "
+        "lengths, an angle to the matched angles; later entries win). Does not change "
+        "which parameters are estimated.")] = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     validation_frames: Annotated[str, typer.Option(
         "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
@@ -178,12 +184,15 @@ def calibrate_cmd(
             raise KincalError("five-bar calibration takes one --data file")
         if procedure != "lm":
             raise KincalError("--procedure patent works on serial robots")
+        if prior:
+            raise KincalError("--prior works on serial robots")
         calibrate_fivebar_file(r, data[0], output, json_out, report, method)
         return
     tolerance = tolerance_mm * 1e-3 if tolerance_mm is not None else None
     check_flow_options(procedure=procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
-                       condition_growth=condition_growth, cycles=cycles, tolerance=tolerance)
+                       condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
+                       prior=prior)
     all_files = list(data) + list(validate_files or [])
     check_options_used(all_files, units, ignore)
     blocks = read_blocks(data, r, units, ignore, out)
@@ -197,13 +206,14 @@ def calibrate_cmd(
                         method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
                         validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
-                        tolerance=tolerance, progress=bar)
+                        tolerance=tolerance, prior=prior, progress=bar)
     res = flow.result
     inputs = {"robot": robot, "data": ", ".join(data),
               "validation": ", ".join(validate_files or []) or "-",
               "procedure": procedure, "method": method, "loss": loss,
               "stages": stages or "all", "validation frames": validation_frames,
-              "free": free or "automatic (identifiable set)", "fixed": fix or "-"}
+              "free": free or "automatic (identifiable set)", "fixed": fix or "-",
+              "prior": prior or "-"}
     if procedure == "patent":
         inputs.update({"method": "patent (two stages: angles, then lengths)", "stages":
                        "angles, lengths",
@@ -216,6 +226,10 @@ def calibrate_cmd(
     conv = "[green]converged[/green]" if res.converged else "[red]did not converge[/red]"
     out.print(f"{conv} in {res.iterations} iterations ({flow.seconds:.2f} s), "
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
+    if getattr(res, "prior", None):
+        out.print(f"MAP estimate: {len(res.prior)} estimated parameter(s) have a Gaussian "
+                  f"prior centred on their initial (nominal) value ({escape(prior or '')}); column "
+                  "'prior (1σ)'. The prior does not change which parameters are estimated.")
     print_parameters(out, res, all_parameters)
     print_errors(out, flow.comparisons)
     print_identifiability(out, res)

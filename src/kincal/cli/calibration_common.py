@@ -156,20 +156,26 @@ def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
 
 
 def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
-    """Estimated parameters: nominal, estimate, change, std (mm / deg)."""
+    """Estimated parameters: nominal, estimate, change, std (mm / deg); with a prior
+    (MAP estimate), its standard deviation ``prior (1σ)`` per parameter."""
     d = res.to_dict()
+    with_prior = any(p.get("prior_std") is not None for p in d["parameters"])
     t = Table(title=f"Estimated parameters ({d['estimated_count']} of {len(d['parameters'])}; "
               "lengths mm, angles deg)")
-    for c in ("parameter", "nominal", "estimate", "change", "std (1σ)", "status"):
+    cols = ["parameter", "nominal", "estimate", "change", "std (1σ)"]
+    cols += ["prior (1σ)"] * with_prior + ["status"]
+    for c in cols:
         t.add_column(c, justify="left" if c in ("parameter", "status") else "right")
     for p in d["parameters"]:
         if not everything and not p["estimated"]:
             continue
         f = {"m": lambda v: scaled(v, 1e3), "rad": lambda v: scaled(v, 180 / math.pi)
              }.get(p["unit"], lambda v: f"{v:g}")
-        t.add_row(escape(p["name"]), f(p["nominal"]), f(p["estimate"]),
-                  f(p["estimate"] - p["nominal"]),
-                  f(p["std"]) if p["std"] is not None else "-", escape(p["status"]))
+        cells = [escape(p["name"]), f(p["nominal"]), f(p["estimate"]),
+                 f(p["estimate"] - p["nominal"]), f(p["std"]) if p["std"] is not None else "-"]
+        if with_prior:
+            cells.append(f(p["prior_std"]) if p.get("prior_std") is not None else "-")
+        t.add_row(*cells, escape(p["status"]))
     out.print(t)
 
 

@@ -22,7 +22,10 @@ column norms, so the step is the same in any units):
 
 Stopping (per stage): the step is small, ``|dx_j| <= tol_step (1 + |x_j|)`` for
 every estimated ``j`` (parameters in m / rad); or the relative cost change is below
-``tol_cost``; or ``max_iter`` iterations.
+``tol_cost``; or a Levenberg-Marquardt trial step that fails is already that small
+(every more damped one is shorter still, so the stage is at a minimum to within
+``tol_step``: one evaluation instead of a dozen doublings of ``lambda``); or
+``max_iter`` iterations.
 
 Robust losses (``"huber"``, ``"cauchy"``) are iteratively reweighted least squares
 per *measurement* (all residuals of one point / pose share a weight): with
@@ -63,15 +66,37 @@ and the block parameters, then the automatic (or ``free``) set; a stage may also
 a list of names / patterns; ``"registration"`` estimates block parameters only.  In
 every stage :func:`~kincal.identify.identifiability.analyze` keeps the identifiable
 base set of the stage's candidates and names the rest.
+
+Identifiability at the solution.  The base set is chosen at the stage's start, where
+the model does not fit yet, and the Jacobian there can see directions that it cannot
+see at a solution.  So it is checked where the stage ends, and when it fails there the
+stage is solved again *from its start* with a smaller set (at most ``MAX_RESELECT``
+times; the parameters dropped keep their initial values and are named in
+``identifiability`` and ``message``):
+
+* at a converged solution, estimated columns that have become dependent are dropped;
+* a direction ``v`` whose only effect beyond the other parameters is to rescale the
+  residual, ``J v = c r``, makes ``r(theta + e v) = (1 + c e) r``: the cost falls
+  without end and there is no least-squares solution with ``r != 0``.  The scale of a
+  scene seen only through contacts with planes of unknown offset is one (shrink the
+  robot, the marker and the planes together: every contact distance shrinks).  At a
+  consistent point ``r = 0`` hides it; away from one ``|J v| = |r|`` makes it look
+  identifiable, and the solver shrinks the robot towards zero size.  Such directions
+  are the dependencies of ``(I - u u^T) J``, ``u = r / |r|``, at the stage's start;
+  when the stage does not converge (or its set collapses at the "solution"), the
+  parameters that complete them are dropped, and the smaller set is kept if the stage
+  then converges.  (With a prior the augmented problem has a minimum and no symptom
+  shows: the prior then holds such a direction.)
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -86,12 +111,14 @@ from kincal.robots.chain import Robot
 Array = NDArray[np.float64]
 
 __all__ = ["calibrate", "Calibration", "CalibrationResult", "IterationRecord", "match_names",
-           "METHODS", "LOSSES"]
+           "format_error", "METHODS", "LOSSES"]
 
 METHODS = ("lm", "gauss-newton")
 LOSSES = ("linear", "huber", "cauchy")
 STAGE_KEYWORDS = ("all", "offsets", "registration")
 OUTLIER_WEIGHT = 0.5
+#: Largest number of times one stage is solved again with a smaller base set.
+MAX_RESELECT = 3
 
 
 # --------------------------------------------------------------------------- names
@@ -142,6 +169,27 @@ def _stage_label(spec: str | Sequence[str]) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
+# --------------------------------------------------------------------------- display
+#: SI unit -> (factor, unit) for people: lengths in mm, angles in degrees.
+_DISPLAY = {"m": (1e3, "mm"), "rad": (float(np.degrees(1.0)), "deg"), "px": (1.0, "px")}
+
+
+def format_error(key: str, value: float, what: str = "") -> str:
+    """``"position_m", 1.2e-5 -> "position 0.0120 mm"``: a physical error for people.
+
+    The key's unit suffix decides: ``_m`` -> mm (``x 1e3``), ``_rad`` -> deg
+    (``x 180 / pi``), ``_px`` -> px; any other key is shown as it is, value unscaled.
+    ``what`` (e.g. ``"RMS"``) goes between the name and the value.
+    """
+    name, _, unit = key.rpartition("_")
+    mid = f" {what}" if what else ""
+    if name and unit in _DISPLAY:
+        f, u = _DISPLAY[unit]
+        digits = 5 if unit == "rad" else 4
+        return f"{name}{mid} {value * f:.{digits}f} {u}"
+    return f"{key}{mid} {value:.6g}"
+
+
 # --------------------------------------------------------------------------- records
 @dataclass
 class IterationRecord:
@@ -190,9 +238,12 @@ class CalibrationResult:
         residuals: final whitened residuals (M,).
         weights: final robust weight per residual (1 for ``loss="linear"``).
         outliers: ``(block name, row)`` of measurements with a small robust weight.
-        history: one :class:`IterationRecord` per iteration, all stages.
+        history: one :class:`IterationRecord` per iteration, all stages (a stage solved
+            again with a smaller base set starts again at iteration 0; an attempt that
+            was not kept is not recorded).
         stages: ``(label, estimated names)`` per stage.
-        converged, iterations, message: as in scipy.
+        converged, iterations, message: as in scipy (``iterations`` counts every kept
+            solve; ``message`` names the parameters dropped at a solution).
         prior: ``{name: prior standard deviation}`` of the estimated parameters that
             had a prior (empty for a plain least-squares fit).
     """
@@ -308,25 +359,30 @@ class CalibrationResult:
         """A plain-text table: value changes and standard errors in mm / deg.
 
         Lists the estimated parameters (and, with ``all_parameters``, every other one
-        with the reason it was held).
+        with the reason it was held); with a prior, its standard deviation per parameter.
+        The training errors are shown by the unit suffix of their kind
+        (:func:`format_error`: ``_m`` in mm, ``_rad`` in deg, ``_px`` in px).
         """
         lines = [repr(self), ""]
+        prior_head = f"{'prior':>10}" if self.prior else ""
         head = f"{'parameter':<34}{'unit':>5}{'initial':>13}{'estimate':>13}{'change':>11}" \
-               f"{'std':>10}  status"
+               f"{'std':>10}{prior_head}  status"
         lines += [head, "-" * len(head)]
         for i, n in enumerate(self.names):
             if not all_parameters and n not in self.estimated:
                 continue
             unit = self.problem.units[i]
-            f, u = (1e3, "mm") if unit == "m" else (np.degrees(1.0), "deg") \
-                if unit == "rad" else (1.0, unit)
+            f, u = _DISPLAY.get(unit, (1.0, unit))
             std = f"{self.std[i] * f:10.4f}" if n in self.estimated else f"{'-':>10}"
+            if self.prior:
+                std += f"{self.prior[n] * f:10.4f}" if n in self.prior else f"{'-':>10}"
             lines.append(f"{n:<34}{u:>5}{self.theta0[i] * f:13.5f}{self.theta[i] * f:13.5f}"
                          f"{(self.theta[i] - self.theta0[i]) * f:11.5f}{std}  "
                          f"{self._status(n)}")
         if self.prior:
             lines += ["", f"MAP estimate: {len(self.prior)} estimated parameter(s) have a "
-                      "Gaussian prior centred on their initial value (cost and std include it)"]
+                      "Gaussian prior centred on their initial value (column 'prior': its "
+                      "standard deviation; cost and std include it)"]
         held = self.identifiability.describe()
         if held:
             lines += ["", "Not identifiable from these measurements:"]
@@ -334,8 +390,7 @@ class CalibrationResult:
         r = self.rms()
         if r:
             lines += ["", "Training errors: " + ", ".join(
-                f"{k[4:]} RMS {v * 1e3:.4f} mm" if k.endswith("_m")
-                else f"{k[4:]} RMS {np.degrees(v):.5f} deg" for k, v in r.items())]
+                format_error(k[4:], v, "RMS") for k, v in r.items())]
         if self.outliers:
             lines.append(f"Outliers ({len(self.outliers)}): "
                          + ", ".join(f"{b}[{r}]" for b, r in self.outliers[:20]))
@@ -381,15 +436,6 @@ def _robust_weights(r: Array, ids: Array, dims: Array, loss: str, loss_scale: fl
 
 
 # --------------------------------------------------------------------------- the loop
-@dataclass
-class _State:
-    theta: Array
-    r: Array
-    J: Array
-    w: Array
-    cost: float
-
-
 class _WithPrior:
     """A stacked problem with prior rows ``(theta_j - c_j) / s_j`` appended (j in ``idx``).
 
@@ -437,22 +483,135 @@ def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> di
     return out
 
 
+def _residual_free(Jw: Array, rw: Array) -> Array:
+    """The columns of ``Jw`` without their component along the residual ``rw``:
+    ``(I - u u^T) Jw``, ``u = rw / |rw|`` (``Jw`` itself when ``rw = 0``)."""
+    n = float(np.linalg.norm(rw))
+    if not np.isfinite(n) or n == 0.0:
+        return Jw
+    u = rw / n
+    return Jw - np.outer(u, u @ Jw)
+
+
+def _reselections(prob: StackedProblem, est: list[int], at_start: tuple[Array, Array],
+                  at_end: tuple[Array, Array], converged: bool, tol: float | None
+                  ) -> tuple[list[tuple[list[int], IdentifiabilityReport, str, bool]],
+                             IdentifiabilityReport]:
+    """Smaller base sets to try when the estimated set ``est`` fails where a stage ended.
+
+    The base set is chosen at the stage's start, from the Jacobian ``J`` of a model that
+    does not fit the data yet; there ``J`` can see directions that it cannot see at a
+    solution.  Only the measurements decide (no prior rows; ``J``, ``r`` robust-weighted).
+
+    * **Dependent at the solution**: :func:`analyze` of ``J`` over ``est`` where the
+      stage ended (at a minimum ``J^T r = 0``); a column that has become dependent
+      there cannot be estimated.
+    * **Residual-rescaling directions**: a direction ``v`` of the estimated parameters
+      that only rescales the residual, ``J v = c r``, gives ``r(theta + e v) =
+      (1 + c e) r`` to first order; when that holds along the whole line (a
+      homogeneous model) the cost falls without end, the least-squares problem has no
+      minimum with ``r != 0``, and the solver walks towards a degenerate model (the
+      stage does not converge, or "converges" where the base set collapses).  The
+      scale of a scene seen only through contacts with planes of unknown offset is
+      one: shrinking the robot, the marker and the planes together shrinks every
+      contact distance, ``J v = r`` exactly everywhere.  Such a ``v`` is a dependency
+      of the columns with the residual projected out, ``(I - u u^T) J``,
+      ``u = r / |r|`` (:func:`_residual_free`), at the stage's start, where the set
+      was chosen; the parameter that completes it (last in the analysis' priority
+      order) is the one to hold.  A consistent (noise-free, linear) model also
+      has ``r`` in the range of ``J`` there, so this is only a *suspect*: it is tried
+      when the stage shows a symptom (no convergence, or a set that shrinks at the
+      solution), and kept only if the stage then converges.
+
+    Args:
+        prob: the stacked problem (names, roles).
+        est: the estimated set (indices into ``prob.names``).
+        at_start, at_end: ``(W^1/2 J, W^1/2 r)`` of the measurements (all columns, no
+            prior rows, robust weights ``W``) at the stage's start and where it ended.
+        converged: whether the stage converged.
+        tol: the analysis tolerance.
+
+    Returns:
+        ``(options, analysis where the stage ended)``; each option is
+        ``(indices to drop, the analysis that found them, why, needs convergence)``,
+        the suspects first.  No options: the set stands.
+    """
+    names = [prob.names[i] for i in est]
+    roles = [prob.roles[i] for i in est]
+    Jw, rw = at_end
+    end = analyze(Jw[:, est] if converged else _residual_free(Jw[:, est], rw), names,
+                  tol=tol, roles=roles)
+    lost = [i for i, n in zip(est, names, strict=True) if n not in set(end.identifiable)]
+    if converged and not lost:
+        return [], end
+    Jw0, rw0 = at_start
+    start = analyze(_residual_free(Jw0[:, est], rw0), names, tol=tol, roles=roles)
+    suspects = [i for i, n in zip(est, names, strict=True) if n not in set(start.identifiable)]
+    options = []
+    if suspects:
+        options.append((suspects, start, "only rescale(s) the residuals (a direction with "
+                        "J v = c r at the stage's start)", True))
+    if lost:
+        where = "at the solution" if converged else "where the stage stopped"
+        options.append((lost, end, f"became dependent {where}", not converged))
+    return options, end
+
+
+def _drop_from_report(report: IdentifiabilityReport, check: IdentifiabilityReport,
+                      lost: Sequence[str]) -> IdentifiabilityReport:
+    """``report`` with the names ``lost`` moved from the base set to the not identifiable
+    ones, with the dependencies ``check`` found for them."""
+    gone = set(lost)
+    dependent, combinations, residual = (dict(report.dependent), dict(report.combinations),
+                                         dict(report.residual))
+    unobservable = list(report.unobservable)
+    for n in lost:
+        if n in check.unobservable:
+            unobservable.append(n)
+        else:
+            dependent[n] = list(check.dependent.get(n, []))
+            combinations[n] = dict(check.combinations.get(n, {}))
+            residual[n] = float(check.residual.get(n, 0.0))
+    identifiable = [n for n in report.identifiable if n not in gone]
+    return dataclasses.replace(
+        report, identifiable=identifiable, unobservable=unobservable, dependent=dependent,
+        combinations=combinations, residual=residual, rank=len(identifiable),
+        cond_scaled=check.cond_scaled, cond_unscaled=check.cond_unscaled,
+        weak={k: v for k, v in report.weak.items() if k not in gone})
+
+
 def _scaled_step(dx: Array, x: Array) -> float:
     return float(np.max(np.abs(dx) / (1.0 + np.abs(x)))) if dx.size else 0.0
+
+
+class _StageEnd(NamedTuple):
+    """What :func:`_run_stage` ends with; ``r``, ``J`` are those at ``theta``."""
+
+    theta: Array
+    converged: bool
+    iterations: int
+    message: str
+    r: Array
+    J: Array
 
 
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
                loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
                ids: Array, dims: Array, history: list[IterationRecord],
                progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0
-               ) -> tuple[Array, bool, int, str]:
-    """Iterate one stage to convergence; returns (theta, converged, iterations, message).
+               ) -> _StageEnd:
+    """Iterate one stage to convergence from ``theta`` over the columns ``est``.
 
     ``prob`` is a :class:`StackedProblem` or a :class:`_WithPrior` whose ``n_fixed``
-    trailing prior rows keep weight 1.
+    trailing prior rows keep weight 1.  Returns the final ``theta``, whether it
+    converged, the iterations, a message, and ``r``, ``J`` (all columns, prior rows
+    included) at that ``theta``.
     """
     r, J = prob.residuals_and_jacobian(theta)
     w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
+
+    def done(converged: bool, iterations: int, message: str) -> _StageEnd:
+        return _StageEnd(theta, converged, iterations, message, r, J)
 
     def cost_of(res: Array, wt: Array) -> float:
         return 0.5 * float(np.sum(wt * res * res))
@@ -466,7 +625,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
 
     record(0, 0.0, 0.0)
     if not est:
-        return theta, True, 0, f"stage {label!r}: nothing to estimate"
+        return done(True, 0, f"stage {label!r}: nothing to estimate")
     lam, nu = -1.0, 2.0
     Dmax = np.zeros(len(est))
     for it in range(1, max_iter + 1):
@@ -480,7 +639,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         g = U.T @ rw
         cost = cost_of(r, w)
         if not np.isfinite(cost):
-            return theta, False, it - 1, f"stage {label!r}: the residuals are not finite"
+            return done(False, it - 1, f"stage {label!r}: the residuals are not finite")
         if method == "gauss-newton":
             keep = S > S[0] * 1e-12
             z = -Vt[keep].T @ (g[keep] / S[keep])
@@ -490,29 +649,30 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             r_new = prob.residuals(new)
             c_new = cost_of(r_new, w)
             if not np.isfinite(c_new):
-                return theta, False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
-                                              "(non-finite residuals); try method='lm'")
+                return done(False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
+                                            "(non-finite residuals); try method='lm'"))
             step = _scaled_step(dx, theta[est])
             theta = new
             r, J = prob.residuals_and_jacobian(theta)
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
             if step <= tol_step:
-                return theta, True, it, f"stage {label!r}: step below tol_step"
+                return done(True, it, f"stage {label!r}: step below tol_step")
             if abs(cost - c_new) <= tol_cost * max(cost, 1e-300):
-                return theta, True, it, f"stage {label!r}: cost change below tol_cost"
+                return done(True, it, f"stage {label!r}: cost change below tol_cost")
             continue
         # Levenberg-Marquardt
         if lam < 0:
             lam = 1e-3 * float(S[0] ** 2) if S.size else 1e-3
             good = False
         S2 = S * S
+        keep = S > S[0] * 1e-12
+        tiny = False
         # After a very successful step, first try the undamped Gauss-Newton step: in a
         # long curved valley (a weakly determined direction) it saves many iterations.
         try_gn = good
         for _ in range(60):
             lam_k = 0.0 if try_gn else lam
-            keep = S > S[0] * 1e-12
             f = np.where(keep, S / np.where(keep, S2 + lam_k, 1.0), 0.0)
             dx = -(Vt.T @ (f * g)) / Ds
             pred = 0.5 * float(np.sum(g * g) - np.sum(np.where(keep, g * lam_k / (S2 + lam_k),
@@ -522,10 +682,17 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             r_new = prob.residuals(new)
             c_new = cost_of(r_new, w)
             rho = (cost - c_new) / pred if pred > 0 else (0.0 if c_new > cost else 1.0)
+            # A failed trial step within tol_step: every further (more damped) one is
+            # shorter still (in the scaled norm), so whatever it found would end the
+            # stage on the step rule with theta changed by about tol_step at most; stop
+            # here (one evaluation rather than a dozen doublings of lambda).
+            tiny = _scaled_step(dx, theta[est]) <= tol_step
             if try_gn:
                 try_gn = False
                 if np.isfinite(c_new) and rho > 0.25:
                     good = rho > 0.75
+                    break
+                if tiny:
                     break
                 continue
             if np.isfinite(c_new) and rho > 1e-4:
@@ -538,14 +705,20 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                     lam *= 2.0
                 nu = 2.0
                 break
+            if tiny:
+                break
             lam *= nu
             nu *= 2.0
             if pred <= 1e-30 * max(cost, 1e-300) or lam > 1e30:
                 record(it, 0.0, lam)
-                return theta, True, it, (f"stage {label!r}: no further decrease possible "
-                                         "(at a minimum to machine precision)")
+                return done(True, it, (f"stage {label!r}: no further decrease possible "
+                                       "(at a minimum to machine precision)"))
         else:
-            return theta, False, it, f"stage {label!r}: the damping did not find a descent step"
+            return done(False, it, f"stage {label!r}: the damping did not find a descent step")
+        if tiny and not (np.isfinite(c_new) and c_new < cost):
+            record(it, 0.0, lam)
+            return done(True, it, (f"stage {label!r}: no descent step longer than "
+                                   "tol_step (at a minimum)"))
         step = _scaled_step(dx, theta[est])
         theta = new
         r, J = prob.residuals_and_jacobian(theta)
@@ -553,12 +726,12 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
         if step <= tol_step:
-            return theta, True, it, f"stage {label!r}: step below tol_step"
+            return done(True, it, f"stage {label!r}: step below tol_step")
         if cost - c_new <= tol_cost * max(cost, 1e-300) and np.allclose(w, w_old, atol=1e-6):
-            return theta, True, it, f"stage {label!r}: cost change below tol_cost"
+            return done(True, it, f"stage {label!r}: cost change below tol_cost")
         if c_new == 0.0:
-            return theta, True, it, f"stage {label!r}: zero residual"
-    return theta, False, max_iter, f"stage {label!r}: max_iter={max_iter} reached"
+            return done(True, it, f"stage {label!r}: zero residual")
+    return done(False, max_iter, f"stage {label!r}: max_iter={max_iter} reached")
 
 
 def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
@@ -598,7 +771,11 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     Returns:
         A :class:`CalibrationResult`.  Parameters that cannot be identified are never
         estimated: they keep their initial value, ``std`` 0 and are named with the
-        reason in ``result.identifiability``.
+        reason in ``result.identifiability``.  That includes parameters found
+        non-identifiable where a stage ended (dependent at the solution, or completing
+        a direction that only rescales the residuals); the stage is then solved again
+        from its start without them (module docstring, "Identifiability at the
+        solution").
     """
     if method not in METHODS:
         raise KincalError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
@@ -633,50 +810,70 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     total_it = 0
     report: IdentifiabilityReport | None = None
     est: list[int] = []
+
+    def weights_of(res: Array) -> Array:
+        return _robust_weights(res, ids, dims, loss, loss_scale)
+
+    def solve(idx: list[int], theta_start: Array, label: str) -> _StageEnd:
+        aug = with_prior(idx)
+        return _run_stage(aug, theta_start, idx, label, method, loss, loss_scale, max_iter,
+                          tol_step, tol_cost, ids, dims, history, progress, aug.rows)
+
+    def data_weighted(r: Array, J: Array) -> tuple[Array, Array]:
+        """Robust-weighted data rows ``(W^1/2 J, W^1/2 r)`` (prior rows dropped)."""
+        sw = np.sqrt(weights_of(r[:M]))
+        return J[:M] * sw[:, None], r[:M] * sw
+
+    last: _StageEnd | None = None
     for spec in specs:
         label = _stage_label(spec)
         stage_cand = [i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
-        r, J = prob.residuals_and_jacobian(theta)
-        w = _robust_weights(r, ids, dims, loss, loss_scale)
-        Jw = J * np.sqrt(w)[:, None]
-        report = analyze(Jw[:, stage_cand], [names[i] for i in stage_cand], tol=tol_rank,
-                         roles=[prob.roles[i] for i in stage_cand])
-        est = [names.index(n) for n in report.identifiable]
-        est.sort()
-        stage_info.append((label, [names[i] for i in est]))
-        aug = with_prior(est)
-        theta, ok, its, msg = _run_stage(aug, theta, est, label, method, loss, loss_scale,
-                                         max_iter, tol_step, tol_cost, ids, dims, history,
-                                         progress, aug.rows)
-        total_it += its
-        # The base set was chosen at the stage's start.  If, at the solution, some
-        # estimated parameters have become dependent (e.g. nominal axes that are exactly
-        # aligned hide a direction that the moved model has), re-select there and rerun.
-        for _ in range(3):
-            r, J = prob.residuals_and_jacobian(theta)
-            w = _robust_weights(r, ids, dims, loss, loss_scale)
-            Jw = J * np.sqrt(w)[:, None]
-            check = analyze(Jw[:, est], [names[i] for i in est], tol=tol_rank,
-                            roles=[prob.roles[i] for i in est])
-            if check.rank == len(est):
+        start = theta.copy()
+        at_start = data_weighted(*(prob.residuals_and_jacobian(start) if last is None
+                                   else (last.r, last.J)))
+        report = analyze(at_start[0][:, stage_cand], [names[i] for i in stage_cand],
+                         tol=tol_rank, roles=[prob.roles[i] for i in stage_cand])
+        est = sorted(names.index(n) for n in report.identifiable)
+        last = solve(est, start, label)
+        total_it += last.iterations
+        # The base set was chosen at the stage's start; check it where the stage ended
+        # and, if it fails there, solve the stage again from its start with a smaller
+        # set (see _reselections).
+        reselected = False
+        for _ in range(MAX_RESELECT):
+            options, end = _reselections(prob, est, at_start, data_weighted(last.r, last.J),
+                                         last.converged, tol_rank)
+            if not options and reselected:      # the final set's conditioning, at its end
+                report = dataclasses.replace(report, cond_scaled=end.cond_scaled,
+                                             cond_unscaled=end.cond_unscaled)
+            accepted = False
+            for drop, check, why, needs_convergence in options:
+                lost = [names[i] for i in drop]
+                kept = [i for i in est if i not in drop]
+                n_hist = len(history)
+                again = solve(kept, start, label)
+                if needs_convergence and not again.converged:
+                    del history[n_hist:]        # did not help: forget that attempt
+                    continue
+                messages.append(f"stage {label!r}: {', '.join(lost[:6])}"
+                                f"{' ...' if len(lost) > 6 else ''} {why}; solved the stage "
+                                f"again from its start with {len(kept)} parameters")
+                report = _drop_from_report(report, check, lost)
+                est, last = kept, again
+                total_it += again.iterations
+                reselected = accepted = True
                 break
-            report = analyze(Jw[:, stage_cand], [names[i] for i in stage_cand], tol=tol_rank,
-                             roles=[prob.roles[i] for i in stage_cand])
-            est = sorted(names.index(n) for n in report.identifiable)
-            stage_info[-1] = (label, [names[i] for i in est])
-            messages.append(f"stage {label!r}: {len(check.not_identifiable)} parameter(s) "
-                            "became dependent at the solution; re-selected the base set")
-            aug = with_prior(est)
-            theta, ok, its, msg = _run_stage(aug, theta, est, label, method, loss,
-                                             loss_scale, max_iter, tol_step, tol_cost, ids,
-                                             dims, history, progress, aug.rows)
-            total_it += its
-        converged &= ok
-        messages.append(msg)
-    assert report is not None
-    # final statistics over the last stage's estimated set (prior rows included)
+            if not accepted:
+                break
+        theta = last.theta
+        stage_info.append((label, [names[i] for i in est]))
+        converged &= last.converged
+        messages.append(last.message)
+    assert report is not None and last is not None
+    # final statistics over the last stage's estimated set (prior rows included), at the
+    # last stage's solution: r, J as the stage ended
     aug = with_prior(est)
-    r, J = aug.residuals_and_jacobian(theta)
+    r, J = last.r, last.J
     w = _robust_weights(r, ids, dims, loss, loss_scale, aug.rows)
     Jw = J[:, est] * np.sqrt(w)[:, None]
     dof = len(r) - len(est)

@@ -14,6 +14,14 @@ come from one of two protocols:
   seems: compare robots under the same protocol.
 
 With ``register=False`` and no ``extras`` the closed-form initial guesses are used.
+A block without parameters of its own (an artifact whose socket points are the means
+of their rows and whose probe is known) is evaluated as it is.  An artifact's socket
+points and frames belong to its placements: held-out placements never have them in
+``extras``, so they are fitted on the held-out data with the robot fixed (each
+placement is an unknown position of the same artifact; with ``sockets="eliminate"``
+the block does the same internally, a socket point being the mean of its tips).
+
+:func:`cross_validate` holds out rows, or whole placements of an artifact.
 
 Statistics per block and overall: for each error kind ``k`` (``position_m``,
 ``orientation_rad`` ...): ``rms_k = sqrt(mean e^2)``, ``mean_k``, ``max_k``; and ``n``,
@@ -22,7 +30,7 @@ the number of measured points.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -34,7 +42,11 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["validate", "error_statistics", "cross_validate"]
+__all__ = ["validate", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE"]
+
+#: Role of block parameters that belong to one placement of an artifact (socket points,
+#: socket frames): held-out placements have their own, fitted on the held-out data.
+PER_PLACEMENT_ROLE = "artifact"
 
 
 def error_statistics(errors: Mapping[str, Array]) -> dict[str, float]:
@@ -53,32 +65,57 @@ def error_statistics(errors: Mapping[str, Array]) -> dict[str, float]:
     return out
 
 
-def _extras_for(block: MeasurementModel, extras: Any, index: int) -> Array:
+def _extras_for(block: MeasurementModel, extras: Any, index: int) -> dict[str, float]:
+    """The values ``extras`` gives for ``block``'s parameters, ``{name: value}`` (a
+    mapping by parameter name may leave some out)."""
     names = block.parameters().names
     if hasattr(extras, "extras") and callable(extras.extras):       # a CalibrationResult
         extras = extras.extras()
     if isinstance(extras, Mapping):
         if block.name in extras and not isinstance(extras[block.name], int | float):
-            v = np.asarray(extras[block.name], dtype=float)
-            if isinstance(extras[block.name], Mapping):
-                v = np.array([extras[block.name][n] for n in names])
-            return v.reshape(len(names))
-        missing = [n for n in names if n not in extras]
-        if missing:
-            raise KincalError(f"validation: no value for {missing[0]!r} of block "
-                              f"{block.name!r} in extras")
-        return np.array([float(extras[n]) for n in names])
+            v = extras[block.name]
+            if isinstance(v, Mapping):
+                return {n: float(v[n]) for n in names if n in v}
+            return dict(zip(names, np.asarray(v, dtype=float).reshape(len(names)).tolist(),
+                            strict=True))
+        return {n: float(extras[n]) for n in names if n in extras}
     if isinstance(extras, Sequence):
-        return np.asarray(extras[index], dtype=float).reshape(len(names))
+        return dict(zip(names, np.asarray(extras[index], dtype=float).reshape(len(names))
+                        .tolist(), strict=True))
     raise KincalError("validation: extras must be a mapping {name: value}, a list of arrays "
                       "(one per block) or a CalibrationResult")
 
 
-def _register(robot: Robot, block: MeasurementModel) -> Array:
+def _fit(robot: Robot, block: MeasurementModel, free: Sequence[str],
+         known: Mapping[str, float]) -> Array:
+    """``block``'s parameter vector: ``free`` ones estimated with ``robot`` fixed (closed-
+    form guess, then least squares), the others at their ``known`` values."""
+    names = block.parameters().names
+    if not free:
+        return np.array([known[n] for n in names], dtype=float)
     from kincal.identify.solver import calibrate
 
-    res = calibrate(robot, [block], free=[f"{block.name}.*"], tol_step=1e-12, max_iter=200)
+    res = calibrate(robot, [block], free=list(free), initial=dict(known) or None,
+                    tol_step=1e-12, max_iter=200)
     return res.theta[res.problem.slices[0]]
+
+
+def _parameters_of(robot: Robot, block: MeasurementModel, extras: Any, index: int,
+                   register: bool) -> Array:
+    """The block's parameters under the protocol of :func:`validate`."""
+    spec = block.parameters()
+    if extras is not None:
+        known = _extras_for(block, extras, index)
+        missing = [n for n in spec.names if n not in known]
+        bad = [n for n, role in zip(spec.names, spec.roles, strict=True)
+               if n in missing and role != PER_PLACEMENT_ROLE]
+        if bad:
+            raise KincalError(f"validation: no value for {bad[0]!r} of block "
+                              f"{block.name!r} in extras")
+        return _fit(robot, block, missing, known)
+    if register:
+        return _fit(robot, block, spec.names, {})
+    return np.asarray(block.initial_guess(robot), dtype=float)
 
 
 def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
@@ -91,13 +128,17 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
         extras: the blocks' parameters to use as-is: ``{parameter name: value}``
             (e.g. ``result.extras()``), ``{block name: array}``, a list of arrays in
             block order, or a :class:`~kincal.identify.solver.CalibrationResult`.
+            Parameters of an artifact's placements (role ``artifact``: socket points
+            and frames) belong to the held-out placements, not to training: those
+            missing from ``extras`` are fitted on the held-out data.
         register: without ``extras``, re-estimate each block's own parameters with the
-            robot fixed (True) or take the closed-form initial guess (False).
+            robot fixed (True) or take the closed-form initial guess (False).  A block
+            without parameters of its own has nothing to re-estimate.
 
     Returns:
         ``{"overall": stats, "blocks": {name: stats}, "extras": {name: {param: value}}}``
-        where ``stats`` has ``rms_position_m``, ``mean_position_m``, ``max_position_m``,
-        ``n`` (and ``*_orientation_rad`` when orientation is measured).
+        where ``stats`` has ``rms_k``, ``mean_k``, ``max_k`` for every error kind ``k``
+        of the blocks (``position_m``, ``orientation_rad``, ``distance_m`` ...) and ``n``.
     """
     if isinstance(blocks, MeasurementModel):
         blocks = [blocks]
@@ -105,12 +146,7 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
     used: dict[str, dict[str, float]] = {}
     pooled: dict[str, list[Array]] = {}
     for i, b in enumerate(blocks):
-        if extras is not None:
-            e = _extras_for(b, extras, i)
-        elif register:
-            e = _register(robot, b)
-        else:
-            e = np.asarray(b.initial_guess(robot), dtype=float)
+        e = _parameters_of(robot, b, extras, i, register)
         errs = b.errors(robot, e)
         per[b.name] = error_statistics(errs)
         used[b.name] = dict(zip(b.parameters().names, e.tolist(), strict=True))
@@ -120,33 +156,55 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
     return {"overall": overall, "blocks": per, "extras": used}
 
 
+def _folds_of(block: Any) -> tuple[list[Any], Callable[[Sequence[Any]], Any], str]:
+    """What ``block`` splits into and how: artifact placements (``subset_placements``)
+    or rows (``subset``)."""
+    if hasattr(block, "subset_placements"):
+        return list(block.placements), block.subset_placements, "placements"
+    if hasattr(block, "subset"):
+        return list(range(block.q.shape[0])), block.subset, "rows"
+    raise KincalError(f"block {block.name!r} cannot be split into folds")
+
+
 def cross_validate(robot: Robot, block: Any, folds: int = 5, rng: np.random.Generator | None = None,
                    **calibrate_options: Any) -> dict[str, Any]:
-    """K-fold cross-validation of a calibration on one block that supports ``subset(rows)``.
+    """K-fold cross-validation of a calibration on one block.
 
+    The block is split by rows (blocks with ``subset(rows)``: a tracker's points) or,
+    for an artifact block, by *placements* (``subset_placements``): the rows of one
+    placement share its socket points and frames, so they are held out together.
     Each fold calibrates on the other folds (``calibrate(robot, [train],
-    **calibrate_options)``) and validates on the fold with the training frames
-    (``extras`` from training).  Returns ``{"rms_position_m": pooled RMS over all
-    held-out points, "folds": [per-fold overall stats], "results": [...]}``.
+    **calibrate_options)``) and validates on the fold with the training parameters
+    (``extras`` from training; an artifact's held-out placements get their own socket
+    points and frames fitted with the robot fixed, see :func:`validate`).
+
+    Returns:
+        ``{"rms_k": pooled RMS of error kind k over all held-out errors (e.g.
+        rms_position_m, rms_distance_m), "folds": [per-fold overall stats],
+        "results": [the folds' CalibrationResult], "split": "rows" | "placements"}``.
     """
     from kincal.identify.solver import calibrate
 
-    if not hasattr(block, "subset"):
-        raise KincalError(f"block {block.name!r} cannot be split into folds")
-    N = block.q.shape[0]
-    idx = np.arange(N) if rng is None else rng.permutation(N)
-    parts = np.array_split(idx, folds)
-    stats, results, errs = [], [], []
+    units, subset, split = _folds_of(block)
+    if not 2 <= folds <= len(units):
+        raise KincalError(f"cross-validation of block {block.name!r}: folds must be between "
+                          f"2 and its number of {split} ({len(units)}), got {folds}")
+    order = np.arange(len(units)) if rng is None else rng.permutation(len(units))
+    parts = np.array_split(order, folds)
+    stats, results = [], []
+    pooled: dict[str, list[Array]] = {}
     for k in range(folds):
         test = np.sort(parts[k])
         train = np.sort(np.concatenate([parts[j] for j in range(folds) if j != k]))
-        res = calibrate(robot, [block.subset(train)], **calibrate_options)
-        v = validate(res.robot, [block.subset(test)], extras=res.extras())
+        res = calibrate(robot, [subset([units[i] for i in train])], **calibrate_options)
+        held = subset([units[i] for i in test])
+        v = validate(res.robot, [held], extras=res.extras())
         stats.append(v["overall"])
         results.append(res)
-        tb = block.subset(test)
-        errs.append(np.ravel(tb.errors(res.robot, res.theta[res.problem.slices[0]])
-                             ["position_m"]))
-    e = np.concatenate(errs)
-    return {"rms_position_m": float(np.sqrt(np.mean(e * e))), "folds": stats,
-            "results": results}
+        e = np.array([v["extras"][held.name][n] for n in held.parameters().names])
+        for key, err in held.errors(res.robot, e).items():
+            pooled.setdefault(key, []).append(np.ravel(err))
+    out: dict[str, Any] = {f"rms_{key}": float(np.sqrt(np.mean(np.concatenate(v) ** 2)))
+                           for key, v in pooled.items()}
+    out.update({"folds": stats, "results": results, "split": split})
+    return out
