@@ -8,21 +8,18 @@ code 2, never a traceback.
 
 from __future__ import annotations
 
+import importlib
 import sys
 
-from kincal.cli import (  # noqa: F401  (imported to register their commands)
-    calibration,
-    compensate,
-    demo,
-    export,
-    fivebar,
-    kinematics,
-    motion,
-    plan,
-    simulate,
-)
 from kincal.cli.app import app
 from kincal.errors import KincalError
+
+#: Command modules in the order their commands appear in ``kincal --help``: the robot
+#: and kinematics commands a new user tries first, then the calibration flow.
+COMMAND_MODULES = ("kinematics", "motion", "simulate", "calibration", "compensate", "demo",
+                   "plan", "export", "fivebar")
+for _module in COMMAND_MODULES:
+    importlib.import_module(f"kincal.cli.{_module}")
 
 
 def main() -> None:

@@ -142,7 +142,7 @@ def calibrate_cmd(
         "1 = the patent literally (default: until no point moves).")] = None,
     tolerance_mm: Annotated[float | None, typer.Option(
         "--tolerance-mm", help="--procedure patent: a stage stops when no predicted probe "
-        "point moves more than this \\[mm] (default 1e-4).")] = None,
+        "point moves more than this [mm] (default 1e-4).")] = None,
     free: Annotated[str | None, typer.Option("--free", help="Parameters to estimate: names, * "
                                              "patterns or role:offset (default: every "
                                              "identifiable one).")] = None,

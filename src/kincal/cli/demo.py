@@ -29,7 +29,7 @@ def demo(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 7,
     poses: Annotated[int, typer.Option(min=10, help="Training poses.")] = 80,
     holdout_poses: Annotated[int, typer.Option(min=1, help="Held-out poses.")] = 40,
-    noise_mm: Annotated[float, typer.Option(help="Tracker noise per coordinate \\[mm].")
+    noise_mm: Annotated[float, typer.Option(help="Tracker noise per coordinate [mm].")
                         ] = 0.01,
 ) -> None:
     """A complete calibration in ~10 s: PUMA 560 measured by a simulated laser tracker,

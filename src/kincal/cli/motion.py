@@ -48,7 +48,7 @@ def ik(robot: RobotArg,
        pose: Annotated[str | None, typer.Option(help="Target pose x,y,z,rx,ry,rz: metres and "
                                                 "roll-pitch-yaw (R = Rz Ry Rx), rad or --deg.")]
        = None,
-       position: Annotated[str | None, typer.Option(help="Target position x,y,z \\[m] "
+       position: Annotated[str | None, typer.Option(help="Target position x,y,z [m] "
                                                     "(position-only IK; a five-bar takes x,y).")]
        = None,
        deg: DegOpt = False,
@@ -59,9 +59,9 @@ def ik(robot: RobotArg,
                                                 "position, orientation, or 6 flags like "
                                                 "1,1,1,0,0,1 (x y z rx ry rz).")] = None,
        tol_position: Annotated[float, typer.Option(help="Tolerance on the position error "
-                                                   "\\[m].")] = 1e-9,
+                                                   "[m].")] = 1e-9,
        tol_orientation: Annotated[float, typer.Option(help="Tolerance on the orientation "
-                                                      "error \\[rad].")] = 1e-9,
+                                                      "error [rad].")] = 1e-9,
        restarts: Annotated[int, typer.Option(help="Restart rounds for a failed attempt.")] = 5,
        seed: Annotated[int, typer.Option(help="Seed of the random restart configurations.")]
        = 0,
@@ -180,20 +180,20 @@ def trajectory(robot: RobotArg,
                via: Annotated[list[str] | None, typer.Option(help="Joint via point (repeat "
                                                              "for several); joint space "
                                                              "only.")] = None,
-               via_position: Annotated[str | None, typer.Option(help="A point x,y,z \\[m] on "
+               via_position: Annotated[str | None, typer.Option(help="A point x,y,z [m] on "
                                                                 "the arc.")] = None,
                timing: Annotated[str, typer.Option(help="cubic, quintic, trapezoidal or "
                                                    "linear.")] = "quintic",
-               duration: Annotated[float | None, typer.Option(help="Duration \\[s] (needed "
+               duration: Annotated[float | None, typer.Option(help="Duration [s] (needed "
                                                               "except for trapezoidal).")]
                = None,
                v_max: Annotated[str | None, typer.Option(help="Trapezoidal: speed limit, "
                                                          "per joint (rad/s | m/s) or of the "
-                                                         "tool path \\[m/s].")] = None,
+                                                         "tool path [m/s].")] = None,
                a_max: Annotated[str | None, typer.Option(help="Trapezoidal: acceleration "
                                                          "limit, per joint or of the tool "
                                                          "path.")] = None,
-               dt: Annotated[float, typer.Option(help="Sample time \\[s].")] = 0.01,
+               dt: Annotated[float, typer.Option(help="Sample time [s].")] = 0.01,
                deg: DegOpt = False,
                out: Annotated[Path, typer.Option(help="Folder for trajectory.csv and "
                                                  "trajectory.png.")] = Path("."),
@@ -281,14 +281,14 @@ def clik_command(
             help="Inversion: inverse (J^-1), transpose, pinv, dls (constant damping), "
                  "adaptive (damping near singularities); repeat to compare "
                  "(default: inverse and dls).")] = None,
-        damping: Annotated[float, typer.Option(help="k of dls, k_max of adaptive \\[m].")] = 0.1,
+        damping: Annotated[float, typer.Option(help="k of dls, k_max of adaptive [m].")] = 0.1,
         threshold: Annotated[float, typer.Option(help="adaptive: damping starts when the "
                                                  "smallest singular value is below this "
-                                                 "\\[m].")] = 0.1,
-        gain: Annotated[str, typer.Option(help="K \\[1/s]: one value or x,y,z diagonal.")]
+                                                 "[m].")] = 0.1,
+        gain: Annotated[str, typer.Option(help="K [1/s]: one value or x,y,z diagonal.")]
         = "50",
-        dt: Annotated[float, typer.Option(help="Integration step \\[s].")] = 0.002,
-        tf: Annotated[float, typer.Option("--tf", help="Duration of the line \\[s].")] = 4.0,
+        dt: Annotated[float, typer.Option(help="Integration step [s].")] = 0.002,
+        tf: Annotated[float, typer.Option("--tf", help="Duration of the line [s].")] = 4.0,
         timing: Annotated[str, typer.Option(help="Timing law on the line: quintic, cubic, "
                                             "linear.")] = "quintic",
         integrator: Annotated[str, typer.Option(help="euler or rk4.")] = "euler",

@@ -171,7 +171,7 @@ def simulate(
                                        "configurations (artifacts: poses / sockets "
                                        "placements unless --placements).")] = 100,
     noise_mm: Annotated[float | None, typer.Option("--noise-mm", help="Measurement noise "
-                                                   "(standard deviation per coordinate) \\[mm]; "
+                                                   "(standard deviation per coordinate) [mm]; "
                                                    "default 0.01.")] = None,
     noise: Annotated[str | None, typer.Option("--noise", help="Noise with its unit for "
                                               "non-length instruments: '1arcsec', '0.3px'.")
@@ -187,13 +187,13 @@ def simulate(
         "--placements", min=1, help="Artifacts (cross-bar, ball-bar, two-socket): number of "
         "artifact placements.")] = None,
     bar_length: Annotated[float | None, typer.Option(
-        "--bar-length", help="Artifacts: the known length \\[mm]: cross-bar |AC| = |BD|, "
+        "--bar-length", help="Artifacts: the known length [mm]: cross-bar |AC| = |BD|, "
         "ball-bar length, two-socket socket distance.")] = None,
     probe_length: Annotated[float | None, typer.Option(
-        "--probe-length", help="Artifacts: probe length along the flange z axis \\[mm].")
+        "--probe-length", help="Artifacts: probe length along the flange z axis [mm].")
     ] = None,
     encoder_noise_deg: Annotated[float | None, typer.Option(
-        "--encoder-noise-deg", help="Artifacts: encoder noise per joint \\[deg] (standard "
+        "--encoder-noise-deg", help="Artifacts: encoder noise per joint [deg] (standard "
         "deviation; replaces --noise).")] = None,
     holdout: Annotated[str | None, typer.Option("--holdout", help="Also write held-out "
                                                 "measurements (same robot, same instrument "
@@ -201,11 +201,11 @@ def simulate(
     holdout_poses: Annotated[int, typer.Option("--holdout-poses", min=1, help="Poses in the "
                                                "held-out file.")] = 50,
     length_error_mm: Annotated[float, typer.Option(help="Std of the injected length errors "
-                                                   "\\[mm].")] = 0.5,
+                                                   "[mm].")] = 0.5,
     angle_error_deg: Annotated[float, typer.Option(help="Std of the injected angle errors "
-                                                   "\\[deg].")] = 0.05,
+                                                   "[deg].")] = 0.05,
     offset_error_deg: Annotated[float, typer.Option(help="Std of the injected joint offset "
-                                                    "errors \\[deg].")] = 0.1,
+                                                    "errors [deg].")] = 0.1,
     perturb: Annotated[str | None, typer.Option(help="Only perturb these parameters (names or "
                                                 "* patterns, comma separated).")] = None,
     length_unit: LengthUnit = "m", angle_unit: AngleUnit = "rad",
