@@ -16,12 +16,19 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from kincal.cli.common import console, err_console
+from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink re-exported)
+    BaseLink,
+    JsonOut,
+    RobotArg,
+    TipLink,
+    console,
+    err_console,
+)
 from kincal.errors import KincalError
 
+JsonOpt = JsonOut
+
 # --------------------------------------------------------------------------- options
-RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
-                                         "path to a YAML robot file or a URDF file.")]
 DataOpt = Annotated[list[str], typer.Option("--data", "-d", help="Measurement CSV file "
                                             "(repeat for several instruments / sessions; each "
                                             "file is one block with its own instrument frame).")]
@@ -32,12 +39,6 @@ IgnoreOpt = Annotated[list[str] | None, typer.Option(
     "--ignore", help="Columns to drop on purpose, comma separated, * and ? allowed "
     "('x2,y2,z2' or '?2,?3'). Columns that look like joints or measurements are never "
     "dropped silently.")]
-JsonOpt = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
-                                             "to this path ('-' for stdout).")]
-BaseLink = Annotated[str | None, typer.Option("--base-link", help="URDF only: first link of "
-                                              "the chain.")]
-TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link of the "
-                                             "chain.")]
 LengthUnit = Annotated[str, typer.Option("--length-unit", help="Length unit of written CSV "
                                          "files: m, mm, um.")]
 AngleUnit = Annotated[str, typer.Option("--angle-unit", help="Angle unit of written CSV files: "

@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+import typer
 from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import KincalError
 from kincal.robots.files import load_robot
+
+#: Options shared by every command that takes a robot or writes JSON.
+RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
+                                         "path to a YAML robot file or a URDF file.")]
+BaseLink = Annotated[str | None, typer.Option("--base-link", help="URDF only: first link of "
+                                              "the chain (default: the URDF root).")]
+TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link of the "
+                                             "chain (default: the single leaf).")]
+JsonOut = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
+                                             "to this path ('-' for stdout).")]
 
 console = Console()
 err_console = Console(stderr=True)

@@ -11,19 +11,21 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.common import console, fmt_value, joint_vector, matrix_table, robot_arg
+from kincal.cli.common import (
+    BaseLink,
+    JsonOut,
+    RobotArg,
+    TipLink,
+    console,
+    fmt_value,
+    joint_vector,
+    matrix_table,
+    robot_arg,
+)
 from kincal.io import write_json
 from kincal.robots.chain import Robot
 from kincal.robots.files import library_dir, library_names, read_robot_yaml
 
-RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
-                                         "path to a YAML robot file or a URDF file.")]
-BaseLink = Annotated[str | None, typer.Option("--base-link", help="URDF only: first link of "
-                                              "the chain (default: the URDF root).")]
-TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link of the "
-                                             "chain (default: the single leaf).")]
-JsonOut = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
-                                             "to this path ('-' for stdout).")]
 QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: rad for revolute, "
                                    "m for prismatic joints (see --deg).")]
 DegOpt = Annotated[bool, typer.Option("--deg", help="Revolute joint values are in degrees "

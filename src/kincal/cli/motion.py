@@ -12,14 +12,10 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.common import console, joint_vector, parse_vector, robot_arg
+from kincal.cli.common import JsonOut, RobotArg, console, joint_vector, parse_vector, robot_arg
 from kincal.errors import KincalError, UnreachableError
 from kincal.io import write_json
 
-RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
-                                         "path to a YAML robot file or a URDF file.")]
-JsonOut = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
-                                             "to this path ('-' for stdout).")]
 DegOpt = Annotated[bool, typer.Option("--deg", help="Angles on the command line and in the "
                                       "printout are in degrees (lengths stay in metres).")]
 
