@@ -42,9 +42,10 @@ from kincal.measure.instruments.common import (
     check_marker_mode,
     check_shapes,
     concat_specs,
-    direction_pose,
     frame_spec,
     label_index,
+    station_columns,
+    station_poses_from_directions,
     to_local,
 )
 from kincal.measure.instruments.pointblock import PointBlock
@@ -122,24 +123,13 @@ class BearingMeasurement(PointBlock):
         ang, D = bearing_angles(x, jacobian)
         if not jacobian:
             return ang, None, None
-        N = p.shape[0]
-        dod = np.zeros((N, 2, own.size))
-        cols = 6 * self.station_index[:, None] + np.arange(6)
-        local = D @ dxds                                                   # (N, 2, 6)
-        for c in range(2):
-            np.put_along_axis(dod[:, c], cols, local[:, c], axis=1)
-        return ang, D @ dxdp, dod
+        return ang, D @ dxdp, station_columns(self.station_index, D @ dxds, own.size)
 
     def own_guess(self, robot: Robot, p: Array) -> Array:
         """Each station's pose by the linear direction DLT (:func:`.common.direction_pose`)."""
-        out = []
-        for k, s in enumerate(self.stations):
-            rows = self.station_index == k
-            if np.count_nonzero(rows) < 6:
-                raise KincalError(f"block {self.name!r}: station {s!r} has fewer than 6 "
-                                  "readings; cannot place it")
-            out.append(direction_pose(bearing_directions(self.obs[rows]), p[rows]))
-        return np.concatenate(out)
+        return station_poses_from_directions(self.stations, self.station_index,
+                                             bearing_directions(self.obs), p, "station",
+                                             self.name)
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         r = self.evaluate(robot, extra, jacobian=False)[0].reshape(-1, 2)

@@ -44,11 +44,12 @@ from kincal.measure.instruments.common import (
     check_marker_mode,
     check_shapes,
     concat_specs,
-    direction_pose,
     frame_spec,
     kabsch,
     label_index,
     rotation_to_rpy_frame,
+    station_columns,
+    station_poses_from_directions,
     to_local,
     to_world,
 )
@@ -129,23 +130,13 @@ class CameraMeasurement(PointBlock):
         uv, D = project(x, self.K, jacobian)
         if not jacobian:
             return uv, None, None
-        dod = np.zeros((p.shape[0], 2, own.size))
-        cols = 6 * self.station_index[:, None] + np.arange(6)
-        local = D @ dxds
-        for c in range(2):
-            np.put_along_axis(dod[:, c], cols, local[:, c], axis=1)
-        return uv, D @ dxdp, dod
+        return uv, D @ dxdp, station_columns(self.station_index, D @ dxds, own.size)
 
     def own_guess(self, robot: Robot, p: Array) -> Array:
         """Each camera's pose by the linear DLT on the viewing directions."""
-        out = []
-        for k, s in enumerate(self.stations):
-            rows = self.station_index == k
-            if np.count_nonzero(rows) < 6:
-                raise KincalError(f"block {self.name!r}: camera {s!r} has fewer than 6 "
-                                  "readings; cannot place it")
-            out.append(direction_pose(pixel_directions(self.obs[rows], self.K[rows]), p[rows]))
-        return np.concatenate(out)
+        return station_poses_from_directions(self.stations, self.station_index,
+                                             pixel_directions(self.obs, self.K), p, "camera",
+                                             self.name)
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         r = self.evaluate(robot, extra, jacobian=False)[0].reshape(-1, 2)

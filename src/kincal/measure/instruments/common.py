@@ -268,3 +268,33 @@ def chain_rows(dobs_dp: Array, dp: Array, sigma: Array) -> Array:
     """``(d obs/d p) (d p/d theta) / sigma`` flattened to (N k, P)."""
     J = np.einsum("nkj,njp->nkp", dobs_dp, dp) / sigma[:, None, None]
     return J.reshape(-1, J.shape[2])
+
+
+def station_columns(station_index: NDArray[np.intp], local: Array, size: int) -> Array:
+    """Scatter per-station derivatives into the block's parameter columns.
+
+    ``local`` (N, k, 6) holds d obs / d(station pose) of each row's own station; station
+    ``s`` owns columns ``6 s .. 6 s + 5``.  Returns d obs / d(own params), (N, k, size).
+    """
+    out = np.zeros((local.shape[0], local.shape[1], size))
+    cols = 6 * station_index[:, None] + np.arange(6)
+    for c in range(local.shape[1]):
+        np.put_along_axis(out[:, c], cols, local[:, c], axis=1)
+    return out
+
+
+def station_poses_from_directions(stations: Sequence[str], station_index: NDArray[np.intp],
+                                  directions: Array, p: Array, what: str, block: str) -> Array:
+    """Each station's pose (x y z rz ry rx) from unit viewing directions to known points.
+
+    Uses :func:`direction_pose` per station on its rows; a station needs 6 readings.
+    """
+    out = []
+    for k, name in enumerate(stations):
+        rows = station_index == k
+        if np.count_nonzero(rows) < 6:
+            raise KincalError(f"block {block!r}: {what} {name!r} has fewer than 6 readings; "
+                              "cannot place it")
+        out.append(direction_pose(directions[rows], p[rows]))
+    return np.concatenate(out)
+
