@@ -30,7 +30,8 @@ drawn at random inside the joint limits, whose poses are nearest to the target (
 nearby pose reached inside the limits is usually close to a solution inside them).
 Joint limits often leave a pose a single valid branch of eight (PUMA 560), so
 seeding by nearby poses and trying several seeds per round matters more than the
-iteration itself.
+iteration itself.  The starts (mid-range, random, the seed pool) and the
+projection onto the limits live in :mod:`kincal.ik_starts`.
 
 Failures carry a reason: ``"unreachable: ..."`` when the target is provably out of
 reach (farther from the first joint than the sum of the link lengths) or every
@@ -47,10 +48,22 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
+from kincal.ik_starts import (
+    SeedPool,
+    default_q0,
+    limit_arrays,
+    project_to_limits,
+    random_q,
+)
 from kincal.robots.chain import ROTATIONS, Robot
 from kincal.spatial import log_so3
 
 Array = NDArray[np.float64]
+
+__all__ = ["IKSolution", "IKSolutions", "MASKS", "parse_mask", "reach_bound", "check_solutions",
+           "solve_spd", "solve_ik",
+           # re-exported from kincal.ik_starts
+           "default_q0", "random_q", "project_to_limits"]
 
 MASKS = {"pose": (True,) * 6, "position": (True, True, True, False, False, False),
          "orientation": (False, False, False, True, True, True)}
@@ -182,41 +195,6 @@ def _targets(targets: ArrayLike, mask: NDArray[np.bool_]) -> tuple[Array, Array 
     return p, R
 
 
-def _limits(robot: Robot) -> tuple[Array, Array, NDArray[np.bool_]]:
-    lim = robot.joint_limits
-    rev = np.array([j.kind == "revolute" for j in robot.joints])
-    return lim[:, 0], lim[:, 1], rev
-
-
-def default_q0(robot: Robot) -> Array:
-    """Mid-range of the joint limits; for a half-open range its finite end, or 0 [rad / m]."""
-    lo, hi, _ = _limits(robot)
-    both = np.isfinite(lo) & np.isfinite(hi)
-    mid = np.where(both, 0.5 * (np.where(both, lo, 0) + np.where(both, hi, 0)), 0.0)
-    mid = np.where(np.isfinite(lo) & ~np.isfinite(hi), np.maximum(np.nan_to_num(lo), 0.0), mid)
-    return np.where(~np.isfinite(lo) & np.isfinite(hi), np.minimum(np.nan_to_num(hi), 0.0), mid)
-
-
-def random_q(robot: Robot, size: int, rng: np.random.Generator) -> Array:
-    """Uniform joint values inside the limits; unlimited sides span pi rad or 1 m."""
-    lo, hi, rev = _limits(robot)
-    span = np.where(rev, np.pi, 1.0)
-    a = np.where(np.isfinite(lo), lo, np.where(np.isfinite(hi), hi - 2 * span, -span))
-    b = np.where(np.isfinite(hi), hi, a + 2 * span)
-    return rng.uniform(a, b, size=(size, robot.n))
-
-
-def project_to_limits(q: Array, lo: Array, hi: Array, rev: NDArray[np.bool_]) -> Array:
-    """Bring ``q`` inside ``[lo, hi]``: shift revolute joints by 2 pi k if that fits, else clip."""
-    outside = (q < lo) | (q > hi)
-    if not np.any(outside):
-        return q
-    with np.errstate(invalid="ignore"):
-        shifted = lo + np.mod(q - lo, 2 * np.pi)
-    use = outside & rev & (shifted <= hi)
-    return np.clip(np.where(use, shifted, q), lo, hi)
-
-
 def reach_bound(robot: Robot) -> tuple[Array, float]:
     """A point ``c`` fixed in the base and a radius ``r`` with ``|p(q) - c| <= r`` for all q.
 
@@ -226,7 +204,7 @@ def reach_bound(robot: Robot) -> tuple[Array, float]:
     """
     first = min(k for k, et in enumerate(robot.ets) if et.joint >= 0)
     centre = robot.frames(default_q0(robot))[0][:3, 3].copy()
-    lo, hi, _ = _limits(robot)
+    lo, hi, _ = limit_arrays(robot)
     radius = 0.0
     for et in robot.ets[first:]:
         if et.kind in ROTATIONS:
@@ -418,51 +396,6 @@ def solve_spd(H: Array, g: Array) -> Array:
     return np.stack(x)
 
 
-class _SeedPool:
-    """Random configurations inside the limits, looked up by the nearness of their poses.
-
-    Pose distance: ``|dp|^2 / L^2 + |dR|_F^2 / 2`` (about ``|dp / L|^2 + angle^2``),
-    restricted to the masked rows; ``L`` is the reach radius.
-    """
-
-    def __init__(self, pb: _Problem, size: int, rng: np.random.Generator, scale: float) -> None:
-        self.q = random_q(pb.robot, size, rng)
-        if pb.limits:
-            self.q = project_to_limits(self.q, pb.lo, pb.hi, pb.rev)
-        T = pb.robot.fk(self.q)
-        self.pb, self.scale = pb, scale
-        self.features = self._features(T[:, :3, 3], T[:, :3, :3]).astype(np.float32)
-        self.norms = np.einsum("ij,ij->i", self.features, self.features)
-        self.features_t = np.ascontiguousarray(self.features.T)
-
-    def _features(self, p: Array, R: Array | None) -> Array:
-        parts = [p[:, self.pb.mask[:3]] / self.scale]
-        if R is not None and self.pb.mask[3:].any():
-            parts.append(R.reshape(-1, 9) / np.sqrt(2.0))
-        return np.concatenate(parts, 1)
-
-    def nearest(self, idx: NDArray[np.intp], first: int, count: int) -> NDArray[np.intp]:
-        """Pool rows of nearness ranks ``first .. first + count - 1`` for targets idx."""
-        R = self.pb.R_t[idx] if self.pb.R_t is not None else None
-        F = self._features(self.pb.p_t[idx], R).astype(np.float32)
-        last = min(first + count, self.q.shape[0])
-        out = np.empty((idx.size, last - first), np.intp)
-        step = 128                                  # rows per block: stays in cache
-        for s in range(0, idx.size, step):
-            # |f|^2 - 2 f.g + |g|^2 less the constant |f|^2; einsum, not BLAS, whose
-            # threads spin and cost more than they give on blocks this small
-            d2 = np.einsum("ij,jk->ik", F[s:s + step], self.features_t)
-            d2 *= -2.0
-            d2 += self.norms
-            if last == 1:
-                out[s:s + step, 0] = np.argmin(d2, axis=1)
-                continue
-            part = np.argpartition(d2, last - 1, axis=1)[:, :last]
-            order = np.argsort(np.take_along_axis(d2, part, 1), axis=1)
-            out[s:s + step] = np.take_along_axis(part, order, 1)[:, first:last]
-        return out
-
-
 # ---------------------------------------------------------------------------
 # public entry point
 
@@ -506,7 +439,7 @@ def solve_ik(robot: Robot, targets: ArrayLike, q0: ArrayLike | None = None,
         raise KincalError("IK needs max_iter >= 1 and restarts >= 0")
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(
         0 if rng is None else rng)
-    lo, hi, rev = _limits(robot)
+    lo, hi, rev = limit_arrays(robot)
     if q0 is None:
         q_start = np.tile(default_q0(robot), (N, 1))
     else:
@@ -530,7 +463,7 @@ def solve_ik(robot: Robot, targets: ArrayLike, q0: ArrayLike | None = None,
     excess = np.linalg.norm(p_t - centre, axis=1) - radius if m[:3].all() else np.zeros(N)
     beyond = excess > tol_position
     todo = np.flatnonzero(~beyond)
-    pool: _SeedPool | None = None
+    pool: SeedPool | None = None
     for rnd in range(restarts + 1):
         if todo.size == 0:
             break
@@ -538,7 +471,7 @@ def solve_ik(robot: Robot, targets: ArrayLike, q0: ArrayLike | None = None,
             idx, starts = todo, q_start[todo]
         else:
             if pool is None:
-                pool = _SeedPool(pb, _SEED_POOL, gen, radius if np.isfinite(radius) else 1.0)
+                pool = SeedPool(pb, _SEED_POOL, gen, radius if np.isfinite(radius) else 1.0)
             used = (_GROWTH ** (rnd - 1) - 1) // (_GROWTH - 1)   # starts of earlier rounds
             ranks = pool.nearest(todo, used, _GROWTH ** (rnd - 1))
             idx = np.repeat(todo, ranks.shape[1])

@@ -1,18 +1,12 @@
-"""Trajectories: timing laws, Cartesian and joint-space paths, and the Trajectory value.
+"""Trajectories: the Trajectory value and the builders of joint-space and Cartesian ones.
 
-A *timing law* maps time ``t in [0, T]`` to a path parameter ``s in [0, 1]`` with
-``s(0) = 0``, ``s(T) = 1`` and rest at both ends (``s'(0) = s'(T) = 0``):
+Timing laws (``s(t)`` from 0 to 1: cubic, quintic, trapezoidal) and joint polynomials
+live in :mod:`kincal.timing`; Cartesian paths (``T(s)``: lines, arcs, slerp) in
+:mod:`kincal.paths`; both are re-exported here, so ``from kincal.trajectory import
+LinePath, quintic`` keeps working.
 
-* cubic:    ``s = 3 tau^2 - 2 tau^3``               (``tau = t / T``)
-* quintic:  ``s = 10 tau^3 - 15 tau^4 + 6 tau^5``  (also ``s'' = 0`` at both ends)
-* trapezoidal velocity: constant acceleration ``a`` for ``t_a``, cruise at ``v``,
-  constant deceleration; from limits on the path's speed and acceleration.
-
-A *path* gives the pose as a function of ``s`` with its first two derivatives as
-twists ``[dp/ds; omega/ds]`` in the base frame: straight lines and circular arcs, the
-orientation interpolated by slerp ``R(s) = R0 exp(s [w]x)``, ``w = log(R0^T R1)``
-(body frame), whose angular rate ``omega/ds = R0 w`` is constant.  A *motion* is a
-path paced by a timing law: ``x_dot = x' s_dot``, ``x_ddot = x'' s_dot^2 + x' s_ddot``.
+A *motion* is a path paced by a timing law: ``x_dot = x' s_dot``,
+``x_ddot = x'' s_dot^2 + x' s_ddot``.
 
 Joint-space trajectories interpolate ``q`` directly (one timing law for all joints,
 a trapezoid synchronised to the slowest joint, or splines through via points).
@@ -24,177 +18,43 @@ solution stays on one branch, then ``q_dot = J^+ x_dot`` and
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError, UnreachableError
+from kincal.paths import ArcPath, CartesianPath, LinePath, arc_through
 from kincal.robots.chain import Robot
-from kincal.spatial import exp_so3, log_so3, matrix_to_rpy, pose_error
+from kincal.spatial import matrix_to_rpy, pose_error
+from kincal.timing import (
+    TimingKind,
+    TimingLaw,
+    cubic,
+    cubic_coefficients,
+    polyval,
+    quintic,
+    quintic_coefficients,
+    sample_times,
+    timing_law,
+    trapezoidal,
+)
 
 Array = NDArray[np.float64]
-TimingKind = Literal["cubic", "quintic", "trapezoidal", "linear"]
 
-
-# ---------------------------------------------------------------------------
-# timing laws
-
-
-@dataclass(frozen=True)
-class TimingLaw:
-    """Normalised timing ``s(t)`` from 0 to 1 over ``[0, duration]``.
-
-    Attributes:
-        kind: ``"cubic"``, ``"quintic"``, ``"trapezoidal"`` or ``"linear"`` (constant
-            speed, not at rest at the ends).
-        duration: T [s].
-        t_acc: trapezoidal only: acceleration (and deceleration) time [s].
-        s_dot_max: trapezoidal only: cruise rate of s [1/s].
-    """
-
-    kind: TimingKind
-    duration: float
-    t_acc: float = 0.0
-    s_dot_max: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not (self.duration > 0 and math.isfinite(self.duration)):
-            raise KincalError(f"a timing law needs a positive duration, got {self.duration}")
-        if self.kind not in ("cubic", "quintic", "trapezoidal", "linear"):
-            raise KincalError(f"unknown timing law {self.kind!r}; use cubic, quintic, "
-                              "trapezoidal or linear")
-
-    def __call__(self, t: ArrayLike) -> tuple[Array, Array, Array]:
-        """``(s, s_dot [1/s], s_ddot [1/s^2])`` at times t (clamped to [0, T])."""
-        T = self.duration
-        tt = np.clip(np.asarray(t, dtype=float), 0.0, T)
-        tau = tt / T
-        if self.kind == "cubic":
-            return (tau**2 * (3 - 2 * tau), 6 * tau * (1 - tau) / T, (6 - 12 * tau) / T**2)
-        if self.kind == "quintic":
-            return (tau**3 * (10 - 15 * tau + 6 * tau**2), 30 * tau**2 * (1 - tau)**2 / T,
-                    60 * tau * (1 - tau) * (1 - 2 * tau) / T**2)
-        if self.kind == "linear":
-            return tau, np.full_like(tau, 1 / T), np.zeros_like(tau)
-        ta, v = self.t_acc, self.s_dot_max
-        a = v / ta
-        rise, fall = tt < ta, tt > T - ta
-        s = np.where(rise, 0.5 * a * tt**2,
-                     np.where(fall, 1 - 0.5 * a * (T - tt)**2, v * (tt - 0.5 * ta)))
-        sd = np.where(rise, a * tt, np.where(fall, a * (T - tt), v))
-        sdd = np.where(rise, a, np.where(fall, -a, 0.0))
-        return s, sd, sdd
-
-
-def cubic(duration: float) -> TimingLaw:
-    """Cubic rest-to-rest law ``s = 3 tau^2 - 2 tau^3`` over ``duration`` [s]."""
-    return TimingLaw("cubic", float(duration))
-
-
-def quintic(duration: float) -> TimingLaw:
-    """Quintic law ``s = 10 tau^3 - 15 tau^4 + 6 tau^5`` (zero end velocity and acceleration)."""
-    return TimingLaw("quintic", float(duration))
-
-
-def trapezoidal(length: float, v_max: float, a_max: float,
-                duration: float | None = None) -> TimingLaw:
-    """Trapezoidal velocity law for a path of ``length`` (m or rad) within limits.
-
-    Minimum time: if ``length >= v_max^2 / a_max``, ``t_a = v_max / a_max`` and
-    ``T = length / v_max + t_a``; otherwise the profile is a triangle with
-    ``t_a = sqrt(length / a_max)``, ``T = 2 t_a``.  With a longer ``duration`` the cruise
-    speed drops to ``v = (a T - sqrt(a^2 T^2 - 4 a L)) / 2`` at the same acceleration.
-
-    Raises:
-        KincalError: non-positive limits or length, or a duration shorter than the
-            minimum time.
-    """
-    L, v, a = float(length), float(v_max), float(a_max)
-    if not (L > 0 and v > 0 and a > 0):
-        raise KincalError("a trapezoidal law needs a positive length, v_max and a_max")
-    if L >= v * v / a:
-        ta, T = v / a, L / v + v / a
-    else:
-        ta = math.sqrt(L / a)
-        T, v = 2 * ta, a * ta
-    if duration is not None:
-        if duration < T * (1 - 1e-12):
-            raise KincalError(f"a trapezoidal move of {L:g} needs at least {T:.6g} s with "
-                              f"v_max = {v_max:g}, a_max = {a_max:g}; {duration:g} s asked")
-        T = float(duration)
-        v = (a * T - math.sqrt(max(a * a * T * T - 4 * a * L, 0.0))) / 2
-        ta = v / a
-    return TimingLaw("trapezoidal", T, t_acc=ta, s_dot_max=v / L)
-
-
-def timing_law(kind: str, duration: float | None = None, length: float = 1.0,
-               v_max: float | None = None, a_max: float | None = None) -> TimingLaw:
-    """A timing law by name (for the CLI): cubic, quintic, linear need ``duration``;
-    trapezoidal needs ``v_max`` and ``a_max`` (and uses ``duration`` when given)."""
-    if kind == "trapezoidal":
-        if v_max is None or a_max is None:
-            raise KincalError("the trapezoidal law needs --v-max and --a-max")
-        return trapezoidal(length, v_max, a_max, duration)
-    if duration is None:
-        raise KincalError(f"the {kind} law needs a duration")
-    return TimingLaw(kind, float(duration))  # type: ignore[arg-type]
-
-
-def cubic_coefficients(q0: ArrayLike, q1: ArrayLike, v0: ArrayLike, v1: ArrayLike,
-                       T: float) -> Array:
-    """Coefficients ``c (4, n)`` of ``q(t) = sum_k c_k t^k`` with given end positions/velocities.
-
-    ``c0 = q0, c1 = v0, c2 = (3 dq - (2 v0 + v1) T) / T^2, c3 = (-2 dq + (v0 + v1) T) / T^3``.
-    """
-    q0, q1, v0, v1 = (np.asarray(x, dtype=float) for x in (q0, q1, v0, v1))
-    dq = q1 - q0
-    return np.stack([q0, v0, (3 * dq - (2 * v0 + v1) * T) / T**2,
-                     (-2 * dq + (v0 + v1) * T) / T**3])
-
-
-def quintic_coefficients(q0: ArrayLike, q1: ArrayLike, v0: ArrayLike, v1: ArrayLike,
-                         a0: ArrayLike, a1: ArrayLike, T: float) -> Array:
-    """Coefficients ``c (6, n)`` of the quintic meeting end positions, velocities, accelerations.
-
-    Solves the 6 boundary equations in closed form:
-    ``c3 = (20 dq - (8 v1 + 12 v0) T - (3 a0 - a1) T^2) / (2 T^3)``,
-    ``c4 = (-30 dq + (14 v1 + 16 v0) T + (3 a0 - 2 a1) T^2) / (2 T^4)``,
-    ``c5 = (12 dq - 6 (v1 + v0) T + (a1 - a0) T^2) / (2 T^5)``.
-    """
-    q0, q1, v0, v1, a0, a1 = (np.asarray(x, dtype=float) for x in (q0, q1, v0, v1, a0, a1))
-    dq = q1 - q0
-    return np.stack([q0, v0, a0 / 2,
-                     (20 * dq - (8 * v1 + 12 * v0) * T - (3 * a0 - a1) * T**2) / (2 * T**3),
-                     (-30 * dq + (14 * v1 + 16 * v0) * T + (3 * a0 - 2 * a1) * T**2)
-                     / (2 * T**4),
-                     (12 * dq - 6 * (v1 + v0) * T + (a1 - a0) * T**2) / (2 * T**5)])
-
-
-def polyval(c: Array, t: ArrayLike) -> tuple[Array, Array, Array]:
-    """Position, velocity and acceleration (N, n) of polynomial coefficients ``c (K, n)``."""
-    t = np.asarray(t, dtype=float)[:, None]
-    k = np.arange(c.shape[0])
-    pw = t[..., None] ** k                                   # (N, 1, K)
-    p = np.einsum("nok,kj->nj", pw, c)
-    v = np.einsum("nok,kj->nj", pw[..., :-1], c[1:] * k[1:, None])
-    a = np.einsum("nok,kj->nj", pw[..., :-2], c[2:] * (k[2:] * (k[2:] - 1))[:, None])
-    return p, v, a
-
-
-def sample_times(duration: float, dt: float) -> Array:
-    """``0, dt, 2 dt, ...`` up to and including ``duration`` [s]."""
-    if not (dt > 0):
-        raise KincalError(f"the time step must be positive, got {dt}")
-    n = int(math.floor(duration / dt + 1e-9))
-    t = np.arange(n + 1) * dt
-    if duration - t[-1] > 1e-9 * max(dt, 1.0):
-        t = np.append(t, duration)
-    return t
+__all__ = [
+    # the value and its builders
+    "Trajectory", "joint_trajectory", "synchronized_trapezoidal", "via_trajectory",
+    "CartesianMotion", "cartesian_trajectory", "line_motion", "concatenate", "cartesian_via",
+    # re-exported from kincal.timing
+    "TimingKind", "TimingLaw", "cubic", "quintic", "trapezoidal", "timing_law",
+    "cubic_coefficients", "quintic_coefficients", "polyval", "sample_times",
+    # re-exported from kincal.paths
+    "CartesianPath", "LinePath", "ArcPath", "arc_through",
+]
 
 
 # ---------------------------------------------------------------------------
@@ -397,118 +257,7 @@ def via_trajectory(points: ArrayLike, times: ArrayLike, dt: float,
 
 
 # ---------------------------------------------------------------------------
-# Cartesian paths
-
-
-class CartesianPath(Protocol):
-    """A geometric path ``T(s)``, ``s in [0, 1]``."""
-
-    def at(self, s: ArrayLike) -> tuple[Array, Array, Array]:
-        """Poses (N, 4, 4) and twists ``dX/ds``, ``d2X/ds2`` (N, 6) in the base frame."""
-        ...
-
-    @property
-    def length(self) -> float:
-        """Length of the position path [m] (for trapezoidal timing)."""
-        ...
-
-
-def _slerp(R0: Array, R1: Array, s: Array) -> tuple[Array, Array]:
-    """``R(s) = R0 exp(s [w]x)``, ``w = log(R0^T R1)``; returns R(s) and ``omega/ds = R0 w``."""
-    w = log_so3(R0.T @ R1)
-    return R0 @ exp_so3(s[:, None] * w), R0 @ w
-
-
-@dataclass(frozen=True)
-class LinePath:
-    """Straight segment from pose ``start`` to pose ``end`` (4, 4), orientation by slerp.
-
-    ``p(s) = p0 + s (p1 - p0)``, ``p' = p1 - p0``, ``p'' = 0``; ``omega' = R0 w``, ``alpha = 0``.
-    """
-
-    start: Array
-    end: Array
-
-    @property
-    def length(self) -> float:
-        return float(np.linalg.norm(self.end[:3, 3] - self.start[:3, 3]))
-
-    @property
-    def angle(self) -> float:
-        """Rotation angle from start to end orientation [rad]."""
-        return float(np.linalg.norm(log_so3(self.start[:3, :3].T @ self.end[:3, :3])))
-
-    def at(self, s: ArrayLike) -> tuple[Array, Array, Array]:
-        s = np.atleast_1d(np.asarray(s, dtype=float))
-        R, w = _slerp(self.start[:3, :3], self.end[:3, :3], s)
-        dp = self.end[:3, 3] - self.start[:3, 3]
-        T = np.tile(np.eye(4), (s.size, 1, 1))
-        T[:, :3, :3] = R
-        T[:, :3, 3] = self.start[:3, 3] + s[:, None] * dp
-        d1 = np.tile(np.concatenate([dp, w]), (s.size, 1))
-        return T, d1, np.zeros_like(d1)
-
-
-@dataclass(frozen=True)
-class ArcPath:
-    """Circular arc about ``centre`` and unit ``axis`` through ``angle``, orientation by slerp.
-
-    ``p(s) = c + Rot(n, s theta) (p0 - c)``; ``p' = theta n x (p - c)``;
-    ``p'' = theta^2 n x (n x (p - c))``.  The orientation goes from ``R_start`` to
-    ``R_end`` by slerp, independently of the arc.
-    """
-
-    centre: Array
-    axis: Array
-    angle: float
-    start: Array
-    R_end: Array
-
-    @property
-    def radius(self) -> float:
-        r = self.start[:3, 3] - self.centre
-        return float(np.linalg.norm(r - self.axis * (self.axis @ r)))
-
-    @property
-    def length(self) -> float:
-        return abs(self.angle) * self.radius
-
-    def at(self, s: ArrayLike) -> tuple[Array, Array, Array]:
-        s = np.atleast_1d(np.asarray(s, dtype=float))
-        n, th = self.axis, self.angle
-        r0 = self.start[:3, 3] - self.centre
-        r = (exp_so3(np.outer(s * th, n)) @ r0)
-        R, w = _slerp(self.start[:3, :3], self.R_end, s)
-        T = np.tile(np.eye(4), (s.size, 1, 1))
-        T[:, :3, :3] = R
-        T[:, :3, 3] = self.centre + r
-        v = th * np.cross(n, r)
-        a = th**2 * np.cross(n, np.cross(n, r))
-        d1 = np.concatenate([v, np.tile(w, (s.size, 1))], 1)
-        d2 = np.concatenate([a, np.zeros((s.size, 3))], 1)
-        return T, d1, d2
-
-
-def arc_through(start: ArrayLike, via: ArrayLike, end: ArrayLike) -> ArcPath:
-    """The circular arc from pose ``start`` through point ``via`` (3,) to pose ``end``.
-
-    The centre is the circumcentre of the three points; the arc runs from the start
-    point through ``via`` to the end point.  Raises for collinear points.
-    """
-    T0, T1 = np.asarray(start, dtype=float), np.asarray(end, dtype=float)
-    a, b, c = T0[:3, 3], np.asarray(via, dtype=float), T1[:3, 3]
-    u, v = b - a, c - a
-    nrm = np.cross(u, v)
-    nn = float(nrm @ nrm)
-    if nn < 1e-18 * max(float(u @ u) * float(v @ v), 1e-300):
-        raise KincalError("the arc's start, via and end points are collinear (or coincide)")
-    centre = a + (np.cross(nrm, u) * (v @ v) + np.cross(v, nrm) * (u @ u)) / (2 * nn)
-    axis = nrm / math.sqrt(nn)
-    r0, r1 = a - centre, c - centre
-    angle = math.atan2(float(axis @ np.cross(r0, r1)), float(r0 @ r1))
-    if angle <= 0:
-        angle += 2 * math.pi       # through the via point, counter-clockwise about the axis
-    return ArcPath(centre, axis, angle, T0, T1[:3, :3])
+# Cartesian motions
 
 
 @dataclass(frozen=True)

@@ -19,19 +19,18 @@ What ``kincal calibrate`` / ``validate`` / ``demo`` do, usable from Python::
   for artifact data, the patent's figures 4 and 5, each rendered first and then written
   atomically (a failure while rendering writes nothing).
 
+Option text is checked and parsed in :mod:`kincal.flow_options` and the patent / artifact
+figure sections of the report are rendered in :mod:`kincal.report_sections`; both are
+re-exported here.
+
 Units are SI (m, rad) everywhere; the report shows mm and degrees.  Nothing here prints:
 progress goes to an optional callback, warnings into :attr:`FlowResult.warnings`.
 """
 
 from __future__ import annotations
 
-import base64
 import dataclasses
-import html
 import json
-import math
-import re
-import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -41,6 +40,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
+from kincal.flow_options import (
+    LOSSES,
+    METHODS,
+    PROCEDURES,
+    STAGES,
+    check_flow_options,
+    check_options_used,
+    parse_prior,
+    parse_selection,
+    parse_stages,
+)
+from kincal.report_sections import artifact_figures, figures_section_html, patent_section_html
 
 Array = NDArray[np.float64]
 
@@ -48,12 +59,7 @@ __all__ = ["FlowResult", "read_blocks", "ignored_columns", "check_options_used",
            "parse_selection", "parse_stages", "parse_prior", "check_flow_options", "run_flow",
            "validate_blocks", "reregister", "errors_with", "block_values", "truth_values",
            "extras_from_result", "render_outputs", "write_outputs", "patent_section_html",
-           "figures_section_html", "PROCEDURES", "METHODS", "LOSSES"]
-
-PROCEDURES = ("lm", "patent")
-METHODS = ("lm", "gauss-newton")
-LOSSES = ("linear", "huber", "cauchy")
-STAGES = ("offsets", "all", "registration")
+           "figures_section_html", "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
 
 
 # --------------------------------------------------------------------------- reading data
@@ -128,130 +134,6 @@ def _matching_list(path: str, patterns: list[str]) -> list[str]:
     return [p for p in patterns if any(glob_regex(p).match(n) for n in names)]
 
 
-def check_options_used(paths: Sequence[str | Path], units: str | None,
-                       ignore: Sequence[str] | None) -> None:
-    """Every ``--units`` / ``--ignore`` entry must match a column of some file (typo guard)."""
-    from kincal.measure.files import glob_regex, parse_list_option, parse_units_option
-
-    for p in paths:
-        if not Path(p).is_file():
-            raise MeasurementFileError("no such measurement file", source=str(p))
-    names = [n for p in paths for n in _header(str(p))]
-    for key in list(parse_units_option(units)) + parse_list_option(ignore):
-        if not any(glob_regex(key).match(n) for n in names):
-            raise MeasurementFileError(f"--units/--ignore entry {key!r} matches no column of "
-                                       f"{', '.join(map(str, paths))}")
-
-
-# --------------------------------------------------------------------------- options
-def parse_selection(names: Sequence[str], roles: Sequence[str], free: str | None,
-                    fix: str | None) -> tuple[list[str] | None, list[str]]:
-    """``--free`` / ``--fix`` patterns (comma separated; ``role:offset`` selects a role).
-
-    Returns ``(free names or None for automatic, fixed names)``.
-    """
-    from kincal.identify.solver import match_names
-
-    def expand(text: str | None) -> list[str] | None:
-        if not text:
-            return None
-        out: list[str] = []
-        for p in (s.strip() for s in text.split(",")):
-            if not p:
-                continue
-            if p.startswith("role:"):
-                role = p[5:]
-                hit = [n for n, r in zip(names, roles, strict=True) if r == role]
-                if not hit:
-                    raise KincalError(f"no parameter has role {role!r} (roles: "
-                                      f"{', '.join(sorted(set(roles)))})")
-                out += hit
-            else:
-                out += [names[i] for i in match_names(names, [p])]
-        return list(dict.fromkeys(out))
-
-    return expand(free), expand(fix) or []
-
-
-_PRIOR_VALUE = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]+)?\s*\Z")
-
-
-def parse_prior(text: str | None, names: Sequence[str], units: Sequence[str]
-                ) -> dict[str, float]:
-    """``--prior`` text -> prior standard deviations ``{parameter name: s}`` [m / rad].
-
-    ``text`` is ``PATTERN=SIGMA_WITH_UNIT`` entries, comma separated, e.g.
-    ``"*.origin.*=1mm,*.origin.*=0.1deg"``: names or ``*`` / ``?`` patterns
-    (:func:`~kincal.identify.solver.match_names`), each with a value and its unit (any
-    unit of measurement files: ``mm``, ``um``, ``m``, ``deg``, ``mrad``, ``arcsec`` ...;
-    required, so that ``1`` is never read as 1 m).  An entry applies to the parameters
-    its pattern matches *whose unit is of the entry's dimension* (a length to lengths,
-    an angle to angles), so one pattern can take both; a later entry overrides an
-    earlier one for the names both give a value.  The value becomes SI,
-    ``s = value * unit factor`` (``1mm -> 0.001``, ``0.1deg -> 0.001745``).
-
-    Raises one-line :class:`~kincal.errors.KincalError` for an entry that is not
-    ``PATTERN=VALUE UNIT``, a missing or unknown unit, a value that is not positive, or
-    a pattern that matches no parameter of the unit's dimension.
-    """
-    from kincal.identify.solver import match_names
-    from kincal.measure.files import UNITS
-
-    out: dict[str, float] = {}
-    if not text:
-        return out
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        pattern, eq, value = (x.strip() for x in part.partition("="))
-        m = _PRIOR_VALUE.match(value) if eq and pattern else None
-        if m is None:
-            raise KincalError(f"option --prior: {part!r} is not PATTERN=SIGMA with a unit "
-                              "(e.g. '*.origin.*=1mm,*.origin.r?=0.1deg')")
-        number, unit = float(m.group(1)), m.group(2)
-        if unit is None:
-            raise KincalError(f"option --prior: {part!r} needs a unit (e.g. {pattern}="
-                              f"{m.group(1)}mm or {pattern}={m.group(1)}deg)")
-        if unit not in UNITS:
-            raise KincalError(f"option --prior: unknown unit {unit!r} in {part!r} (known: "
-                              f"{', '.join(UNITS)})")
-        if not (math.isfinite(number) and number > 0):
-            raise KincalError(f"option --prior: the standard deviation in {part!r} must be "
-                              "positive")
-        dim, factor = UNITS[unit]
-        try:
-            matched = match_names(names, pattern)
-        except KincalError as exc:
-            raise KincalError(f"option --prior: {exc}") from None
-        hit = [i for i in matched if units[i] in UNITS and UNITS[units[i]][0] == dim]
-        if not hit:
-            article = "an" if dim[0] in "aeiou" else "a"
-            raise KincalError(f"option --prior: {pattern!r} matches no {dim} parameter "
-                              f"(the unit of {part!r} is {article} {dim})")
-        for i in hit:
-            out[names[i]] = number * factor
-    return out
-
-
-def parse_stages(text: str | None) -> list[str] | None:
-    """``"offsets,all"`` -> ``["offsets", "all"]`` (the one-stage solver's stages)."""
-    if not text:
-        return None
-    st = [s.strip() for s in text.split(",") if s.strip()]
-    for s in st:
-        if s not in STAGES:
-            raise KincalError(f"option --stages: unknown stage {s!r} (use offsets, all, "
-                              "registration, comma separated)")
-    return st
-
-
-def _choice(value: str, option: str, allowed: Sequence[str]) -> str:
-    if value not in allowed:
-        raise KincalError(f"option {option}: {value!r} is not "
-                          f"{', '.join(allowed[:-1])} or {allowed[-1]}")
-    return value
-
-
 # --------------------------------------------------------------------------- calibration
 @dataclasses.dataclass
 class FlowResult:
@@ -315,31 +197,6 @@ def _with_origin(kept: Sequence[Any], original: Sequence[Any]) -> list[Any]:
                 if hasattr(src, attr) and not hasattr(b, attr):
                     setattr(b, attr, getattr(src, attr))
     return list(kept)
-
-
-def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str = "linear",
-                       stages: Sequence[str] | None = None, validation_frames: str = "auto",
-                       condition_growth: float | None = None, cycles: int | None = None,
-                       tolerance: float | None = None, prior: str | None = None) -> None:
-    """One-line errors for options of :func:`run_flow` that do not fit together (checked
-    before any file is read; ``tolerance`` in m, reported in mm as ``--tolerance-mm``)."""
-    _choice(procedure, "--procedure", PROCEDURES)
-    _choice(method, "--method", METHODS)
-    _choice(loss, "--loss", LOSSES)
-    _choice(validation_frames, "--validation-frames", ("auto", "training", "register"))
-    if procedure == "patent":
-        if method != "lm" or loss != "linear" or stages or prior:
-            raise KincalError("--method, --loss, --stages and --prior choose the one-stage "
-                              "solver (--procedure lm); the patent has its own two stages")
-    elif condition_growth is not None or cycles is not None or tolerance is not None:
-        raise KincalError("--condition-growth, --cycles and --tolerance-mm need "
-                          "--procedure patent")
-    if condition_growth is not None and not condition_growth >= 1.0:
-        raise KincalError(f"option --condition-growth: must be >= 1 (got {condition_growth:g})")
-    if cycles is not None and cycles < 1:
-        raise KincalError(f"option --cycles: must be >= 1 (got {cycles})")
-    if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
-        raise KincalError(f"option --tolerance-mm: must be > 0 (got {tolerance * 1e3:g})")
 
 
 def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
@@ -582,139 +439,6 @@ def extras_from_result(path: str | Path) -> dict[str, float]:
 
 
 # --------------------------------------------------------------------------- outputs
-def _artifact_figures(flow: FlowResult, report: str) -> dict[str, tuple[str, bytes]]:
-    """The patent's figures 4 and 5 of every training artifact block, rendered in memory:
-    ``{key: (path next to the report, PNG bytes)}``."""
-    from kincal.measure.artifacts.model import ArtifactMeasurement
-
-    blocks = [b for b in flow.train if isinstance(b, ArtifactMeasurement)]
-    if not blocks or flow.nominal is None:
-        return {}
-    from kincal.artifact_plots import save_patent_figures
-
-    folder, stem = Path(report).parent, Path(report).stem
-    out: dict[str, tuple[str, bytes]] = {}
-    with tempfile.TemporaryDirectory(prefix="kincal-figures-") as tmp:
-        for b in blocks:
-            prefix = f"{stem}_figure" if len(blocks) == 1 else f"{stem}_{b.name}_figure"
-            made = save_patent_figures(b, flow.nominal, flow.result.robot, tmp,
-                                       flow.before.get(b.name), flow.after.get(b.name),
-                                       prefix=prefix)
-            for key, p in made.items():
-                tag = key if len(blocks) == 1 else f"{b.name}.{key}"
-                out[tag] = (str(folder / Path(p).name), Path(p).read_bytes())
-    return out
-
-
-def _fmt_cond(v: float | None) -> str:
-    """A condition number; None / inf (JSON null) is a rank-deficient matrix."""
-    return "inf" if v is None or not math.isfinite(v) else f"{v:.4g}"
-
-
-def _rms_cells(summary: Mapping[str, Any], keys: Sequence[str]) -> str:
-    from kincal.report import quantity
-
-    cells = []
-    for k in keys:
-        v = summary.get(k)
-        _, f, _ = quantity(k[4:])
-        cells.append(f"<td>{'-' if v is None else f'{v * f:.4f}'}</td>")
-    return "".join(cells)
-
-
-def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | None = None,
-                        units: Mapping[str, str] | None = None) -> str:
-    """The report's patent section: the procedure, kept and discarded placements with
-    their condition numbers, the comparison with one-stage LM and figures 4 and 5.
-
-    Args:
-        info: :class:`~kincal.identify.patent.PatentInfo` (or its ``to_dict()``).
-        figures: ``{key: (file, PNG bytes)}`` embedded at the end.
-        units: ``{parameter: "m" | "rad"}`` to show lengths in mm and angles in deg.
-    """
-    d = info.to_dict() if hasattr(info, "to_dict") else dict(info)
-    e = html.escape
-    parts = ["<h2>The patent's procedure</h2>"]
-    how = "one pass" if d["cycles"] == 1 else f"{d['cycles']} cycles"
-    parts.append(f"<p>{how} through {len(d['stages'])} stage(s) (one pass = the patent "
-                 "literally; more: repeated until no point moves): "
-                 + "; then ".join(e(f"{s['stage']} ({len(s['candidates'])} candidates)")
-                                  for s in d["stages"])
-                 + f". Point-correction tolerance {d['tolerance_m'] * 1e3:g} mm; "
-                 + ("converged" if d["converged"] else "<span class='bad'>NOT converged</span>")
-                 + (f" (last cycle moved the points by {d['cycle_corrections_m'][-1] * 1e3:.3g}"
-                    " mm)." if d["cycle_corrections_m"] else ".") + "</p>")
-    sel = d["selection"]
-    if d["condition_growth"] is None:
-        parts.append("<p>No data selection: every placement kept.</p>")
-    else:
-        parts.append(f"<h3>Data selection by the condition number</h3><p>A placement is "
-                     f"discarded when it makes the condition number of the scaled "
-                     f"identification matrix grow by more than a factor "
-                     f"{d['condition_growth']:g}. Kept {len(d['kept'])} of "
-                     f"{len(d['kept']) + len(d['discarded'])} placements"
-                     + (": discarded " + e(", ".join(f"{x['block']}:{x['placement']}"
-                                                     for x in d["discarded"]))
-                        if d["discarded"] else "") + ".</p>")
-        rows = "".join(
-            f"<tr class='{'' if s['kept'] else 'no'}'><td class='l'>{e(s['block'])}</td>"
-            f"<td class='l'>{e(str(s['placement']))}</td><td>{_fmt_cond(s['previous'])}</td>"
-            f"<td>{_fmt_cond(s['condition'])}</td>"
-            f"<td class='l'>{'kept' if s['kept'] else 'discarded'}</td></tr>" for s in sel)
-        parts.append("<table><tr><th class='l'>block</th><th class='l'>placement</th>"
-                     "<th>cond before</th><th>cond with it</th><th class='l'>decision</th>"
-                     f"</tr>{rows}</table><p class='small'>cond = inf while the matrix is "
-                     "rank deficient (every placement is kept until it is not).</p>")
-    comp = d.get("comparison")
-    if comp:
-        runs = [("patent", comp["patent"]), ("one-stage LM, same parameters",
-                                              comp["one_stage"]),
-                ("one-stage LM, automatic parameters", comp["automatic"])]
-        keys = sorted({k for _, s in runs for k in s if k.startswith("rms_")})
-        from kincal.report import quantity
-
-        head = "".join(f"<th>RMS {e(quantity(k[4:])[0])} [{e(quantity(k[4:])[2])}]</th>"
-                       for k in keys)
-        body = "".join(f"<tr><td class='l'>{e(n)}</td><td>{s['estimated']}</td>"
-                       f"<td>{s['sigma0']:.4g}</td><td class='l'>"
-                       f"{'yes' if s['converged'] else 'no'}</td>{_rms_cells(s, keys)}</tr>"
-                       for n, s in runs)
-        same = comp["same_parameters"]
-        parts.append("<h3>Comparison with one-stage Levenberg-Marquardt (same data)</h3>"
-                     "<table><tr><th class='l'>solver</th><th>estimated</th><th>sigma0</th>"
-                     f"<th class='l'>converged</th>{head}</tr>{body}</table>"
-                     f"<p>Same parameters: the largest difference is "
-                     f"{same['max_sigmas']:.3g} standard errors"
-                     + (f" ({e(same['worst'])})" if same["worst"] else "") + ".</p>")
-        if same["rows"]:
-            rows = []
-            for r in same["rows"]:
-                f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(
-                    (units or {}).get(r["name"], ""), (1.0, "SI"))
-                rows.append(f"<tr><td class='l'>{e(r['name'])}</td><td>{r['a'] * f:.5f}</td>"
-                            f"<td>{r['b'] * f:.5f}</td><td>{r['diff'] * f:.2e}</td>"
-                            f"<td class='l'>{u}</td><td>{r['sigmas']:.3g}</td></tr>")
-            parts.append("<table><tr><th class='l'>parameter</th><th>patent</th>"
-                         "<th>one-stage</th><th>difference</th><th class='l'>unit</th>"
-                         f"<th>in std</th></tr>{''.join(rows)}</table>")
-    if figures:
-        parts.append(figures_section_html(figures, heading="h3"))
-    return "\n".join(parts)
-
-
-def figures_section_html(figures: Mapping[str, tuple[str, bytes]], heading: str = "h2") -> str:
-    """The patent's figures 4 and 5 (``{key: (file, PNG bytes)}``) as a report section."""
-    e = html.escape
-    parts = [f"<{heading}>Artifact lengths from the joint readings (the patent's figures 4 "
-             f"and 5)</{heading}><p class='small'>figure 4: nominal model, figure 5: "
-             "calibrated model, same scale; the files are next to the report.</p>"]
-    for key, (path, png) in figures.items():
-        b64 = base64.b64encode(png).decode("ascii")
-        parts.append(f"<p class='small'>{e(key)} ({e(Path(path).name)})</p>"
-                     f"<img alt='{e(key)}' src='data:image/png;base64,{b64}'>")
-    return "\n".join(parts)
-
-
 def _render_report(result: Any, comparisons: Sequence[Any], inputs: Mapping[str, str],
                    truth: Mapping[str, float] | None, sections: Sequence[str]) -> str:
     """:func:`kincal.report.render_html` with extra sections before the footer."""
@@ -746,7 +470,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
     planned = {k: v for k, v in (("robot", output), ("urdf", urdf), ("report", report)) if v}
     contents: dict[str, str | bytes] = {}
     info = getattr(res, "patent", None)
-    figures = _artifact_figures(flow, report) if report else {}
+    figures = artifact_figures(flow, report) if report else {}
     for key, (path, png) in figures.items():
         planned[key] = path
         contents[key] = png
