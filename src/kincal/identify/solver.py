@@ -10,7 +10,10 @@ other parameter is held at its initial value: the robot's nominal value, or the
 block's closed-form initial guess).
 
 Methods (each step solves the linearised problem with the SVD of ``J D^-1``, ``D`` the
-column norms, so the step is the same in any units):
+column norms, so the step is the same in any units; ``J`` is never formed: the weighted
+problem is compressed piece by piece to its QR triangle ``[W^1/2 J | W^1/2 r] = Q [[R, z],
+[0, rho]]`` (:meth:`~kincal.measure.base.StackedProblem.compressed`), and ``R D^-1`` has
+the singular values and right singular vectors of ``W^1/2 J D^-1``, ``g = U^T z``):
 
 * ``"gauss-newton"``: exactly the lecture's iterative linearised least squares,
   ``dphi = pinv(Phi) dr``, ``phi <- phi + dphi``, recompute ``Phi``, iterate;
@@ -105,7 +108,7 @@ from scipy import stats
 from kincal.errors import IdentifiabilityError, KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
-from kincal.measure.base import MeasurementModel, StackedProblem, stack, svd_thin
+from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -439,8 +442,8 @@ def _robust_weights(r: Array, ids: Array, dims: Array, loss: str, loss_scale: fl
 class _WithPrior:
     """A stacked problem with prior rows ``(theta_j - c_j) / s_j`` appended (j in ``idx``).
 
-    Offers the two methods the iteration uses (``residuals``,
-    ``residuals_and_jacobian``); with an empty ``idx`` it is the problem itself.
+    Offers the two methods the iteration uses (``residuals``, ``compressed``); with an
+    empty ``idx`` it is the problem itself.
     """
 
     def __init__(self, prob: StackedProblem, idx: Sequence[int], sigma: Array,
@@ -461,13 +464,23 @@ class _WithPrior:
         r = self.prob.residuals(theta)
         return np.concatenate([r, self._prior(theta)]) if self.rows else r
 
-    def residuals_and_jacobian(self, theta: Array) -> tuple[Array, Array]:
-        r, J = self.prob.residuals_and_jacobian(theta)
+    def compressed(self, theta: Array, weights: Array, columns: Sequence[int]
+                   ) -> CompressedSystem:
+        """The weighted problem over ``columns`` as a QR triangle: the measurements
+        compressed piece by piece (:meth:`StackedProblem.compressed`), then the prior
+        rows folded in (``weights``: measurements, then prior rows, which have 1)."""
+        M = len(weights) - self.rows
+        return self.extend(self.prob.compressed(theta, weights[:M], columns), theta)
+
+    def extend(self, c: CompressedSystem, theta: Array) -> CompressedSystem:
+        """The measurements' triangle ``c`` with the prior rows (weight 1) folded in."""
         if not self.rows:
-            return r, J
-        P = np.zeros((self.rows, J.shape[1]))
-        P[np.arange(self.rows), self.idx] = self.inv
-        return np.concatenate([r, self._prior(theta)]), np.vstack([J, P])
+            return c
+        pos = {int(j): k for k, j in enumerate(c.columns)}
+        A = np.zeros((self.rows, len(pos)))
+        for k, j in enumerate(self.idx):
+            A[k, pos[int(j)]] = self.inv[k]
+        return c.with_rows(A, self._prior(theta))
 
 
 def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> dict[int, float]:
@@ -483,18 +496,16 @@ def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> di
     return out
 
 
-def _residual_free(Jw: Array, rw: Array) -> Array:
-    """The columns of ``Jw`` without their component along the residual ``rw``:
-    ``(I - u u^T) Jw``, ``u = rw / |rw|`` (``Jw`` itself when ``rw = 0``)."""
-    n = float(np.linalg.norm(rw))
-    if not np.isfinite(n) or n == 0.0:
-        return Jw
-    u = rw / n
-    return Jw - np.outer(u, u @ Jw)
+def _columns(c: CompressedSystem, idx: Sequence[int]) -> CompressedSystem:
+    """The triangle ``c`` reduced to the parameters ``idx`` (a subset of its columns)."""
+    if [int(j) for j in c.columns] == [int(i) for i in idx]:
+        return c
+    where = {int(j): k for k, j in enumerate(c.columns)}
+    return c.select([where[int(i)] for i in idx])
 
 
-def _reselections(prob: StackedProblem, est: list[int], at_start: tuple[Array, Array],
-                  at_end: tuple[Array, Array], converged: bool, tol: float | None
+def _reselections(prob: StackedProblem, est: list[int], at_start: CompressedSystem,
+                  at_end: CompressedSystem, converged: bool, tol: float | None
                   ) -> tuple[list[tuple[list[int], IdentifiabilityReport, str, bool]],
                              IdentifiabilityReport]:
     """Smaller base sets to try when the estimated set ``est`` fails where a stage ended.
@@ -516,7 +527,9 @@ def _reselections(prob: StackedProblem, est: list[int], at_start: tuple[Array, A
       one: shrinking the robot, the marker and the planes together shrinks every
       contact distance, ``J v = r`` exactly everywhere.  Such a ``v`` is a dependency
       of the columns with the residual projected out, ``(I - u u^T) J``,
-      ``u = r / |r|`` (:func:`_residual_free`), at the stage's start, where the set
+      ``u = r / |r|`` (:meth:`CompressedSystem.residual_free`, from the triangle:
+      its Gram matrix is ``R^T R - (R^T z)(R^T z)^T / (|z|^2 + rho^2)``), at the
+      stage's start, where the set
       was chosen; the parameter that completes it (last in the analysis' priority
       order) is the one to hold.  A consistent (noise-free, linear) model also
       has ``r`` in the range of ``J`` there, so this is only a *suspect*: it is tried
@@ -526,8 +539,9 @@ def _reselections(prob: StackedProblem, est: list[int], at_start: tuple[Array, A
     Args:
         prob: the stacked problem (names, roles).
         est: the estimated set (indices into ``prob.names``).
-        at_start, at_end: ``(W^1/2 J, W^1/2 r)`` of the measurements (all columns, no
-            prior rows, robust weights ``W``) at the stage's start and where it ended.
+        at_start, at_end: the QR triangles (:meth:`StackedProblem.compressed`) of the
+            measurements (no prior rows, robust weights ``W``) at the stage's start and
+            where it ended, over columns that include ``est``.
         converged: whether the stage converged.
         tol: the analysis tolerance.
 
@@ -538,14 +552,12 @@ def _reselections(prob: StackedProblem, est: list[int], at_start: tuple[Array, A
     """
     names = [prob.names[i] for i in est]
     roles = [prob.roles[i] for i in est]
-    Jw, rw = at_end
-    end = analyze(Jw[:, est] if converged else _residual_free(Jw[:, est], rw), names,
-                  tol=tol, roles=roles)
+    c = _columns(at_end, est)
+    end = analyze(c.R if converged else c.residual_free(), names, tol=tol, roles=roles)
     lost = [i for i, n in zip(est, names, strict=True) if n not in set(end.identifiable)]
     if converged and not lost:
         return [], end
-    Jw0, rw0 = at_start
-    start = analyze(_residual_free(Jw0[:, est], rw0), names, tol=tol, roles=roles)
+    start = analyze(_columns(at_start, est).residual_free(), names, tol=tol, roles=roles)
     suspects = [i for i, n in zip(est, names, strict=True) if n not in set(start.identifiable)]
     options = []
     if suspects:
@@ -585,33 +597,35 @@ def _scaled_step(dx: Array, x: Array) -> float:
 
 
 class _StageEnd(NamedTuple):
-    """What :func:`_run_stage` ends with; ``r``, ``J`` are those at ``theta``."""
+    """What :func:`_run_stage` ends with; ``r`` (prior rows included) at ``theta``."""
 
     theta: Array
     converged: bool
     iterations: int
     message: str
     r: Array
-    J: Array
 
 
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
                loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
                ids: Array, dims: Array, history: list[IterationRecord],
-               progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0
-               ) -> _StageEnd:
+               progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0,
+               start: CompressedSystem | None = None) -> _StageEnd:
     """Iterate one stage to convergence from ``theta`` over the columns ``est``.
 
     ``prob`` is a :class:`StackedProblem` or a :class:`_WithPrior` whose ``n_fixed``
-    trailing prior rows keep weight 1.  Returns the final ``theta``, whether it
-    converged, the iterations, a message, and ``r``, ``J`` (all columns, prior rows
-    included) at that ``theta``.
+    trailing prior rows keep weight 1.  Each linearisation is the QR triangle of the
+    weighted problem over ``est`` (``prob.compressed``; ``start``: the one at ``theta``
+    if the caller has it), never the (M, P) Jacobian.  Returns the final ``theta``,
+    whether it converged, the iterations, a message, and ``r`` (prior rows included)
+    at that ``theta``.
     """
-    r, J = prob.residuals_and_jacobian(theta)
+    C = start
+    r = prob.residuals(theta) if C is None else C.r
     w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
 
     def done(converged: bool, iterations: int, message: str) -> _StageEnd:
-        return _StageEnd(theta, converged, iterations, message, r, J)
+        return _StageEnd(theta, converged, iterations, message, r)
 
     def cost_of(res: Array, wt: Array) -> float:
         return 0.5 * float(np.sum(wt * res * res))
@@ -629,14 +643,15 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     lam, nu = -1.0, 2.0
     Dmax = np.zeros(len(est))
     for it in range(1, max_iter + 1):
-        sw = np.sqrt(w)
-        rw = sw * r
-        Jw = J[:, est] * sw[:, None]
-        D = np.linalg.norm(Jw, axis=0)
+        if C is None:
+            C = prob.compressed(theta, w, est)
+            r = C.r
+        # [W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]: R D^-1 = U S V^T, g = U^T z
+        D = np.linalg.norm(C.R, axis=0)
         Dmax = np.maximum(Dmax, D)
         Ds = np.where(Dmax > 0, Dmax, 1.0)
-        U, S, Vt = svd_thin(Jw / Ds)
-        g = U.T @ rw
+        U, S, Vt = np.linalg.svd(C.R / Ds)
+        g = U.T @ C.z
         cost = cost_of(r, w)
         if not np.isfinite(cost):
             return done(False, it - 1, f"stage {label!r}: the residuals are not finite")
@@ -652,8 +667,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                 return done(False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
                                             "(non-finite residuals); try method='lm'"))
             step = _scaled_step(dx, theta[est])
-            theta = new
-            r, J = prob.residuals_and_jacobian(theta)
+            theta, r, C = new, r_new, None
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
             if step <= tol_step:
@@ -720,8 +734,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             return done(True, it, (f"stage {label!r}: no descent step longer than "
                                    "tol_step (at a minimum)"))
         step = _scaled_step(dx, theta[est])
-        theta = new
-        r, J = prob.residuals_and_jacobian(theta)
+        theta, r, C = new, r_new, None
         w_old = w
         w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
@@ -814,35 +827,48 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     def weights_of(res: Array) -> Array:
         return _robust_weights(res, ids, dims, loss, loss_scale)
 
-    def solve(idx: list[int], theta_start: Array, label: str) -> _StageEnd:
+    def solve(idx: list[int], theta_start: Array, label: str, at: CompressedSystem
+              ) -> _StageEnd:
+        """Run a stage over ``idx`` from ``theta_start`` (``at``: the measurements'
+        triangle there, over columns that include ``idx``)."""
         aug = with_prior(idx)
         return _run_stage(aug, theta_start, idx, label, method, loss, loss_scale, max_iter,
-                          tol_step, tol_cost, ids, dims, history, progress, aug.rows)
+                          tol_step, tol_cost, ids, dims, history, progress, aug.rows,
+                          aug.extend(_columns(at, idx), theta_start))
 
-    def data_weighted(r: Array, J: Array) -> tuple[Array, Array]:
-        """Robust-weighted data rows ``(W^1/2 J, W^1/2 r)`` (prior rows dropped)."""
-        sw = np.sqrt(weights_of(r[:M]))
-        return J[:M] * sw[:, None], r[:M] * sw
+    def ended(stage: _StageEnd, columns: Iterable[int]) -> CompressedSystem:
+        """The measurements' triangle (robust weights, no prior rows) where ``stage``
+        ended, over ``columns``."""
+        return prob.compressed(stage.theta, weights_of(stage.r[:M]), sorted(set(columns)))
 
+    all_cand = [[i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
+                for spec in specs]
     last: _StageEnd | None = None
-    for spec in specs:
+    end_c: CompressedSystem | None = None
+    for k, spec in enumerate(specs):
         label = _stage_label(spec)
-        stage_cand = [i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
+        stage_cand = all_cand[k]
+        # the next stage starts where this one ends: its triangle covers both
+        after = all_cand[k + 1] if k + 1 < len(specs) else []
         start = theta.copy()
-        at_start = data_weighted(*(prob.residuals_and_jacobian(start) if last is None
-                                   else (last.r, last.J)))
-        report = analyze(at_start[0][:, stage_cand], [names[i] for i in stage_cand],
+        # the weighted measurements at the stage's start, compressed to a triangle
+        if end_c is None:
+            w0 = None if loss == "linear" else weights_of(prob.residuals(start))
+            at_start = prob.compressed(start, w0, stage_cand)
+        else:
+            at_start = _columns(end_c, stage_cand)
+        report = analyze(at_start.R, [names[i] for i in stage_cand],
                          tol=tol_rank, roles=[prob.roles[i] for i in stage_cand])
         est = sorted(names.index(n) for n in report.identifiable)
-        last = solve(est, start, label)
+        last = solve(est, start, label, at_start)
+        end_c = ended(last, [*est, *after])
         total_it += last.iterations
         # The base set was chosen at the stage's start; check it where the stage ended
         # and, if it fails there, solve the stage again from its start with a smaller
         # set (see _reselections).
         reselected = False
         for _ in range(MAX_RESELECT):
-            options, end = _reselections(prob, est, at_start, data_weighted(last.r, last.J),
-                                         last.converged, tol_rank)
+            options, end = _reselections(prob, est, at_start, end_c, last.converged, tol_rank)
             if not options and reselected:      # the final set's conditioning, at its end
                 report = dataclasses.replace(report, cond_scaled=end.cond_scaled,
                                              cond_unscaled=end.cond_unscaled)
@@ -851,7 +877,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                 lost = [names[i] for i in drop]
                 kept = [i for i in est if i not in drop]
                 n_hist = len(history)
-                again = solve(kept, start, label)
+                again = solve(kept, start, label, at_start)
                 if needs_convergence and not again.converged:
                     del history[n_hist:]        # did not help: forget that attempt
                     continue
@@ -860,6 +886,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                                 f"again from its start with {len(kept)} parameters")
                 report = _drop_from_report(report, check, lost)
                 est, last = kept, again
+                end_c = ended(last, [*est, *after])
                 total_it += again.iterations
                 reselected = accepted = True
                 break
@@ -869,13 +896,13 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         stage_info.append((label, [names[i] for i in est]))
         converged &= last.converged
         messages.append(last.message)
-    assert report is not None and last is not None
+    assert report is not None and last is not None and end_c is not None
     # final statistics over the last stage's estimated set (prior rows included), at the
-    # last stage's solution: r, J as the stage ended
+    # last stage's solution, from its triangle: R^T R = J^T W J over ``est``
     aug = with_prior(est)
-    r, J = last.r, last.J
+    r = last.r
     w = _robust_weights(r, ids, dims, loss, loss_scale, aug.rows)
-    Jw = J[:, est] * np.sqrt(w)[:, None]
+    Jw = aug.extend(_columns(end_c, est), theta).R
     dof = len(r) - len(est)
     if trust_sigma:
         sigma0 = 1.0
