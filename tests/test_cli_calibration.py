@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import invoke, run
 
-from kincal.cli import main
 from kincal.errors import MeasurementFileError
 from kincal.measure.registry import instruments, read_measurements
 from kincal.robots.files import load_robot
@@ -29,20 +29,6 @@ if not DATA.is_dir():
 
 NOISE = 1e-5   # m, per coordinate, used throughout
 
-
-def run(capsys, *args: str) -> tuple[int, str, str]:
-    """Run ``kincal ARGS`` in-process; returns (exit code, stdout, stderr)."""
-    old = sys.argv
-    sys.argv = ["kincal", *map(str, args)]
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    finally:
-        sys.argv = old
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
@@ -61,14 +47,7 @@ def flow(tmp_path_factory):
                 "-o", files["cal"], "--json", files["res"], "--report", files["rep"],
                 "--stages", "offsets,all", "--truth", files["truth"]]
     for key, args in (("sim", args_sim), ("cal", args_cal)):
-        old = sys.argv
-        sys.argv = ["kincal", *map(str, args)]
-        try:
-            main()
-        except SystemExit as exc:
-            assert exc.code in (0, None), f"{key} failed"
-        finally:
-            sys.argv = old
+        assert invoke(*args) == 0, f"{key} failed"
     return files
 
 

@@ -9,8 +9,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from cli_helpers import run
 
-from kincal.cli import main
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import library_names, load_robot, write_robot_yaml
 
@@ -19,16 +19,9 @@ Q_TEXT = ",".join(str(v) for v in Q)
 
 
 def run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
-    """Run ``kincal ARGS`` in-process through the console-script entry point."""
-    monkeypatch.setattr(sys, "argv", ["kincal", *args])
+    """``kincal ARGS`` in-process with a wide terminal (tables unwrapped)."""
     monkeypatch.setenv("COLUMNS", "200")
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    out, err = capsys.readouterr()
-    return code, out, err
+    return run(capsys, *args)
 
 
 @pytest.fixture

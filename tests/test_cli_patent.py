@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import invoke, run
 
-from kincal.cli import main
 from kincal.measure.registry import read_measurements
 from kincal.robots.files import load_robot
 
@@ -27,20 +26,6 @@ PLACEMENTS = 12
 BAR_MM, PROBE_MM = 300.0, 100.0
 ENCODER_DEG = 0.001
 
-
-def run(capsys, *args: object) -> tuple[int, str, str]:
-    """Run ``kincal ARGS`` in-process; returns (exit code, stdout, stderr)."""
-    old = sys.argv
-    sys.argv = ["kincal", *map(str, args)]
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    finally:
-        sys.argv = old
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
@@ -58,14 +43,7 @@ def patent(tmp_path_factory):
            "--condition-growth", "1.0", "-o", f["cal"], "--json", f["json"], "--report",
            f["html"]]
     for key, args in (("sim", sim), ("cal", cal)):
-        old = sys.argv
-        sys.argv = ["kincal", *map(str, args)]
-        try:
-            main()
-        except SystemExit as exc:
-            assert exc.code in (0, None), f"{key} failed"
-        finally:
-            sys.argv = old
+        assert invoke(*args) == 0, f"{key} failed"
     return f
 
 
