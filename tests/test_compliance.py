@@ -18,7 +18,6 @@ from kincal.measure.simulate import (
     simulate_positions,
 )
 from kincal.robots.chain import ChainBuilder
-from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
 from kincal.robots.gravity import PointMass, gravity_torques
 
@@ -34,13 +33,7 @@ PUMA_MASSES = [PointMass(0, 13.0, (0.0, 0.0, 0.3)), PointMass(1, 17.4, (0.2, 0.0
 
 def stanford():
     """Stanford arm (RRPRRR): a prismatic third joint, and a negative axis on joint 5."""
-    links = [DHLink(d=0.412, alpha=-np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(d=0.154, alpha=np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(theta_offset=-np.pi / 2, joint="prismatic", lower=0.3, upper=0.9),
-             DHLink(alpha=-np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(alpha=np.pi / 2, lower=-2.0, upper=2.0),
-             DHLink(d=0.263, lower=-2.8, upper=2.8)]
-    return from_dh(links, name="stanford", tool=[0.02, -0.01, 0.08, 0, 0, 0])
+    return load_robot("stanford").with_params({"tool.x": 0.02, "tool.y": -0.01, "tool.z": 0.08})
 
 
 def flipped():

@@ -42,13 +42,7 @@ def puma():
 
 def stanford():
     """Stanford arm (RRPRRR) in standard DH, with a prismatic third joint."""
-    links = [DHLink(d=0.412, alpha=-np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(d=0.154, alpha=np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(theta_offset=-np.pi / 2, joint="prismatic", lower=0.3, upper=0.9),
-             DHLink(alpha=-np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(alpha=np.pi / 2, lower=-2.0, upper=2.0),
-             DHLink(d=0.263, lower=-2.8, upper=2.8)]
-    return from_dh(links, name="stanford", tool=[0.02, -0.01, 0.08, 0, 0, 0])
+    return load_robot("stanford").with_params({"tool.x": 0.02, "tool.y": -0.01, "tool.z": 0.08})
 
 
 def central_differences(prob, theta, h=1e-6):

@@ -19,7 +19,7 @@ from kincal.measure.simulate import (
     simulate_poses,
     simulate_positions,
 )
-from kincal.robots.dh import DHLink, dh_links, from_dh
+from kincal.robots.dh import dh_links, from_dh
 from kincal.robots.files import load_robot
 
 INSTRUMENT = [1.5, 0.4, -0.2, 0.1, -0.15, 2.0]
@@ -32,13 +32,8 @@ def puma():
 
 
 def stanford():
-    links = [DHLink(d=0.412, alpha=-np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(d=0.154, alpha=np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(theta_offset=-np.pi / 2, joint="prismatic", lower=0.3, upper=0.9),
-             DHLink(alpha=-np.pi / 2, lower=-2.8, upper=2.8),
-             DHLink(alpha=np.pi / 2, lower=-2.0, upper=2.0),
-             DHLink(d=0.263, lower=-2.8, upper=2.8)]
-    return from_dh(links, name="stanford", tool=[0.0, 0.0, 0.05, 0, 0, 0])
+    """The library Stanford arm (RRPRRR, prismatic third joint) with a tool offset."""
+    return load_robot("stanford").with_params({"tool.z": 0.05})
 
 
 def make_block(true, q, rng, kind, noise=0.0):
