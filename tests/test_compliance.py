@@ -32,7 +32,7 @@ PUMA_MASSES = [PointMass(0, 13.0, (0.0, 0.0, 0.3)), PointMass(1, 17.4, (0.2, 0.0
 
 
 def stanford():
-    """Stanford arm (RRPRRR): a prismatic third joint, and a negative axis on joint 5."""
+    """The library Stanford arm (RRPRRR, prismatic third joint) with a tool offset."""
     return load_robot("stanford").with_params({"tool.x": 0.02, "tool.y": -0.01, "tool.z": 0.08})
 
 
