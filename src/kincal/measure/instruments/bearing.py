@@ -34,7 +34,6 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.errors import KincalError
 from kincal.measure.base import ParamSpec
 from kincal.measure.instruments.common import (
     as_q,
@@ -104,9 +103,7 @@ class BearingMeasurement(PointBlock):
         self.sigma = as_sigma(sigma, N, name)
         self.marker = check_marker_mode(marker)
         self.station_labels = [str(s) for s in station]
-        if len(self.station_labels) != N:
-            raise KincalError(f"block {name!r}: one station label per row needed")
-        self.stations, self.station_index = label_index(self.station_labels, "station", name)
+        self.stations, self.station_index = label_index(self.station_labels, "station", name, N)
 
     def own_parameters(self) -> ParamSpec:
         return concat_specs([frame_spec(f"{self.name}.{s}") for s in self.stations])

@@ -111,9 +111,7 @@ class CameraMeasurement(PointBlock):
         self.sigma = as_sigma(sigma, N, name)
         self.marker = check_marker_mode(marker)
         self.station_labels = [str(s) for s in station]
-        if len(self.station_labels) != N:
-            raise KincalError(f"block {name!r}: one camera label per row needed")
-        self.stations, self.station_index = label_index(self.station_labels, "camera", name)
+        self.stations, self.station_index = label_index(self.station_labels, "camera", name, N)
         missing = [s for s in self.stations if s not in intrinsics]
         if missing:
             raise KincalError(f"block {name!r}: no intrinsics for camera {missing[0]!r}")

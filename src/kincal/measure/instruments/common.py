@@ -76,9 +76,15 @@ def check_marker_mode(marker: str) -> str:
 
 
 # ---------------------------------------------------------------------------- labels
-def label_index(labels: Sequence[str], what: str, block: str) -> tuple[tuple[str, ...],
-                                                                       NDArray[np.intp]]:
-    """Distinct labels in order of first appearance, and each row's index into them."""
+def label_index(labels: Sequence[str], what: str, block: str, rows: int | None = None
+                ) -> tuple[tuple[str, ...], NDArray[np.intp]]:
+    """Distinct labels in order of first appearance, and each row's index into them.
+
+    ``rows``: when given, exactly one label per row is required.
+    """
+    if rows is not None and len(labels) != rows:
+        raise KincalError(f"block {block!r}: one {what} label per row needed "
+                          f"({len(labels)} labels for {rows} rows)")
     if len(labels) == 0:
         return (), np.zeros(0, dtype=np.intp)
     distinct, idx = label_index_raw([str(s).strip() for s in labels])
