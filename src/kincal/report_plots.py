@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -147,58 +147,53 @@ def error_histograms(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[str,
 
     ``sets``: ``(label, errors before, errors after)`` with error arrays [m] / [rad].
     """
-    plt = _plt()
-    keys = _quantities(sets)
-    fig, axes = plt.subplots(len(keys), len(sets), figsize=(4.2 * len(sets), 2.8 * len(keys)),
-                             squeeze=False)
-    for r, key in enumerate(keys):
-        s, lab = _label(key)
-        for c, (name, before, after) in enumerate(sets):
-            ax = axes[r, c]
-            if key not in before or key not in after:
-                ax.axis("off")
-                continue
-            b = np.abs(np.ravel(before[key])) * s
-            a = np.abs(np.ravel(after[key])) * s
-            both = np.concatenate([b, a])
-            pos = both[both > 0]
-            lo = float(np.min(pos)) if pos.size else 1e-9
-            hi = max(float(np.max(both, initial=0)), lo * 10)
-            bins = np.geomspace(lo * 0.9, hi * 1.1, 41)
-            ax.hist(np.maximum(b, lo), bins=bins, alpha=0.55, color=_BEFORE, label="before")
-            ax.hist(np.maximum(a, lo), bins=bins, alpha=0.75, color=_AFTER, label="after")
-            ax.set_xscale("log")
-            ax.set_title(name, fontsize=9)
-            ax.set_xlabel(lab, fontsize=8)
-            ax.set_ylabel("count", fontsize=8)
-            ax.tick_params(labelsize=7)
-            ax.legend(fontsize=7)
-    _layout(fig)
-    return _png(fig)
+    def draw(ax: Any, b: Array, a: Array, lab: str) -> None:
+        both = np.concatenate([b, a])
+        pos = both[both > 0]
+        lo = float(np.min(pos)) if pos.size else 1e-9
+        hi = max(float(np.max(both, initial=0)), lo * 10)
+        bins = np.geomspace(lo * 0.9, hi * 1.1, 41)
+        ax.hist(np.maximum(b, lo), bins=bins, alpha=0.55, color=_BEFORE, label="before")
+        ax.hist(np.maximum(a, lo), bins=bins, alpha=0.75, color=_AFTER, label="after")
+        ax.set_xscale("log")
+        ax.set_xlabel(lab, fontsize=8)
+        ax.set_ylabel("count", fontsize=8)
+
+    return _before_after_grid(sets, draw, np.ravel)
 
 
 def per_pose_errors(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[str, Array]]]
                     ) -> bytes:
     """Error of every measurement before and after calibration (log scale), per data set."""
+    def draw(ax: Any, b: Array, a: Array, lab: str) -> None:
+        i = np.arange(len(b))
+        ax.semilogy(i, np.maximum(b, 1e-9), ".", color=_BEFORE, label="before", ms=4)
+        ax.semilogy(i, np.maximum(a, 1e-9), ".", color=_AFTER, label="after", ms=4)
+        ax.set_xlabel("measurement (row)", fontsize=8)
+        ax.set_ylabel(lab, fontsize=8)
+
+    return _before_after_grid(sets, draw, _per_row)
+
+
+def _before_after_grid(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[str, Array]]],
+                       draw: Callable[[Any, Array, Array, str], None],
+                       reduce: Callable[[Array], Array]) -> bytes:
+    """One panel per (error kind, data set): ``draw(ax, before, after, axis label)`` with
+    ``reduce(|error|)`` in display units (mm, deg ...); kinds missing from a set stay blank."""
     plt = _plt()
     keys = _quantities(sets)
     fig, axes = plt.subplots(len(keys), len(sets), figsize=(4.2 * len(sets), 2.8 * len(keys)),
                              squeeze=False)
     for r, key in enumerate(keys):
-        s, lab = _label(key)
+        scale, lab = _label(key)
         for c, (name, before, after) in enumerate(sets):
             ax = axes[r, c]
             if key not in before or key not in after:
                 ax.axis("off")
                 continue
-            b = _per_row(np.abs(before[key])) * s
-            a = _per_row(np.abs(after[key])) * s
-            i = np.arange(len(b))
-            ax.semilogy(i, np.maximum(b, 1e-9), ".", color=_BEFORE, label="before", ms=4)
-            ax.semilogy(i, np.maximum(a, 1e-9), ".", color=_AFTER, label="after", ms=4)
+            draw(ax, reduce(np.abs(before[key])) * scale, reduce(np.abs(after[key])) * scale,
+                 lab)
             ax.set_title(name, fontsize=9)
-            ax.set_xlabel("measurement (row)", fontsize=8)
-            ax.set_ylabel(lab, fontsize=8)
             ax.tick_params(labelsize=7)
             ax.legend(fontsize=7)
     _layout(fig)
