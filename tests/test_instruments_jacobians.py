@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kincal.measure.base import frame_matrix
 from kincal.measure.instruments import (
     BearingMeasurement,
     CameraMeasurement,
@@ -14,7 +15,7 @@ from kincal.measure.instruments import (
     PlaneMeasurement,
     RangeMeasurement,
 )
-from kincal.measure.instruments.common import frame_matrix, to_local, to_world
+from kincal.measure.instruments.common import to_local, to_world
 from kincal.measure.simulate import perturb_robot
 from kincal.robots.files import load_robot
 

@@ -90,7 +90,7 @@ from kincal.errors import KincalError, RobotFileError
 from kincal.io import atomic_write_text
 from kincal.robots.chain import ChainBuilder, Robot
 from kincal.robots.gravity import PointMass
-from kincal.spatial import rotx, roty, rotz
+from kincal.spatial import matrix_to_rpy, rotx, roty, rotz
 
 Array = NDArray[np.float64]
 
@@ -711,12 +711,8 @@ def rpy_of(R: Array) -> tuple[float, float, float]:
     ``Rz Ry Rx`` of the result reproduces ``R`` to rounding error even when
     ``cos(pitch)`` is tiny (where ``atan2(R32, R33)`` for roll would lose digits).
     """
-    yaw = math.atan2(R[1, 0], R[0, 0])
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    m00 = cy * R[0, 0] + sy * R[1, 0]
-    m11 = -sy * R[0, 1] + cy * R[1, 1]
-    m12 = -sy * R[0, 2] + cy * R[1, 2]
-    return math.atan2(-m12, m11), math.atan2(-R[2, 0], m00), yaw
+    roll, pitch, yaw = matrix_to_rpy(R)
+    return float(roll), float(pitch), float(yaw)
 
 
 def _fmt(values: Sequence[float]) -> str:

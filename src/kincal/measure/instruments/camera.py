@@ -45,7 +45,6 @@ from kincal.measure.instruments.common import (
     check_shapes,
     concat_specs,
     frame_spec,
-    kabsch,
     label_index,
     rotation_to_rpy_frame,
     station_columns,
@@ -54,6 +53,7 @@ from kincal.measure.instruments.common import (
     to_world,
 )
 from kincal.measure.instruments.pointblock import PointBlock, refine_block
+from kincal.measure.models import kabsch
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]

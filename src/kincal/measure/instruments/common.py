@@ -31,9 +31,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import ParamSpec
+from kincal.measure.base import ParamSpec, frame_values
+from kincal.measure.models import project_so3
 from kincal.robots.chain import Robot
-from kincal.spatial import rotx, roty, rotz
+from kincal.spatial import homogeneous, rotx, roty, rotz
 
 Array = NDArray[np.float64]
 
@@ -200,35 +201,13 @@ def to_world(frame: Array, s: Array, jacobian: bool) -> tuple[Array, Array | Non
     return w, dw
 
 
-def rotation_to_rpy_frame(R: Array, t: Array) -> Array:
-    """Frame parameters ``x y z rz ry rx`` of ``(R, t)``."""
-    from kincal.spatial import matrix_to_rpy
-
-    roll, pitch, yaw = matrix_to_rpy(R)
-    return np.array([t[0], t[1], t[2], yaw, pitch, roll])
 
 
-def frame_matrix(frame: Array) -> Array:
-    """4x4 transform of frame parameters ``x y z rz ry rx``."""
-    T = np.eye(4)
-    T[:3, :3] = frame_rotation(frame[3], frame[4], frame[5])
-    T[:3, 3] = frame[:3]
-    return T
 
 
 # ---------------------------------------------------------------------------- closed forms
-def nearest_rotation(M: Array) -> Array:
-    """The rotation closest to ``M`` in the Frobenius norm (SVD, det = +1)."""
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
 
 
-def kabsch(a: Array, b: Array) -> tuple[Array, Array]:
-    """``(R, t)`` minimising ``sum |R a_i + t - b_i|^2`` for (N, 3) point sets."""
-    ca, cb = a.mean(0), b.mean(0)
-    R = nearest_rotation((b - cb).T @ (a - ca))
-    return R, cb - R @ ca
 
 
 def direction_pose(directions: Array, points: Array) -> Array:
@@ -256,7 +235,7 @@ def direction_pose(directions: Array, points: Array) -> Array:
     scale = np.cbrt(np.linalg.det(P[:, :3]))
     if not np.isfinite(scale) or abs(scale) < 1e-300:
         raise KincalError("cannot place the instrument: the points are degenerate")
-    Rt = nearest_rotation(P[:, :3] / scale)
+    Rt = project_so3(P[:, :3] / scale)
     R = Rt.T
     t = -R @ (P[:, 3] / scale)
     return rotation_to_rpy_frame(R, t)
@@ -303,4 +282,9 @@ def station_poses_from_directions(stations: Sequence[str], station_index: NDArra
                               "cannot place it")
         out.append(direction_pose(directions[rows], p[rows]))
     return np.concatenate(out)
+
+
+def rotation_to_rpy_frame(R: Array, t: Array) -> Array:
+    """Frame parameters ``x y z rz ry rx`` of ``(R, t)`` (:func:`.base.frame_values`)."""
+    return frame_values(homogeneous(R, t))
 

@@ -21,10 +21,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
+from kincal.measure.base import frame_matrix
 from kincal.measure.instruments.bearing import BearingMeasurement, bearing_angles
 from kincal.measure.instruments.camera import CameraMeasurement, HandCameraMeasurement, project
 from kincal.measure.instruments.common import (
-    frame_matrix,
     rotation_to_rpy_frame,
     to_local,
     to_world,
