@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from kincal.errors import MeasurementFileError
 from kincal.measure.files import Field, MeasurementTable, read_table, write_table
 from kincal.measure.registry import Instrument, register
+from kincal.measure.simulate import random_configurations
 from kincal.spatial import exp_so3, homogeneous, matrix_to_rpy, rpy_to_matrix
 
 Array = NDArray[np.float64]
@@ -52,21 +53,6 @@ POSE_FIELDS = (
 
 
 # --------------------------------------------------------------------------- simulation
-def random_configurations(robot: Any, n: int, rng: np.random.Generator,
-                          margin: float = 0.05) -> Array:
-    """(n, robot.n) joint values uniform inside the limits shrunk by ``margin`` of the range.
-
-    Unlimited revolute joints use [-pi, pi], unlimited prismatic joints [-0.5, 0.5] m.
-    """
-    lim = np.array(robot.joint_limits, dtype=float)
-    rev = np.array([j.kind == "revolute" for j in robot.joints])
-    span = np.where(rev, np.pi, 0.5)
-    lo = np.where(np.isfinite(lim[:, 0]), lim[:, 0], -span)
-    hi = np.where(np.isfinite(lim[:, 1]), lim[:, 1], span)
-    pad = margin * (hi - lo)
-    return rng.uniform(lo + pad, hi - pad, size=(int(n), robot.n))
-
-
 def _random_instrument(rng: np.random.Generator) -> Array:
     """A plausible instrument frame ``(x, y, z, rz, ry, rx)``: 1.5-2.5 m away, any heading."""
     az = rng.uniform(-np.pi, np.pi)

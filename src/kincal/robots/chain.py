@@ -386,7 +386,7 @@ _SCRATCH = threading.local()
 _SCRATCH_BYTES = 1 << 26
 
 
-def _et_matrix(kind: str, v: float) -> Array:
+def elementary_matrix(kind: str, v: float) -> Array:
     """4x4 homogeneous matrix of one elementary transform with value ``v``."""
     T = np.eye(4)
     ax = _AXIS[kind]
@@ -449,7 +449,7 @@ class _Plan:
                     rows_group.append(group)
                     u_ax.append(G[:, _AXIS[ets[k].kind]].copy())
                     u_org.append(G[:, 3].copy())
-                G = G @ _et_matrix(ets[k].kind, value[k])
+                G = G @ elementary_matrix(ets[k].kind, value[k])
             return G
 
         prefix = constant_run(0, bounds[0], -1)

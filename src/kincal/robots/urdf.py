@@ -88,9 +88,9 @@ from numpy.typing import NDArray
 
 from kincal.errors import KincalError, RobotFileError
 from kincal.io import atomic_write_text
-from kincal.robots.chain import ChainBuilder, Robot
+from kincal.robots.chain import ChainBuilder, Robot, elementary_matrix
 from kincal.robots.gravity import PointMass
-from kincal.spatial import matrix_to_rpy, rotx, roty, rotz
+from kincal.spatial import exp_so3, matrix_to_rpy, rotx, roty, rotz
 
 Array = NDArray[np.float64]
 
@@ -620,7 +620,7 @@ def _carrier_to_link(j: UrdfJoint) -> Array:
     T = np.eye(4)
     for kind, v in (("Ry", t), ("Rz", f)):
         if v != 0.0:
-            T = T @ _et_matrix(kind, -v)
+            T = T @ elementary_matrix(kind, -v)
     return T
 
 
@@ -686,22 +686,6 @@ def load_urdf_inertials(path: str | os.PathLike[str], base_link: str | None = No
 
 
 # --------------------------------------------------------------------------- geometry
-def _rot_axis(u: Array, angle: float) -> Array:
-    """Rodrigues: ``R = I + sin(a) [u]x + (1 - cos(a)) [u]x^2`` for a unit ``u``."""
-    K = np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]], [-u[1], u[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
-
-
-def _et_matrix(kind: str, value: float) -> Array:
-    T = np.eye(4)
-    k = "xyz".index(kind[1])
-    if kind[0] == "R":
-        T[:3, :3] = (rotx, roty, rotz)[k](value)
-    else:
-        T[k, 3] = value
-    return T
-
-
 def rpy_of(R: Array) -> tuple[float, float, float]:
     """Roll, pitch, yaw [rad] with ``R = Rz(yaw) Ry(pitch) Rx(roll)``, accurate at gimbal lock.
 
@@ -756,7 +740,7 @@ def urdf_text(robot: Robot, name: str | None = None) -> tuple[str, str, str]:
     M = np.eye(4)
     for et in robot.ets:
         c = float(values[et.param]) if et.param >= 0 else et.constant
-        M = M @ _et_matrix(et.kind, c)
+        M = M @ elementary_matrix(et.kind, c)
         if et.joint < 0:
             continue
         jt = robot.joints[et.joint]
@@ -880,7 +864,7 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
         roll, pitch, yaw = j.rpy
         T[:3, :3] = rotz(yaw) @ roty(pitch) @ rotx(roll)
         for k in _error_axes(j):
-            T = T @ _et_matrix("R" + "xyz"[k], v[f"{pre}r{'xyz'[k]}"])
+            T = T @ elementary_matrix("R" + "xyz"[k], v[f"{pre}r{'xyz'[k]}"])
         if j.moving:
             c = v[f"{j.name}.offset"]
             u = _offset_axis(j.axis)
@@ -888,7 +872,7 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
             if j.type == "prismatic":
                 F[:3, 3] = c * u
             else:
-                F[:3, :3] = _rot_axis(u, c)
+                F[:3, :3] = exp_so3(np.asarray(u, dtype=float) * c)
             T = T @ F
         je = elems[j.name]
         origin = je.find("origin")
@@ -906,7 +890,7 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
     def frame_joint(prefix: str, parent: str, child: str, xyzrpy: Array) -> None:
         T = np.eye(4)
         for kind, val in zip(("Tx", "Ty", "Tz", "Rz", "Ry", "Rx"), xyzrpy, strict=True):
-            T = T @ _et_matrix(kind, val)
+            T = T @ elementary_matrix(kind, val)
         je = ET.Element("joint", {"name": _unique(f"{prefix}_joint", joint_names),
                                   "type": "fixed"})
         for sub in (ET.Element("origin", _origin_attrs(T)),
