@@ -20,14 +20,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from kincal.errors import KincalError, MeasurementFileError
+from kincal.identify.solver import LOSSES, METHODS, STAGE_KEYWORDS
 
 __all__ = ["check_options_used", "parse_selection", "parse_stages", "parse_prior",
            "check_flow_options", "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
 
 PROCEDURES = ("lm", "patent")
-METHODS = ("lm", "gauss-newton")
-LOSSES = ("linear", "huber", "cauchy")
-STAGES = ("offsets", "all", "registration")
+STAGES = STAGE_KEYWORDS
 
 
 def check_options_used(paths: Sequence[str | Path], units: str | None,
