@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from kincal.identify.identifiability import analyze
+
 PRIORITY: tuple[str, ...] = (
     "frame.x",
     "frame.y",
@@ -96,59 +98,32 @@ def analyse(
 ) -> Identifiability:
     """Split the requested parameters into identifiable and dependent ones.
 
+    Uses kincal's general :func:`kincal.identify.identifiability.analyze` (unit-norm
+    columns, greedy selection in priority order) with the five-bar's priority.  Its
+    ``combinations`` (a change of d moves the data as ``c_k`` times changes of the kept
+    k) give the absorption coefficients ``n_k = -c_k``.
+
     Args:
         jacobian: stacked Jacobian (M, len(names)), one column per parameter.
         names: column names.
         requested: the parameters the user wants free.
-        rank_tol: relative singular-value threshold on the unit-norm columns.
+        rank_tol: smallest admissible singular value of the scaled kept columns.
         priority: order in which parameters are offered a place.
     """
-    order = [n for n in priority if n in requested] + [n for n in requested if n not in priority]
-    cols = {n: jacobian[:, list(names).index(n)] for n in order}
-    norms = {n: float(np.linalg.norm(c)) for n, c in cols.items()}
-    scale_ref = max(norms.values(), default=0.0)
-    no_effect = tuple(n for n in order if norms[n] <= 1e-14 * max(scale_ref, 1e-300))
-    kept: list[str] = []
-    for n in order:
-        if n in no_effect:
-            continue
-        trial = np.column_stack([cols[k] / norms[k] for k in [*kept, n]])
-        s = np.linalg.svd(trial, compute_uv=False)
-        if s[-1] > rank_tol * s[0]:
-            kept.append(n)
-    held = tuple(n for n in order if n not in kept)
-    absorbed = _absorbed(cols, norms, kept, [n for n in held if n not in no_effect])
-    condition = 1.0
-    if kept:
-        s = np.linalg.svd(np.column_stack([cols[k] / norms[k] for k in kept]), compute_uv=False)
-        condition = float(s[0] / s[-1])
+    requested = list(requested)
+    cols = [list(names).index(n) for n in requested]
+    rank = [priority.index(n) if n in priority else len(priority) for n in requested]
+    rep = analyze(np.asarray(jacobian)[:, cols], requested, tol=rank_tol, priority=rank)
+    kept = set(rep.identifiable)
+    no_effect = tuple(rep.unobservable)
+    absorbed = {d: {k: -float(c) for k, c in rep.combinations.get(d, {}).items() if abs(c) > 1e-9}
+                for d in requested if d not in kept and d not in no_effect}
+    condition = float(rep.cond_scaled) if kept and np.isfinite(rep.cond_scaled) else 1.0
     return Identifiability(
         requested=tuple(requested),
         kept=tuple(n for n in requested if n in kept),
-        held=tuple(n for n in requested if n in held),
+        held=tuple(n for n in requested if n not in kept),
         absorbed=absorbed,
         no_effect=no_effect,
         condition=condition,
     )
-
-
-def _absorbed(
-    cols: dict[str, np.ndarray], norms: dict[str, float], kept: list[str], dependent: list[str]
-) -> dict[str, dict[str, float]]:
-    """Null directions with each dependent parameter moving by 1 and the others by 0.
-
-    For dependent d: solve  W_kept n = -w_d  (least squares; exact when d depends
-    on the kept columns), so that the direction e_d + n leaves W unchanged.
-    """
-    out: dict[str, dict[str, float]] = {}
-    if not dependent:
-        return out
-    wk = np.column_stack([cols[k] / norms[k] for k in kept]) if kept else None
-    for d in dependent:
-        if wk is None:
-            out[d] = {}
-            continue
-        n_scaled, *_ = np.linalg.lstsq(wk, -cols[d], rcond=None)
-        coeff = n_scaled / np.array([norms[k] for k in kept])
-        out[d] = {k: float(c) for k, c in zip(kept, coeff, strict=True) if abs(c) > 1e-9}
-    return out
