@@ -67,7 +67,7 @@ _FRAME_KEYS = ("x", "y", "z", "rx", "ry", "rz")
 
 
 # --------------------------------------------------------------------------- parsing
-class _Reader:
+class FieldReader:
     """Typed access to a YAML mapping, with errors that name the file and the field."""
 
     def __init__(self, source: str) -> None:
@@ -121,14 +121,15 @@ class _Reader:
         return lo, hi
 
 
-def _units(r: _Reader, data: Mapping[str, Any]) -> tuple[float, float]:
+def read_units(r: FieldReader, data: Mapping[str, Any]) -> tuple[float, float]:
+    """The file's ``units: {length: m|mm, angle: rad|deg}`` as SI scale factors."""
     units = r.mapping(r.get(data, "units", ""), "units")
     lu = r.choice(r.get(units, "length", "units."), "units.length", list(LENGTH_UNITS))
     au = r.choice(r.get(units, "angle", "units."), "units.angle", list(ANGLE_UNITS))
     return LENGTH_UNITS[lu], ANGLE_UNITS[au]
 
 
-def _frame(r: _Reader, data: Mapping[str, Any], key: str, ls: float, as_: float) -> list[float]:
+def _frame(r: FieldReader, data: Mapping[str, Any], key: str, ls: float, as_: float) -> list[float]:
     if key not in data or data[key] is None:
         return [0.0] * 6
     m = r.mapping(data[key], key)
@@ -139,7 +140,7 @@ def _frame(r: _Reader, data: Mapping[str, Any], key: str, ls: float, as_: float)
             for i, k in enumerate(_FRAME_KEYS)]
 
 
-def _meta(r: _Reader, data: Mapping[str, Any], convention: str) -> dict[str, Any]:
+def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str, Any]:
     meta: dict[str, Any] = {"convention": convention}
     for key in ("description", "source", "notes"):
         if key in data and data[key] is not None:
@@ -147,7 +148,8 @@ def _meta(r: _Reader, data: Mapping[str, Any], convention: str) -> dict[str, Any
     return meta
 
 
-def _joint_units(r: _Reader, data: Mapping[str, Any], robot: Robot) -> str | dict[str, str] | None:
+def _joint_units(r: FieldReader, data: Mapping[str, Any], robot: Robot
+                 ) -> str | dict[str, str] | None:
     """The optional ``joint_units`` field: ``"si"`` or ``{joint: unit}``, checked against
     the robot's joints (angle units for revolute joints, length units for prismatic)."""
     value = data.get("joint_units")
@@ -167,7 +169,7 @@ def _joint_units(r: _Reader, data: Mapping[str, Any], robot: Robot) -> str | dic
     return out
 
 
-def _with_joint_units(r: _Reader, data: Mapping[str, Any], robot: Robot) -> Robot:
+def _with_joint_units(r: FieldReader, data: Mapping[str, Any], robot: Robot) -> Robot:
     """``robot`` with ``meta["joint_units"]`` set from the file (unchanged without it)."""
     ju = _joint_units(r, data, robot)
     if ju is None:
@@ -175,8 +177,8 @@ def _with_joint_units(r: _Reader, data: Mapping[str, Any], robot: Robot) -> Robo
     return dataclasses.replace(robot, meta={**dict(robot.meta), "joint_units": ju})
 
 
-def _dh_robot(r: _Reader, data: Mapping[str, Any], name: str, conv: str) -> Robot:
-    ls, as_ = _units(r, data)
+def _dh_robot(r: FieldReader, data: Mapping[str, Any], name: str, conv: str) -> Robot:
+    ls, as_ = read_units(r, data)
     joints = r.get(data, "joints", "")
     if not isinstance(joints, list) or not joints:
         raise r.fail("joints", "must be a non-empty list of DH rows")
@@ -212,8 +214,8 @@ def _dh_robot(r: _Reader, data: Mapping[str, Any], name: str, conv: str) -> Robo
                    _meta(r, data, conv))
 
 
-def _ets_robot(r: _Reader, data: Mapping[str, Any], name: str) -> Robot:
-    ls, as_ = _units(r, data)
+def _ets_robot(r: FieldReader, data: Mapping[str, Any], name: str) -> Robot:
+    ls, as_ = read_units(r, data)
     b = ChainBuilder(name)
     b.frame("base", _frame(r, data, "base", ls, as_))
     joints = r.get(data, "joints", "")
@@ -275,7 +277,7 @@ def _ets_robot(r: _Reader, data: Mapping[str, Any], name: str) -> Robot:
 
 def robot_from_dict(data: Any, source: str) -> Any:
     """Build a robot (serial :class:`Robot` or five-bar) from parsed YAML ``data``."""
-    r = _Reader(source)
+    r = FieldReader(source)
     data = r.mapping(data, "(top level)")
     if data.get("kind") == "fivebar":
         from kincal.robots.fivebar import FiveBar

@@ -18,7 +18,6 @@ Every problem raises :class:`RobotFileError` with one line naming the field.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -27,12 +26,11 @@ import yaml
 
 from kincal.errors import RobotFileError
 from kincal.io import atomic_write_text
+from kincal.robots.files import ANGLE_UNITS, LENGTH_UNITS, FieldReader, read_units
 
 if TYPE_CHECKING:
     from kincal.robots.fivebar import FiveBar
 
-LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
-ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
 _TOP_KEYS = {
     "kind",
     "name",
@@ -48,15 +46,11 @@ _TOP_KEYS = {
 }
 
 
-class _Reader:
-    """Field access with one-line errors naming the file and the field."""
+class _Reader(FieldReader):
+    """The robot-file reader, naming the file by its base name, plus five-bar helpers."""
 
     def __init__(self, source: str) -> None:
-        self.source = source
-        self.label = Path(source).name if source else "robot file"
-
-    def fail(self, field: str, what: str) -> RobotFileError:
-        return RobotFileError(f"field '{field}' {what}", source=self.label)
+        super().__init__(Path(source).name if source else "robot file")
 
     def mapping(self, data: Any, field: str, required: bool = True) -> Mapping[str, Any]:
         if data is None and not required:
@@ -66,30 +60,23 @@ class _Reader:
             raise self.fail(field, return_what)
         return data
 
-    def number(
-        self,
-        data: Mapping[str, Any],
-        key: str,
-        prefix: str,
-        positive: bool = False,
-        default: float | None = None,
-    ) -> float:
+    def number_at(self, data: Mapping[str, Any], key: str, prefix: str,
+                  positive: bool = False, default: float | None = None) -> float:
+        """``data[key]`` as a finite float (positive if asked); ``default`` when absent."""
         field = f"{prefix}.{key}" if prefix else key
         if key not in data:
             if default is not None:
                 return default
             raise self.fail(field, "is missing")
-        value = data[key]
-        want = "must be a positive number" if positive else "must be a number"
-        if not isinstance(value, int | float) or isinstance(value, bool):
-            raise self.fail(field, want)
-        try:
-            number = float(value)
-        except OverflowError:
-            raise self.fail(field, f"{want} (an integer too large for a float)") from None
-        if not math.isfinite(number) or (positive and number <= 0):
-            raise self.fail(field, want)
-        return number
+        if not positive:
+            return self.number(data[key], field)
+        raw = data[key]
+        if isinstance(raw, bool) or not isinstance(raw, int | float):
+            raise self.fail(field, "must be a positive number")
+        value = self.number(raw, field)
+        if value <= 0:
+            raise self.fail(field, "must be a positive number")
+        return value
 
     def unknown(self, data: Mapping[str, Any], allowed: set[str], prefix: str) -> None:
         extra = sorted(str(k) for k in data if k not in allowed)
@@ -107,17 +94,13 @@ def fivebar_from_dict(cls: type[FiveBar], data: Mapping[str, Any], source: str) 
     if data.get("kind") != "fivebar":
         raise r.fail("kind", "must be 'fivebar'")
     r.unknown(data, _TOP_KEYS, "")
-    units = r.mapping(data.get("units"), "units")
-    r.unknown(units, {"length", "angle"}, "units")
-    if not isinstance(units.get("length"), str) or units["length"] not in LENGTH_UNITS:
-        raise r.fail("units.length", f"must be one of {', '.join(LENGTH_UNITS)}")
-    if not isinstance(units.get("angle"), str) or units["angle"] not in ANGLE_UNITS:
-        raise r.fail("units.angle", f"must be one of {', '.join(ANGLE_UNITS)}")
-    ls, an = LENGTH_UNITS[units["length"]], ANGLE_UNITS[units["angle"]]
+    r.unknown(r.mapping(data.get("units"), "units"), {"length", "angle"}, "units")
+    ls, an = read_units(r, data)
 
     links = r.mapping(data.get("links"), "links")
     r.unknown(links, {"l1", "l2", "l3", "l4"}, "links")
-    lengths = {k: ls * r.number(links, k, "links", positive=True) for k in ("l1", "l2", "l3", "l4")}
+    lengths = {k: ls * r.number_at(links, k, "links", positive=True)
+               for k in ("l1", "l2", "l3", "l4")}
 
     base_map = r.mapping(data.get("bases"), "bases")
     r.unknown(base_map, {"base1", "base2"}, "bases")
@@ -126,13 +109,13 @@ def fivebar_from_dict(cls: type[FiveBar], data: Mapping[str, Any], source: str) 
         entry = r.mapping(base_map.get(b), f"bases.{b}")
         r.unknown(entry, {"x", "y"}, f"bases.{b}")
         for c in ("x", "y"):
-            coords[f"{b}_{c}"] = ls * r.number(entry, c, f"bases.{b}")
+            coords[f"{b}_{c}"] = ls * r.number_at(entry, c, f"bases.{b}")
     if coords["base1_x"] == coords["base2_x"] and coords["base1_y"] == coords["base2_y"]:
         raise r.fail("bases.base2", "must differ from bases.base1")
 
     off = r.mapping(data.get("offsets"), "offsets", required=False)
     r.unknown(off, {"offset1", "offset2"}, "offsets")
-    offsets = {k: an * r.number(off, k, "offsets", default=0.0) for k in ("offset1", "offset2")}
+    offsets = {k: an * r.number_at(off, k, "offsets", default=0.0) for k in ("offset1", "offset2")}
 
     assembly = data.get("assembly", 1)
     if isinstance(assembly, bool) or assembly not in (1, -1):
