@@ -81,7 +81,7 @@ UNITS: dict[str, tuple[str, float]] = {
 TAG_PREFIX = "# kincal measurements:"
 
 #: Names that look like joint values or observations: never ignored silently.
-_LOOKS_MEASURED = re.compile(
+LOOKS_MEASURED = re.compile(
     r"(q|j|joint|theta|[xyz]|r[xyz]|roll|pitch|yaw|sigma|sigma_rot|range|distance"
     r"|azimuth|elevation|bearing|[uv])\d*", re.IGNORECASE)
 
@@ -405,7 +405,7 @@ def _a(word: str) -> str:
 
 
 def _looks_measured(base: str, jnames: Sequence[str]) -> bool:
-    if _LOOKS_MEASURED.fullmatch(base):
+    if LOOKS_MEASURED.fullmatch(base):
         return True
     low = base.lower()
     if any(low == j.lower() for j in jnames):

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text
 from kincal.measure.files import (
-    _LOOKS_MEASURED,
+    LOOKS_MEASURED,
     TAG_PREFIX,
     UNITS,
     Field,
@@ -177,7 +177,7 @@ def read_block_table(path: str | Path, robot: Any, instrument: str, fields: Sequ
 
 def _looks_like_data(base: str) -> bool:
     """True for names that look like a joint, a measurement or an instrument column."""
-    return bool(_LOOKS_MEASURED.fullmatch(base) or INSTRUMENT_WORDS.fullmatch(base))
+    return bool(LOOKS_MEASURED.fullmatch(base) or INSTRUMENT_WORDS.fullmatch(base))
 
 
 def _expected(fields: Sequence[Field], text: Mapping[str, str | None]) -> str:
