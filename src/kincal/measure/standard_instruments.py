@@ -292,13 +292,18 @@ def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = No
     return [block]
 
 
+#: Simulation options every tracker-like instrument takes.
+_COMMON_OPTIONS: dict[str, tuple[object, str]] = {
+    "name": ("tracker", "block name (prefix of the instrument's parameters)"),
+    "margin": (0.05, "fraction of each joint range kept away from the limits"),
+}
+
 POSITION = register(Instrument(
     name="position",
     description="points on the tool in an instrument frame (laser tracker, motion capture)",
     simulate=simulate_position, write=write_position, read=read_position,
     options={"markers": (1, "number of points measured on the tool per pose"),
-             "name": ("tracker", "block name (prefix of the instrument's parameters)"),
-             "margin": (0.05, "fraction of each joint range kept away from the limits")},
+             **_COMMON_OPTIONS},
     noise_unit="m"))
 
 POSE = register(Instrument(
@@ -306,6 +311,5 @@ POSE = register(Instrument(
     description="full pose of a frame on the tool in an instrument frame (6-DOF tracker)",
     simulate=simulate_pose, write=write_pose, read=read_pose,
     options={"orientation_noise_deg": (0.005, "orientation noise (deg, per axis)"),
-             "name": ("tracker", "block name (prefix of the instrument's parameters)"),
-             "margin": (0.05, "fraction of each joint range kept away from the limits")},
+             **_COMMON_OPTIONS},
     noise_unit="m"))

@@ -216,6 +216,7 @@ class FiveBar:
         (|J1J2| outside [|l3 - l4|, l3 + l4]) raise :class:`UnreachableError`,
         or give NaN rows with ``unreachable="nan"`` (mask: :meth:`fk_masked`).
         """
+        _check_unreachable(unreachable)
         x, ok = self.fk_masked(q, assembly)
         if unreachable == "raise" and not np.all(ok):
             qb, _ = _batch(q, "q")
@@ -228,8 +229,6 @@ class FiveBar:
                 f"[{abs(self.l3 - self.l4):.6g}, {self.l3 + self.l4:.6g}] m; "
                 f"{bad.size} of {qb.shape[0]} fail (unreachable='nan' gives NaN and a mask)"
             )
-        if unreachable not in ("raise", "nan"):
-            raise KincalError(f"unreachable must be 'raise' or 'nan', not {unreachable!r}")
         return x
 
     def ik_masked(
@@ -253,6 +252,7 @@ class FiveBar:
         beta_i = atan2(x - B_i) + s_i alpha_i, alpha_i the angle at B_i of the
         triangle (l_i, |x - B_i|, l_{i+2}); q_i = beta_i - offset_i.
         """
+        _check_unreachable(unreachable)
         q, ok = self.ik_masked(x, mode)
         if unreachable == "raise" and not np.all(ok):
             xb, _ = _batch(x, "x")
@@ -268,8 +268,6 @@ class FiveBar:
                 f"[{abs(self.l2 - self.l4):.6g}, {self.l2 + self.l4:.6g}] m; "
                 f"{bad.size} of {xb.shape[0]} fail (unreachable='nan' gives NaN and a mask)"
             )
-        if unreachable not in ("raise", "nan"):
-            raise KincalError(f"unreachable must be 'raise' or 'nan', not {unreachable!r}")
         return q
 
     def ik_with_passive(
@@ -400,3 +398,9 @@ def load_fivebar(name_or_path: str | Path) -> FiveBar:
             )
         path = candidate
     return FiveBar.from_file(path)
+
+
+def _check_unreachable(unreachable: str) -> None:
+    """``unreachable`` must say what to do with unreachable rows: 'raise' or 'nan'."""
+    if unreachable not in ("raise", "nan"):
+        raise KincalError(f"unreachable must be 'raise' or 'nan', not {unreachable!r}")
