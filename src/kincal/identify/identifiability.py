@@ -36,7 +36,10 @@ Priority (lower first; ties keep the given order):
    geometry (roles other than the robot's);
 1. robot joint-chain parameters (roles ``offset``, ``length``, ``angle``) in chain order;
 2. the robot's ``base.*`` frame;
-3. the robot's ``tool.*`` frame.
+3. the robot's ``tool.*`` frame;
+4. non-geometric terms (roles ``compliance``, ``hysteresis``, ``deflection``): an
+   effect the geometry can explain is given to the geometry (a joint always
+   approached from the same side has a hysteresis that is its offset).
 
 So an unknown tracker frame takes the place of the robot's base frame and of the
 first joint's offset (the absolute zero of joint 1 cannot be seen from a tracker
@@ -67,6 +70,8 @@ ZERO_TOL = 1e-9
 COEF_TOL = 1e-6
 
 ROBOT_CHAIN_ROLES = ("offset", "length", "angle")
+#: Roles of non-geometric block parameters (joint deflection models): kept last.
+NON_GEOMETRIC_ROLES = ("compliance", "hysteresis", "deflection")
 
 
 @dataclass
@@ -172,6 +177,8 @@ def default_priority(names: Sequence[str], roles: Sequence[str] | None = None) -
             pri[i] = 2
         elif role == "tool" or (role is None and n.startswith("tool.")):
             pri[i] = 3
+        elif role in NON_GEOMETRIC_ROLES:
+            pri[i] = 4
         elif role is not None and role not in ROBOT_CHAIN_ROLES:
             pri[i] = 0
     return pri

@@ -528,6 +528,10 @@ def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProb
             raise KincalError(f"measurements {b.name!r} have {b.q.shape[-1]} joint values per "
                               f"row; robot {robot.name!r} has {robot.n} joints")
         spec = b.parameters()
+        if len(set(spec.names)) != len(spec.names):
+            twice = next(n for n in spec.names if spec.names.count(n) > 1)
+            raise KincalError(f"block {b.name!r} lists parameter {twice!r} twice (e.g. the "
+                              "same deflection model wrapped around it twice)")
         clash = set(spec.names) & set(names)
         if clash:
             raise KincalError(f"parameter name {sorted(clash)[0]!r} of block {b.name!r} is "
