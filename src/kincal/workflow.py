@@ -51,6 +51,7 @@ from kincal.flow_options import (
     parse_selection,
     parse_stages,
 )
+from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
 from kincal.report_sections import artifact_figures, figures_section_html, patent_section_html
 
 Array = NDArray[np.float64]
@@ -276,6 +277,13 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         "before: nominal robot, instrument frames and markers fitted to it; after: "
         "calibrated robot and frames")]
     warnings: list[str] = []
+    if prior_s and not 1 / 3 <= res.sigma0 <= 3:
+        warnings.append(
+            f"--prior: the residuals are {res.sigma0:.3g} times the measurements' standard "
+            "deviations (the files' sigma columns, or the default for files without one), "
+            f"so the data weigh {res.sigma0 ** 2:.3g} times too "
+            f"{'much' if res.sigma0 > 1 else 'little'} against the prior; give the files "
+            "a sigma column with the instrument's real uncertainty")
     if holdouts:
         comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
                                          after, validation_frames, warnings))
@@ -343,7 +351,8 @@ def _training_twin(h: Any, blocks: Sequence[Any]) -> Any:
 def reregister(robot: Any, h: Any, twin: Any, twin_values: Array | None) -> Array:
     """Fit ``h``'s instrument frame to ``robot`` (held fixed); other block parameters from
     the training twin when it has them (matched by name after the block prefix).  Without
-    a twin every block parameter is fitted (the "registration only" fit)."""
+    a twin every block parameter is fitted (the "registration only" fit) except the
+    non-geometric joint model's (compliance, hysteresis), held at 0."""
     from kincal.identify.solver import calibrate
 
     spec = h.parameters()
@@ -358,6 +367,8 @@ def reregister(robot: Any, h: Any, twin: Any, twin_values: Array | None) -> Arra
         suffix = n[len(h.name) + 1:]
         if role != "instrument" and suffix in known:
             init[n] = known[suffix]
+        elif role in NON_GEOMETRIC_ROLES:
+            init[n] = 0.0           # no calibrated joint model: the encoders as they read
         else:
             free.append(n)
     if not free:

@@ -24,12 +24,14 @@ from kincal.cli.calibration_common import (
     BaseLink,
     DataOpt,
     IgnoreOpt,
+    JointModelOpt,
     JsonOpt,
     Progress,
     RobotArg,
     TipLink,
     UnitsOpt,
     is_fivebar,
+    joint_masses,
     load,
     out_console,
     print_errors,
@@ -41,6 +43,7 @@ from kincal.cli.calibration_common import (
     serial,
 )
 from kincal.errors import KincalError
+from kincal.joint_model import parse_joint_model, with_joint_model
 from kincal.workflow import (
     check_flow_options,
     check_options_used,
@@ -157,6 +160,7 @@ def calibrate_cmd(
         "unit, e.g. '*.origin.*=1mm,*.origin.r?=0.1deg' (a length applies to the matched "
         "lengths, an angle to the matched angles; later entries win). Does not change "
         "which parameters are estimated.")] = None,
+    joint_model: JointModelOpt = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     validation_frames: Annotated[str, typer.Option(
         "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
@@ -184,8 +188,8 @@ def calibrate_cmd(
             raise KincalError("five-bar calibration takes one --data file")
         if procedure != "lm":
             raise KincalError("--procedure patent works on serial robots")
-        if prior:
-            raise KincalError("--prior works on serial robots")
+        if prior or joint_model:
+            raise KincalError("--prior and --joint-model work on serial robots")
         calibrate_fivebar_file(r, data[0], output, json_out, report, method)
         return
     tolerance = tolerance_mm * 1e-3 if tolerance_mm is not None else None
@@ -193,10 +197,13 @@ def calibrate_cmd(
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior)
+    terms = parse_joint_model(joint_model)
+    masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     all_files = list(data) + list(validate_files or [])
     check_options_used(all_files, units, ignore)
-    blocks = read_blocks(data, r, units, ignore, out)
-    holdouts = read_blocks(validate_files or [], r, units, ignore, out)
+    blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
+    holdouts = with_joint_model(read_blocks(validate_files or [], r, units, ignore, out), r,
+                                terms, masses)
     truth_vals = truth_values(truth) if truth else None
     if urdf is None and output and r.meta.get("convention") == "urdf":
         urdf = str(Path(output).with_suffix(".urdf"))
@@ -213,7 +220,7 @@ def calibrate_cmd(
               "procedure": procedure, "method": method, "loss": loss,
               "stages": stages or "all", "validation frames": validation_frames,
               "free": free or "automatic (identifiable set)", "fixed": fix or "-",
-              "prior": prior or "-"}
+              "prior": prior or "-", "joint model": ", ".join(terms) or "geometric only"}
     if procedure == "patent":
         inputs.update({"method": "patent (two stages: angles, then lengths)", "stages":
                        "angles, lengths",
@@ -230,6 +237,10 @@ def calibrate_cmd(
         out.print(f"MAP estimate: {len(res.prior)} estimated parameter(s) have a Gaussian "
                   f"prior centred on their initial (nominal) value ({escape(prior or '')}); column "
                   "'prior (1σ)'. The prior does not change which parameters are estimated.")
+    if terms:
+        out.print(escape(f"joint model: {', '.join(terms)} (parameters {{block}}.h[joint] "
+                         "[rad, m] and {block}.k[joint] [rad/(N m), m/N] in the table and the "
+                         "JSON; the robot file holds the geometry only)"))
     print_parameters(out, res, all_parameters)
     print_errors(out, flow.comparisons)
     print_identifiability(out, res)
@@ -255,6 +266,7 @@ def validate_cmd(
     nominal: Annotated[str | None, typer.Option("--before", help="Also evaluate this robot "
                                                 "(e.g. the nominal one) the same way, for a "
                                                 "before/after table.")] = None,
+    joint_model: JointModelOpt = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
 ) -> None:
@@ -269,8 +281,13 @@ def validate_cmd(
     out = out_console(json_out)
     r = serial(load(robot, base_link, tip_link), "validate")
     before = serial(load(nominal, base_link, tip_link), "validate") if nominal else None
+    terms = parse_joint_model(joint_model)
+    if terms and not result:
+        raise KincalError("--joint-model needs --result: the joint model's coefficients "
+                          "come from the calibration")
+    masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
-    blocks = read_blocks(data, r, units, ignore, out)
+    blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
     extras = extras_from_result(result) if result else None
     how = "frames from " + result if result else "instrument re-registered on this file"
     comps = validate_blocks(r, blocks, before, extras, how)

@@ -39,6 +39,12 @@ IgnoreOpt = Annotated[list[str] | None, typer.Option(
     "--ignore", help="Columns to drop on purpose, comma separated, * and ? allowed "
     "('x2,y2,z2' or '?2,?3'). Columns that look like joints or measurements are never "
     "dropped silently.")]
+JointModelOpt = Annotated[str | None, typer.Option(
+    "--joint-model", metavar="TERMS", help="Non-geometric joint model, comma separated: "
+    "'hysteresis' (each joint lags its encoder by a play, in the direction it last moved; "
+    "needs the rows of every file in the order measured) and/or 'compliance' (each joint "
+    "yields under its gravity load; needs a URDF robot with <inertial> masses). Default: "
+    "geometric only.")]
 LengthUnit = Annotated[str, typer.Option("--length-unit", help="Length unit of written CSV "
                                          "files: m, mm, um.")]
 AngleUnit = Annotated[str, typer.Option("--angle-unit", help="Angle unit of written CSV files: "
@@ -56,6 +62,22 @@ def load(spec: str, base_link: str | None = None, tip_link: str | None = None) -
     from kincal.robots.files import load_robot
 
     return load_robot(spec, base_link=base_link, tip_link=tip_link)
+
+
+def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None = None
+                 ) -> list[Any]:
+    """Link masses of ROBOT for ``--joint-model compliance``: a URDF's ``<inertial>``
+    elements on the chain ``base_link -> tip_link``; a one-line error otherwise."""
+    from kincal.robots.urdf import load_urdf_inertials
+
+    if not str(spec).lower().endswith(".urdf"):
+        raise KincalError(f"--joint-model compliance needs the link masses: {spec!r} is not a "
+                          "URDF file (give the robot as a URDF with <inertial> elements)")
+    masses = load_urdf_inertials(spec, base_link=base_link, tip_link=tip_link)
+    if not masses:
+        raise KincalError(f"--joint-model compliance: {spec!r} has no <inertial> mass on the "
+                          "chain", source=str(spec))
+    return masses
 
 
 def is_fivebar(robot: Any) -> bool:

@@ -1,0 +1,146 @@
+"""``--joint-model`` end to end: a simulated PUMA 560 whose joints have play, measured in
+the order of its postures, calibrated and validated from the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_helpers import run
+
+from kincal.measure.files import write_table
+from kincal.measure.hysteresis import approach_directions
+from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.robots.files import load_robot
+
+NOISE = 20e-6                                                    # m per coordinate
+H_TRUE = np.array([-1.5e-3, -4e-3, -2.5e-3, -6e-3, -3e-3, -8e-3])  # rad, the play (lag)
+INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]
+MARKER = np.array([[0.05, 0.0, 0.1]])
+
+
+def _session(path, true, q, rng):
+    """A tracker file of the true robot with play, rows in the order measured."""
+    sim = simulate_positions(true, q + H_TRUE * approach_directions(q), rng, NOISE,
+                             INSTRUMENT, MARKER)
+    y = sim.positions
+    write_table(path, q, [(c, y[:, k], "length") for k, c in enumerate("xyz")],
+                robot=true, tags={"instrument": "position", "name": "tracker"},
+                length_unit="mm", angle_unit="deg")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("play")
+    nominal = load_robot("puma560")
+    rng = np.random.default_rng(21)
+    true = perturb_robot(nominal, rng, names=[n for n in nominal.param_names if n != "d[3]"
+                                              and not n.startswith(("base.", "tool."))])
+    _session(d / "train.csv", true, random_configurations(nominal, 80, rng), rng)
+    _session(d / "hold.csv", true, random_configurations(nominal, 40, rng), rng)
+    return d
+
+
+def _calibrate(capsys, d, *extra):
+    code, out, err = run(capsys, "calibrate", "puma560", "--data", d / "train.csv",
+                         "--validate", d / "hold.csv", "-o", d / "cal.yaml",
+                         "--json", d / "res.json", *extra)
+    assert code == 0, err
+    return out, json.loads((d / "res.json").read_text())
+
+
+def test_hysteresis_is_recovered_and_validates_at_the_noise(capsys, files):
+    out, doc = _calibrate(capsys, files, "--joint-model", "hysteresis")
+    assert "joint model: hysteresis" in out
+    par = {p["name"]: p for p in doc["parameters"]}
+    for j, h in enumerate(H_TRUE, start=1):
+        p = par[f"tracker.h[q{j}]"]
+        assert p["identifiable"] and abs(p["estimate"] - h) < 4 * p["std"], (j, p)
+    # held-out RMS of the 3-D error: sqrt(3) x the per-coordinate noise (+ a little for
+    # the parameters' uncertainty); without the joint model the play is left over
+    v = doc["metrics"]["validation"]["rms_position_m"]
+    assert v < 1.3 * np.sqrt(3) * NOISE, v
+    _, plain = _calibrate(capsys, files)
+    assert plain["metrics"]["validation"]["rms_position_m"] > 5 * v
+    assert not any(".h[" in p["name"] for p in plain["parameters"])
+
+
+def test_validate_uses_the_calibrated_joint_model(capsys, files):
+    _calibrate(capsys, files, "--joint-model", "hysteresis")
+    args = ["validate", files / "cal.yaml", "--data", files / "hold.csv", "--result",
+            files / "res.json", "--json", files / "val.json"]
+    code, _, err = run(capsys, *args, "--joint-model", "hysteresis")
+    assert code == 0, err
+    with_model = json.loads((files / "val.json").read_text())["overall"]["rms_position_m"]
+    code, _, err = run(capsys, *args)
+    assert code == 0, err
+    without = json.loads((files / "val.json").read_text())["overall"]["rms_position_m"]
+    assert with_model < 1.3 * np.sqrt(3) * NOISE < without / 5, (with_model, without)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--joint-model", "backlash"], "option --joint-model: unknown term 'backlash'"),
+    (["--joint-model", "hysteresis,hysteresis"], "listed twice"),
+    (["--joint-model", "compliance"], "'puma560' is not a URDF file"),
+])
+def test_bad_joint_model_is_one_line(capsys, files, args, message):
+    out_file = files / "bad.yaml"
+    code, out, err = run(capsys, "calibrate", "puma560", "--data", files / "train.csv",
+                         "-o", out_file, *args)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not out_file.exists()
+
+
+def test_validate_needs_the_result_for_a_joint_model(capsys, files):
+    code, _, err = run(capsys, "validate", "puma560", "--data", files / "hold.csv",
+                       "--joint-model", "hysteresis")
+    assert code == 2 and "--joint-model needs --result" in err
+
+
+TIAGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "tiago_mocap"
+
+
+@pytest.mark.skipif(not TIAGO.is_dir(), reason=f"real TIAGo data not found at {TIAGO}")
+def test_tiago_from_the_command_line(capsys, tmp_path):
+    """The leave-one-out choice of test_real_tiago (least squares + gravity compliance +
+    hysteresis, all four markers) from the command line: the same 56 parameters and the
+    same arm_6 play as the library call."""
+    code, out, err = run(
+        capsys, "calibrate", TIAGO / "tiago_48_schunk.urdf", "--tip-link", "wrist_ft_tool_link",
+        "--data", TIAGO / "train_2021-11-30.csv", "--validate",
+        TIAGO / "validation_2021-11-26.csv", "--validation-frames", "training",
+        "--units", "x?=m,y?=m,z?=m,torso_lift_joint=m,arm_?_joint=rad",
+        "--ignore", "shipped_row,t_start_robot,t_end_robot,marker_std_mm",
+        "--joint-model", "hysteresis,compliance", "-o", tmp_path / "cal.yaml",
+        "--json", tmp_path / "res.json")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "res.json").read_text())
+    par = {p["name"]: p for p in doc["parameters"]}
+    assert doc["identifiable_count"] == 56
+    h6, k6 = par["tracker.h[arm_6_joint]"], par["tracker.k[arm_6_joint]"]
+    assert h6["estimate"] == pytest.approx(-5.8e-3, abs=0.1e-3), h6
+    assert h6["std"] == pytest.approx(0.6e-3, abs=0.1e-3), h6
+    assert 0.02 < k6["estimate"] < 0.03 and k6["std"] < 0.003, k6
+    assert not par["tracker.k[arm_1_joint]"]["identifiable"]
+    m = doc["metrics"]
+    print(f"\nTIAGo CLI, all four markers, hysteresis + compliance: train "
+          f"{m['train']['rms_position_m'] * 1e3:.3f} mm, validation "
+          f"{m['validation']['rms_position_m'] * 1e3:.3f} mm")
+    assert m["validation"]["rms_position_m"] < 3.2e-3
+
+
+@pytest.mark.skipif(not TIAGO.is_dir(), reason=f"real TIAGo data not found at {TIAGO}")
+def test_prior_with_unrealistic_measurement_sigma_warns(capsys, tmp_path):
+    """The TIAGo files have no sigma column, so the 10 um default applies while the
+    residuals are millimetres: a MAP prior would weigh ~3000x too little; say so."""
+    code, out, err = run(
+        capsys, "calibrate", TIAGO / "tiago_48_schunk.urdf", "--tip-link", "wrist_ft_tool_link",
+        "--data", TIAGO / "train_2021-11-30.csv", "--units",
+        "x1=m,y1=m,z1=m,torso_lift_joint=m,arm_?_joint=rad", "--ignore",
+        "x2,y2,z2,x3,y3,z3,x4,y4,z4,shipped_row,t_start_robot,t_end_robot,marker_std_mm",
+        "--prior", "*.origin.*=1mm,*.origin.r?=0.1deg")
+    assert code == 0, err
+    text = " ".join(out.split())
+    assert "--prior: the residuals are" in text and "give the files a sigma column" in text
