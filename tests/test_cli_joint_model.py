@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cli_helpers import run
+from test_compliance import perturbed_puma
 
 from kincal.measure.files import write_table
 from kincal.measure.hysteresis import approach_directions
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.robots.files import load_robot
 
 NOISE = 20e-6                                                    # m per coordinate
@@ -36,8 +37,7 @@ def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("play")
     nominal = load_robot("puma560")
     rng = np.random.default_rng(21)
-    true = perturb_robot(nominal, rng, names=[n for n in nominal.param_names if n != "d[3]"
-                                              and not n.startswith(("base.", "tool."))])
+    true = perturbed_puma(nominal, rng)
     _session(d / "train.csv", true, random_configurations(nominal, 80, rng), rng)
     _session(d / "hold.csv", true, random_configurations(nominal, 40, rng), rng)
     return d

@@ -154,14 +154,23 @@ def _simulate(robot_true, robot_nominal, q, k, masses, rng):
     return PositionMeasurement(q, sim.positions, 1e-5, "tracker", markers=3), tau
 
 
+#: Compliances of the simulated PUMA [rad/(N m)]; joints 1 and 6 carry no load.
+K_TRUE = np.array([0.0, 2e-3, 5e-3, 3e-2, 8e-2, 0.0])
+
+
+def perturbed_puma(nominal, rng):
+    """A "true" PUMA 560: errors on the chain's parameters, except d[3]: with nominally
+    parallel axes 2-3 it is held as dependent on d[2], which absorbs it only while the
+    axes stay parallel."""
+    return perturb_robot(nominal, rng, names=[n for n in nominal.param_names if n != "d[3]"
+                                              and not n.startswith(("base.", "tool."))])
+
+
 def test_noise_free_recovery_of_known_compliances():
     nominal = load_robot("puma560")
     rng = np.random.default_rng(7)
-    # errors on the chain's parameters, except d[3]: with nominally parallel axes 2-3 it
-    # is held as dependent on d[2], which absorbs it only while the axes stay parallel
-    true = perturb_robot(nominal, rng, names=[n for n in nominal.param_names if n != "d[3]"
-                                              and not n.startswith(("base.", "tool."))])
-    k_true = np.array([0.0, 2e-3, 5e-3, 3e-2, 8e-2, 0.0])       # rad/(N m)
+    true = perturbed_puma(nominal, rng)
+    k_true = K_TRUE
     q = random_configurations(nominal, 60, rng)
     inner, _ = _simulate(true, nominal, q, k_true, PUMA_MASSES, rng)
     block = JointCompliance.gravity(inner, nominal, PUMA_MASSES, joints=["q2", "q3", "q4",

@@ -6,7 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_compliance import INSTRUMENT, MARKERS, PUMA_MASSES, central_differences
+from test_compliance import (
+    INSTRUMENT,
+    K_TRUE,
+    MARKERS,
+    PUMA_MASSES,
+    central_differences,
+    perturbed_puma,
+)
 
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
@@ -14,7 +21,7 @@ from kincal.measure.base import stack
 from kincal.measure.compliance import JointCompliance
 from kincal.measure.hysteresis import JointHysteresis, approach_directions
 from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.robots.files import load_robot
 from kincal.robots.gravity import gravity_torques
 
@@ -112,9 +119,8 @@ def test_effective_configurations_and_subsets():
 def test_noise_free_recovery_of_known_play_with_geometry_and_compliance():
     nominal = load_robot("puma560")
     rng = np.random.default_rng(11)
-    true = perturb_robot(nominal, rng, names=[n for n in nominal.param_names if n != "d[3]"
-                                              and not n.startswith(("base.", "tool."))])
-    k_true = np.array([0.0, 2e-3, 5e-3, 3e-2, 8e-2, 0.0])       # rad/(N m)
+    true = perturbed_puma(nominal, rng)
+    k_true = K_TRUE
     q = _sequence(nominal, 80, rng)
     inner = _simulate(true, nominal, q, H_TRUE, rng, k=k_true)
     block = JointCompliance.gravity(JointHysteresis(inner, nominal), nominal, PUMA_MASSES,
