@@ -144,3 +144,33 @@ def test_prior_with_unrealistic_measurement_sigma_warns(capsys, tmp_path):
     assert code == 0, err
     text = " ".join(out.split())
     assert "--prior: the residuals are" in text and "give the files a sigma column" in text
+
+
+def test_cross_validation_compares_models_on_training_alone(capsys, files):
+    """--cross-validate K: the held-out-fold RMS of each model, from the training file;
+    the model with the play predicts at the noise floor, the geometric one does not."""
+    cv = {}
+    for jm in ([], ["--joint-model", "hysteresis"]):
+        out, doc = _calibrate(capsys, files, "--cross-validate", "5", *jm)
+        c = doc["metrics"]["cross_validation"]
+        assert c["folds"] == 5 and c["seed"] == 0 and c["split"] == "rows"
+        assert "5-fold cross-validation on the training file" in " ".join(out.split())
+        cv[bool(jm)] = c["rms_position_m"]
+    assert cv[True] < 1.3 * np.sqrt(3) * NOISE < cv[False] / 5, cv
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--cross-validate", "1"], "needs at least 2 folds"),
+    (["--cross-validate", "3", "--procedure", "patent"], "works with --procedure lm"),
+])
+def test_bad_cross_validation_is_one_line(capsys, files, args, message):
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", files / "train.csv",
+                       "-o", files / "bad.yaml", *args)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not (files / "bad.yaml").exists()
+
+
+def test_cross_validation_takes_one_training_file(capsys, files):
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", files / "train.csv",
+                       "--data", files / "hold.csv", "--cross-validate", "3")
+    assert code == 2 and "takes one training file (got 2)" in err

@@ -150,6 +150,8 @@ class FlowResult:
         train: the training blocks used (the patent's selection keeps only some
             placements); ``before`` / ``after``: their block parameters fitted to the
             nominal robot / estimated with the calibrated one, by block name.
+        cross_validation: with ``run_flow(cross_validate=K)``: ``{"folds": K, "seed":
+            0, "split": "rows" | "placements", "rms_<kind>": pooled held-out RMS}``.
     """
 
     result: Any
@@ -160,6 +162,7 @@ class FlowResult:
     train: list[Any] = dataclasses.field(default_factory=list)
     before: dict[str, Array] = dataclasses.field(default_factory=dict)
     after: dict[str, Array] = dataclasses.field(default_factory=dict)
+    cross_validation: dict[str, Any] | None = None
 
 
 def errors_with(robot: Any, block: Any, extra: Array) -> dict[str, Array]:
@@ -206,7 +209,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              max_iter: int | None = None, validation_frames: str = "auto",
              procedure: str = "lm", condition_growth: float | None = None,
              cycles: int | None = None, tolerance: float | None = None,
-             prior: str | None = None,
+             prior: str | None = None, cross_validate: int | None = None,
              progress: Callable[[Any], Any] | None = None) -> FlowResult:
     """Calibrate, then compute the errors before/after on the training and held-out data.
 
@@ -230,6 +233,10 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         prior: ``--prior`` text (:func:`parse_prior`, e.g. ``"*.origin.*=1mm"``): a
             maximum a-posteriori estimate with Gaussian priors centred on the nominal
             values (``procedure="lm"``).
+        cross_validate: K-fold cross-validation of the same calibration on the training
+            data (:func:`~kincal.identify.validation.cross_validate`, folds drawn with
+            seed 0; one training block, ``procedure="lm"``): how well the chosen model
+            predicts measurements it was not fitted to, from the training data alone.
         progress: called with every :class:`~kincal.identify.solver.IterationRecord`.
 
     *Before* = the nominal robot with the instruments registered to it (only the
@@ -257,16 +264,32 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     check_flow_options(procedure=procedure, method=method, loss=loss, stages=stages,
                        validation_frames=validation_frames, condition_growth=condition_growth,
                        cycles=cycles, tolerance=tolerance, prior=prior)
+    if cross_validate is not None:
+        if procedure != "lm":
+            raise KincalError("--cross-validate works with --procedure lm")
+        if len(blocks) != 1:
+            raise KincalError(f"--cross-validate takes one training file (got {len(blocks)})")
+        if cross_validate < 2:
+            raise KincalError(f"option --cross-validate: needs at least 2 folds (got "
+                              f"{cross_validate})")
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
     prior_s = parse_prior(prior, prob.names, prob.units)
+    options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
+               "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
+               "tolerance": tolerance, "prior": prior_s}
     t0 = time.perf_counter()
-    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress,
-                     {"method": method, "stages": stages, "loss": loss,
-                      "loss_scale": loss_scale, "max_iter": max_iter,
-                      "condition_growth": condition_growth, "cycles": cycles,
-                      "tolerance": tolerance, "prior": prior_s})
+    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
     seconds = time.perf_counter() - t0
+    cv = None
+    if cross_validate is not None:
+        from kincal.identify.validation import cross_validate as k_fold
+
+        got = k_fold(robot, blocks[0], folds=cross_validate, rng=np.random.default_rng(0),
+                     free=free_names, fixed=fixed, method=method, stages=stages, loss=loss,
+                     loss_scale=loss_scale, max_iter=max_iter or 100, prior=prior_s or None)
+        cv = {"folds": cross_validate, "seed": 0, "split": got["split"],
+              **{k: v for k, v in got.items() if k.startswith("rms_")}}
     train = _with_origin(res.problem.blocks, blocks)
     before = {b.name: reregister(robot, b, None, None) for b in train}
     after = {b.name: res.theta[res.problem.block_slice(b.name)] for b in train}
@@ -287,7 +310,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     if holdouts:
         comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
                                          after, validation_frames, warnings))
-    return FlowResult(res, comps, seconds, warnings, robot, train, before, after)
+    return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv)
 
 
 def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdouts: list[Any],
@@ -501,6 +524,8 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         if info is not None:
             more["patent"] = info.to_dict()
         doc = result_json(res, flow.comparisons, {"inputs": inputs, **more})
+        if flow.cross_validation is not None:
+            doc["metrics"]["cross_validation"] = dict(flow.cross_validation)
         doc["outputs"] = dict(planned)
         contents["json"] = json.dumps(doc, indent=2, default=_jsonable) + "\n"
         planned["json"] = json_out

@@ -34,6 +34,7 @@ from kincal.cli.calibration_common import (
     joint_masses,
     load,
     out_console,
+    print_cross_validation,
     print_errors,
     print_identifiability,
     print_parameters,
@@ -161,6 +162,11 @@ def calibrate_cmd(
         "lengths, an angle to the matched angles; later entries win). Does not change "
         "which parameters are estimated.")] = None,
     joint_model: JointModelOpt = None,
+    cross_validate: Annotated[int | None, typer.Option(
+        "--cross-validate", metavar="K", help="Also run K-fold cross-validation of the same "
+        "calibration on the training file (folds drawn with seed 0): the RMS error on "
+        "measurements each fold was not fitted to. Compare models (--joint-model, --prior, "
+        "markers) by it, not by the validation file.")] = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     validation_frames: Annotated[str, typer.Option(
         "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
@@ -213,7 +219,8 @@ def calibrate_cmd(
                         method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
                         validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
-                        tolerance=tolerance, prior=prior, progress=bar)
+                        tolerance=tolerance, prior=prior, cross_validate=cross_validate,
+                        progress=bar)
     res = flow.result
     inputs = {"robot": robot, "data": ", ".join(data),
               "validation": ", ".join(validate_files or []) or "-",
@@ -243,6 +250,8 @@ def calibrate_cmd(
                          "JSON; the robot file holds the geometry only)"))
     print_parameters(out, res, all_parameters)
     print_errors(out, flow.comparisons)
+    if flow.cross_validation is not None:
+        print_cross_validation(out, flow.cross_validation)
     print_identifiability(out, res)
     info: Any = getattr(res, "patent", None)
     if info is not None:

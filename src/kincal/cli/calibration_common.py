@@ -80,6 +80,18 @@ def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None =
     return masses
 
 
+def print_cross_validation(out: Any, cv: dict[str, Any]) -> None:
+    """One line per error kind of ``run_flow(cross_validate=K)`` (mm / deg / px)."""
+    from kincal.report import quantity
+
+    for key, v in cv.items():
+        if key.startswith("rms_"):
+            name, f, unit = quantity(key[4:])
+            out.print(f"{cv['folds']}-fold cross-validation on the training file (seed "
+                      f"{cv['seed']}, split by {cv['split']}): RMS {escape(name)} "
+                      f"{v * f:.4g} {escape(unit)} on held-out folds")
+
+
 def is_fivebar(robot: Any) -> bool:
     return type(robot).__name__ == "FiveBar"
 
