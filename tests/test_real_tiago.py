@@ -69,7 +69,7 @@ import numpy as np
 import pytest
 
 from kincal.identify.solver import calibrate
-from kincal.identify.validation import validate
+from kincal.identify.validation import cross_validate, validate
 from kincal.measure.compliance import JointCompliance
 from kincal.measure.hysteresis import JointHysteresis
 from kincal.measure.models import PositionMeasurement
@@ -369,21 +369,16 @@ def test_validation_by_posture_group(data, full):
 
 
 def _cv_rms_mm(robot, block, terms, options, folds=10, seed=0):
-    """K-fold cross-validation inside one session: point-1 RMS [mm] of held-out postures,
-    each fold predicted with the frames and parameters fitted on the other folds
-    (``folds=None``: leave one out).  The model is built on the whole session and split
-    afterwards, so a held-out posture keeps the direction it was approached from."""
-    whole = model(robot, block, terms)
-    parts = ([np.array([i]) for i in range(block.N)] if folds is None else
-             np.array_split(np.random.default_rng(seed).permutation(block.N), folds))
-    errs = []
-    for part in parts:
-        test = np.sort(part)
-        res = calibrate(robot, [whole.subset(np.setdiff1d(np.arange(block.N), test))],
-                        **options)
-        e = whole.subset(test).errors(res.robot, res.theta[res.problem.slices[0]])
-        errs.append(e["position_m"].reshape(len(test), -1)[:, 0])
-    return float(np.sqrt(np.mean(np.concatenate(errs) ** 2))) * 1e3
+    """K-fold cross-validation inside one session (:func:`cross_validate`): point-1 RMS
+    [mm] of held-out postures, each fold predicted with the frames and parameters fitted
+    on the other folds (``folds=None``: leave one out).  The model is built on the whole
+    session and split afterwards, so a held-out posture keeps the direction it was
+    approached from."""
+    rng = None if folds is None else np.random.default_rng(seed)
+    cv = cross_validate(robot, model(robot, block, terms), folds or block.N, rng, **options)
+    point1 = [e.reshape(len(rows), -1)[:, 0]
+              for e, rows in zip(cv["errors"]["position_m"], cv["held_out"], strict=True)]
+    return float(np.sqrt(np.mean(np.concatenate(point1) ** 2))) * 1e3
 
 
 def _sessions(robot):

@@ -181,7 +181,9 @@ def cross_validate(robot: Robot, block: Any, folds: int = 5, rng: np.random.Gene
     Returns:
         ``{"rms_k": pooled RMS of error kind k over all held-out errors (e.g.
         rms_position_m, rms_distance_m), "folds": [per-fold overall stats],
-        "results": [the folds' CalibrationResult], "split": "rows" | "placements"}``.
+        "results": [the folds' CalibrationResult], "split": "rows" | "placements",
+        "held_out": [per fold, the indices of its held-out rows / placements],
+        "errors": {kind: [per fold, the held-out errors as the block gives them]}}``.
     """
     from kincal.identify.solver import calibrate
 
@@ -191,8 +193,8 @@ def cross_validate(robot: Robot, block: Any, folds: int = 5, rng: np.random.Gene
                           f"2 and its number of {split} ({len(units)}), got {folds}")
     order = np.arange(len(units)) if rng is None else rng.permutation(len(units))
     parts = np.array_split(order, folds)
-    stats, results = [], []
-    pooled: dict[str, list[Array]] = {}
+    stats, results, held_out = [], [], []
+    per_fold: dict[str, list[Array]] = {}
     for k in range(folds):
         test = np.sort(parts[k])
         train = np.sort(np.concatenate([parts[j] for j in range(folds) if j != k]))
@@ -201,10 +203,13 @@ def cross_validate(robot: Robot, block: Any, folds: int = 5, rng: np.random.Gene
         v = validate(res.robot, [held], extras=res.extras())
         stats.append(v["overall"])
         results.append(res)
+        held_out.append(test)
         e = np.array([v["extras"][held.name][n] for n in held.parameters().names])
         for key, err in held.errors(res.robot, e).items():
-            pooled.setdefault(key, []).append(np.ravel(err))
-    out: dict[str, Any] = {f"rms_{key}": float(np.sqrt(np.mean(np.concatenate(v) ** 2)))
-                           for key, v in pooled.items()}
-    out.update({"folds": stats, "results": results, "split": split})
+            per_fold.setdefault(key, []).append(np.asarray(err, dtype=float))
+    out: dict[str, Any] = {
+        f"rms_{key}": float(np.sqrt(np.mean(np.concatenate([x.ravel() for x in v]) ** 2)))
+        for key, v in per_fold.items()}
+    out.update({"folds": stats, "results": results, "split": split, "held_out": held_out,
+                "errors": per_fold})
     return out
