@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_models import central_differences, stanford
 
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
@@ -31,11 +32,6 @@ PUMA_MASSES = [PointMass(0, 13.0, (0.0, 0.0, 0.3)), PointMass(1, 17.4, (0.2, 0.0
                PointMass(4, 0.34, (0.0, 0.03, 0.0)), PointMass(5, 0.09, (0.0, 0.0, 0.03))]
 
 
-def stanford():
-    """The library Stanford arm (RRPRRR, prismatic third joint) with a tool offset."""
-    return load_robot("stanford").with_params({"tool.x": 0.02, "tool.y": -0.01, "tool.z": 0.08})
-
-
 def flipped():
     """A 3-joint chain whose joints turn about -z, -y and slide along -x (``s = -1``)."""
     b = ChainBuilder("flipped")
@@ -51,15 +47,6 @@ def flipped():
     b.transform("Rx", "t1", 0.3, role="angle")
     b.frame("tool", [0.05, 0.02, 0.1, 0.0, 0.0, 0.0])
     return b.build()
-
-
-def central_differences(prob, theta, h=1e-6):
-    J = np.zeros((prob.residuals(theta).size, theta.size))
-    for k in range(theta.size):
-        e = np.zeros(theta.size)
-        e[k] = h
-        J[:, k] = (prob.residuals(theta + e) - prob.residuals(theta - e)) / (2 * h)
-    return J
 
 
 def _masses(robot):

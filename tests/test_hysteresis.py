@@ -11,9 +11,9 @@ from test_compliance import (
     K_TRUE,
     MARKERS,
     PUMA_MASSES,
-    central_differences,
     perturbed_puma,
 )
+from test_models import central_differences
 
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
