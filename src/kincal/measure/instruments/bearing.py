@@ -36,13 +36,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.measure.base import ParamSpec
 from kincal.measure.instruments.common import (
-    as_q,
-    as_sigma,
-    check_marker_mode,
-    check_shapes,
     concat_specs,
     frame_spec,
-    label_index,
     station_columns,
     station_poses_from_directions,
     to_local,
@@ -95,15 +90,8 @@ class BearingMeasurement(PointBlock):
 
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], angles: ArrayLike,
                  sigma: ArrayLike, marker: str = "own") -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.obs = np.asarray(angles, dtype=float).reshape(-1, 2)
-        check_shapes("bearing", name, N, angles=self.obs)
-        self.sigma = as_sigma(sigma, N, name)
-        self.marker = check_marker_mode(marker)
-        self.station_labels = [str(s) for s in station]
-        self.stations, self.station_index = label_index(self.station_labels, "station", name, N)
+        N = self._init_rows("bearing", name, q, angles, 2, "angles", sigma, marker)
+        self._init_stations(station, "station", N)
 
     def own_parameters(self) -> ParamSpec:
         return concat_specs([frame_spec(f"{self.name}.{s}") for s in self.stations])

@@ -41,11 +41,9 @@ from kincal.measure.base import MeasurementModel, ParamSpec
 from kincal.measure.instruments.common import (
     as_q,
     as_sigma,
-    check_marker_mode,
     check_shapes,
     concat_specs,
     frame_spec,
-    label_index,
     rotation_to_rpy_frame,
     station_columns,
     station_poses_from_directions,
@@ -103,15 +101,8 @@ class CameraMeasurement(PointBlock):
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], uv: ArrayLike,
                  sigma: ArrayLike, intrinsics: dict[str, Sequence[float]],
                  marker: str = "own") -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.obs = np.asarray(uv, dtype=float).reshape(-1, 2)
-        check_shapes("camera", name, N, uv=self.obs)
-        self.sigma = as_sigma(sigma, N, name)
-        self.marker = check_marker_mode(marker)
-        self.station_labels = [str(s) for s in station]
-        self.stations, self.station_index = label_index(self.station_labels, "camera", name, N)
+        N = self._init_rows("camera", name, q, uv, 2, "uv", sigma, marker)
+        self._init_stations(station, "camera", N)
         missing = [s for s in self.stations if s not in intrinsics]
         if missing:
             raise KincalError(f"block {name!r}: no intrinsics for camera {missing[0]!r}")

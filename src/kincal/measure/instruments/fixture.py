@@ -21,12 +21,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.measure.base import ParamSpec
-from kincal.measure.instruments.common import (
-    as_q,
-    as_sigma,
-    check_marker_mode,
-    check_shapes,
-)
 from kincal.measure.instruments.pointblock import PointBlock
 from kincal.robots.chain import Robot
 
@@ -47,13 +41,7 @@ class FixtureMeasurement(PointBlock):
 
     def __init__(self, name: str, q: ArrayLike, points: ArrayLike, sigma: ArrayLike,
                  marker: str = "own") -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.obs = np.asarray(points, dtype=float).reshape(-1, 3)
-        check_shapes("fixture", name, N, points=self.obs)
-        self.sigma = as_sigma(sigma, N, name)
-        self.marker = check_marker_mode(marker)
+        self._init_rows("fixture", name, q, points, 3, "points", sigma, marker)
 
     def own_parameters(self) -> ParamSpec:
         return ParamSpec.empty()

@@ -43,9 +43,6 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.measure.base import ParamSpec
 from kincal.measure.instruments.common import (
-    as_q,
-    as_sigma,
-    check_marker_mode,
     label_index,
 )
 from kincal.measure.instruments.pointblock import PointBlock
@@ -93,12 +90,7 @@ class PlaneMeasurement(PointBlock):
     def __init__(self, name: str, q: ArrayLike, plane: Sequence[str], sigma: ArrayLike,
                  planes: dict[str, tuple[Sequence[float], float, bool]],
                  marker: str = "own") -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.obs = np.zeros((N, 1))
-        self.sigma = as_sigma(sigma, N, name)
-        self.marker = check_marker_mode(marker)
+        N = self._init_rows("plane", name, q, None, 1, "contacts", sigma, marker)
         self.plane_labels = [str(s) for s in plane]
         if len(self.plane_labels) != N:
             raise KincalError(f"block {name!r}: one plane label per row needed")

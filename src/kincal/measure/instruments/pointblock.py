@@ -10,13 +10,20 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from kincal.measure.base import MeasurementModel, ParamSpec
 from kincal.measure.instruments.common import (
+    as_q,
+    as_sigma,
     chain_rows,
+    check_marker_mode,
+    check_shapes,
     concat_specs,
+    label_index,
     marker_spec,
     tool_point,
 )
@@ -66,6 +73,29 @@ class PointBlock(MeasurementModel):
     marker: str
     sigma: Array
     obs: Array
+
+    # -- for the subclasses' constructors
+    def _init_rows(self, kind: str, name: str, q: ArrayLike, obs: ArrayLike | None,
+                   width: int, column: str, sigma: ArrayLike, marker: str) -> int:
+        """Set ``name``, ``q``, ``obs`` (N, width; zeros when None), ``sigma`` (N,) and
+        ``marker``, checking the row counts (``column`` names ``obs`` in messages).
+        Returns N."""
+        self.name = name
+        self.q = as_q(q)
+        N = self.q.shape[0]
+        self.obs = (np.zeros((N, width)) if obs is None else
+                    np.asarray(obs, dtype=float).reshape(-1, width))
+        check_shapes(kind, name, N, **{column: self.obs})
+        self.sigma = as_sigma(sigma, N, name)
+        self.marker = check_marker_mode(marker)
+        return N
+
+    def _init_stations(self, labels: Sequence[str], what: str, rows: int | None = None
+                       ) -> None:
+        """Set ``station_labels`` and the distinct ``stations`` with each row's index."""
+        self.station_labels = [str(s) for s in labels]
+        self.stations, self.station_index = label_index(self.station_labels, what, self.name,
+                                                        rows)
 
     # -- to implement
     def own_parameters(self) -> ParamSpec:

@@ -40,12 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.measure.base import ParamSpec
 from kincal.measure.instruments.common import (
-    as_q,
-    as_sigma,
-    check_marker_mode,
-    check_shapes,
     concat_specs,
-    label_index,
     label_index_raw,
 )
 from kincal.measure.instruments.pointblock import PointBlock
@@ -72,15 +67,8 @@ class RangeMeasurement(PointBlock):
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], rho: ArrayLike,
                  sigma: ArrayLike, mode: Sequence[str] | None = None,
                  run: Sequence[str] | None = None, marker: str = "own") -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.obs = np.asarray(rho, dtype=float).reshape(-1, 1)
-        check_shapes("range", name, N, rho=self.obs)
-        self.sigma = as_sigma(sigma, N, name)
-        self.marker = check_marker_mode(marker)
-        self.station_labels = [str(s) for s in station]
-        self.stations, self.station_index = label_index(self.station_labels, "station", name)
+        N = self._init_rows("range", name, q, rho, 1, "rho", sigma, marker)
+        self._init_stations(station, "station")
         self.mode = ["absolute"] * N if mode is None else [str(m).strip() for m in mode]
         self.run = ["0"] * N if run is None else [str(r).strip() for r in run]
         if len(self.mode) != N or len(self.run) != N or len(self.station_labels) != N:
