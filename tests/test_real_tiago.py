@@ -70,8 +70,8 @@ import pytest
 
 from kincal.identify.solver import calibrate
 from kincal.identify.validation import cross_validate, validate
+from kincal.joint_model import with_joint_model
 from kincal.measure.compliance import JointCompliance
-from kincal.measure.hysteresis import JointHysteresis
 from kincal.measure.models import PositionMeasurement
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tiago_mocap"
@@ -87,8 +87,8 @@ PRIOR = {"*.origin.x": 1e-3, "*.origin.y": 1e-3, "*.origin.z": 1e-3,
 #: Non-geometric terms: joint hysteresis (play held by friction on the side the joint
 #: approached from, :class:`kincal.measure.hysteresis.JointHysteresis`) and gravity
 #: compliance (:class:`kincal.measure.compliance.JointCompliance`).
-TERMS = {"": (), " + gravity compliance": ("k",), " + hysteresis": ("h",),
-         " + gravity compliance + hysteresis": ("k", "h")}
+TERMS = {"": (), " + gravity compliance": ("compliance",), " + hysteresis": ("hysteresis",),
+         " + gravity compliance + hysteresis": ("compliance", "hysteresis")}
 #: variant -> (markers used in training, non-geometric terms, calibrate options)
 VARIANTS = {f"{est}{label}, {which}": (markers, terms, options)
             for label, terms in TERMS.items()
@@ -136,15 +136,12 @@ def masses():
 
 
 def model(robot, block, terms):
-    """``block`` as calibrated: itself, inside a joint hysteresis (``"h"``, directions from
-    the session's posture order) and / or a gravity compliance (``"k"``).  Built on a
-    whole session; cross-validation folds are subsets of it (each posture keeps the
-    direction it was approached from)."""
-    if "h" in terms:
-        block = JointHysteresis(block, robot)
-    if "k" in terms:
-        block = JointCompliance.gravity(block, robot, masses())
-    return block
+    """``block`` as calibrated: itself, or inside the joint model ``terms``
+    (:func:`kincal.joint_model.with_joint_model`, what ``--joint-model`` does: hysteresis
+    with directions from the session's posture order, gravity compliance with the URDF's
+    masses).  Built on a whole session; cross-validation folds are subsets of it (each
+    posture keeps the direction it was approached from)."""
+    return with_joint_model([block], robot, terms, masses())[0] if terms else block
 
 
 @pytest.fixture(scope="module")
@@ -247,7 +244,7 @@ def test_full_calibration_variants(full, variant):
         assert res.estimated == full[variant.replace("MAP", "least squares")][0].estimated
     k = [n for n in res.names if ".k[" in n]
     h = [n for n in res.names if ".h[" in n]
-    assert bool(k) == ("k" in terms) and bool(h) == ("h" in terms)
+    assert bool(k) == ("compliance" in terms) and bool(h) == ("hysteresis" in terms)
     # the same geometric selection as without the non-geometric terms ...
     plain = full[variant.replace(" + gravity compliance", "").replace(" + hysteresis", "")][0]
     assert [n for n in res.estimated if ".k[" not in n and ".h[" not in n] == plain.estimated
@@ -269,14 +266,14 @@ def test_gravity_compliance_on_tiago(data, full):
     < 0.08 N m: its compliance is estimated but within two standard errors of zero."""
     lines = ["TIAGo gravity compliance k +- std [mrad/(N m)], arm_2 .. arm_7:"]
     for name, (res, _, _, _, terms) in full.items():
-        if "k" not in terms:
+        if "compliance" not in terms:
             continue
         rep = res.identifiability
         assert rep.unobservable == ["mocap.k[arm_1_joint]"]
         assert rep.dependent["mocap.k[torso_lift_joint]"] == ["mocap.z"]
         k = {i: (res.params[f"mocap.k[arm_{i}_joint]"],
                  res.std[res.names.index(f"mocap.k[arm_{i}_joint]")]) for i in range(2, 8)}
-        if "h" not in terms:     # with the hysteresis, arm_6's play is shared between both
+        if "hysteresis" not in terms:     # with the hysteresis, arm_6's play is shared between both
             assert 0.025 < k[6][0] < 0.040, (name, k[6])
             assert k[6][0] > (10 if "all markers" in name else 2) * k[6][1], (name, k[6])
             assert abs(k[7][0]) < 2 * k[7][1], (name, k[7])
@@ -462,7 +459,7 @@ def test_hysteresis_on_tiago(full):
     arm_5 (the joint with encoder trouble in FIGAROH's report) 5.4-7.8 mrad at 4-6."""
     lines = ["TIAGo joint hysteresis h +- std [mrad] (torso [mm]), torso, arm_1 .. arm_7:"]
     for name, (res, _, _, _, terms) in full.items():
-        if "h" not in terms:
+        if "hysteresis" not in terms:
             continue
         h = {j: (res.params[f"mocap.h[{j}]"], res.std[res.names.index(f"mocap.h[{j}]")])
              for j in res.robot.joint_names}
