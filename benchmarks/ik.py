@@ -39,8 +39,8 @@ import time
 import numpy as np
 
 try:
-    from kincal.ik import check_solutions, solve_ik
-    from kincal.ik_closed_form import ik_puma560
+    from kincal.motion.ik import check_solutions, solve_ik
+    from kincal.motion.ik_closed_form import ik_puma560
     from kincal.robots.dh import dh_links
     from kincal.robots.files import load_robot
 except ImportError:  # pragma: no cover - a message instead of a traceback

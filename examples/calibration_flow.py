@@ -25,13 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from kincal.compensate import compensate
+from kincal.compensation.compensate import compensate
 from kincal.identify.solver import calibrate
 from kincal.identify.validation import validate
 from kincal.io import write_json
 from kincal.measure.registry import read_measurements, simulate_measurements, write_measurements
 from kincal.measure.simulate import perturb_robot
-from kincal.report import ErrorComparison, error_metrics, result_json, write_html_report
+from kincal.report.html import write_html_report
+from kincal.report.metrics import ErrorComparison, error_metrics, result_json
 from kincal.robots.files import load_robot, write_robot_yaml
 
 

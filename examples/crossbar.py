@@ -23,11 +23,11 @@ import argparse
 
 import numpy as np
 
-from kincal.artifact_plots import length_summary, save_patent_figures
 from kincal.identify.patent import calibrate_patent, compare_results
 from kincal.identify.solver import calibrate
 from kincal.measure.artifacts import ArtifactGeometry, Probe, simulate_artifact
 from kincal.measure.simulate import perturb_robot
+from kincal.report.artifact_plots import length_summary, save_patent_figures
 from kincal.robots.files import load_robot
 
 

@@ -18,7 +18,7 @@ import math
 import sys
 from pathlib import Path
 
-from kincal.robots.fivebar_thesis import THESIS_TRUE, plot_thesis, run_thesis
+from kincal.parallel.thesis import THESIS_TRUE, plot_thesis, run_thesis
 
 
 def main(out: Path) -> None:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kincal.clik import (
+from kincal.motion.clik import (
     SEED003_P_F,
     SEED003_P_I,
     SEED003_Q0,
@@ -37,7 +37,7 @@ from kincal.clik import (
     run_seed003,
     seed003_robot,
 )
-from kincal.ik_closed_form import ik_spherical_rrp
+from kincal.motion.ik_closed_form import ik_spherical_rrp
 
 
 def main() -> None:

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from kincal.artifact_plots import length_summary, plot_lengths, save_patent_figures
 from kincal.identify.solver import calibrate
 from kincal.measure.artifacts import ArtifactGeometry, Probe, simulate_artifact
 from kincal.measure.simulate import perturb_robot
+from kincal.report.artifact_plots import length_summary, plot_lengths, save_patent_figures
 from kincal.robots.files import load_robot
 
 

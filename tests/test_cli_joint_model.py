@@ -12,7 +12,7 @@ from cli_helpers import run
 from test_compliance import perturbed_puma
 
 from kincal.measure.files import write_table
-from kincal.measure.hysteresis import approach_directions
+from kincal.measure.joints.hysteresis import approach_directions
 from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.robots.files import load_robot
 

@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from kincal.cli import app
-from kincal.clik import (
+from kincal.errors import KincalError
+from kincal.motion.clik import (
     SEED003_P_F,
     SEED003_P_I,
     SEED003_Q0,
@@ -21,11 +22,10 @@ from kincal.clik import (
     run_seed003,
     seed003_robot,
 )
-from kincal.errors import KincalError
-from kincal.ik_closed_form import ik_spherical_rrp
+from kincal.motion.ik_closed_form import ik_spherical_rrp
+from kincal.motion.trajectory import CartesianMotion, LinePath, line_motion, quintic
 from kincal.robots.files import load_robot
 from kincal.spatial import pose_error
-from kincal.trajectory import CartesianMotion, LinePath, line_motion, quintic
 
 runner = CliRunner()
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from kincal.compensate import compensate, require_all
+from kincal.compensation.compensate import compensate, require_all
 from kincal.errors import KincalError, UnreachableError
-from kincal.ik import solve_ik
+from kincal.motion.ik import solve_ik
 from kincal.robots.files import load_robot
 from kincal.spatial import log_so3
 

@@ -10,7 +10,7 @@ from test_models import central_differences, stanford
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
 from kincal.measure.base import MeasurementModel, ParamSpec, stack
-from kincal.measure.compliance import JointCompliance
+from kincal.measure.joints.compliance import JointCompliance
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
 from kincal.measure.simulate import (
     instrument_values,

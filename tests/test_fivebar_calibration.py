@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from kincal.errors import KincalError, UnreachableError
-from kincal.robots import fivebar_kinematics as kin
-from kincal.robots import fivebar_residuals as res
-from kincal.robots.fivebar_calibration import ROBOT_FREE, THESIS_FREE, calibrate
-from kincal.robots.fivebar_thesis import THESIS_TRUE, run_thesis, simulate, thesis_robots
+from kincal.parallel import kinematics as kin
+from kincal.parallel import residuals as res
+from kincal.parallel.calibration import ROBOT_FREE, THESIS_FREE, calibrate
+from kincal.parallel.thesis import THESIS_TRUE, run_thesis, simulate, thesis_robots
 
 # Central differences with step h have truncation error ~ h^2 |f'''| and rounding
 # ~ eps |f| / h: with h = 1e-6 and |f|, |f'''| of order 1-10 both stay below ~1e-8.

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from kincal.cli import app
 from kincal.cli.fivebar import calibrate_fivebar_file, fk_fivebar, ik_fivebar, show_fivebar
-from kincal.robots.fivebar import load_fivebar
+from kincal.parallel.files import load_fivebar
 
 runner = CliRunner()
 

@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from kincal.errors import MeasurementFileError, RobotFileError
-from kincal.robots.fivebar import FiveBar, load_fivebar
-from kincal.robots.fivebar_data import read_fivebar_csv, write_fivebar_csv
+from kincal.parallel.data import read_fivebar_csv, write_fivebar_csv
+from kincal.parallel.files import fivebar_from_dict, load_fivebar, write_fivebar
 
 THESIS = {
     "kind": "fivebar",
@@ -31,9 +31,10 @@ def test_library_files_load_with_their_source() -> None:
 
 
 def test_generic_loader_returns_a_fivebar() -> None:
-    from kincal.robots.files import load_robot
+    from kincal.parallel.fivebar import FiveBar
+    from kincal.workflow.robots import load_any_robot
 
-    assert isinstance(load_robot("fivebar_thesis"), FiveBar)
+    assert isinstance(load_any_robot("fivebar_thesis"), FiveBar)
 
 
 def test_units_are_converted_at_the_border() -> None:
@@ -41,7 +42,7 @@ def test_units_are_converted_at_the_border() -> None:
                 links={"l1": 2000, "l2": 2000, "l3": 3000, "l4": 3000},
                 bases={"base1": {"x": 1000, "y": 0}, "base2": {"x": -1000, "y": 0}},
                 offsets={"offset1": 90.0}, limits={"q1": [0, 90], "q2": [90, 180]})
-    robot = FiveBar.from_dict(data, "mm.yaml")
+    robot = fivebar_from_dict(data, "mm.yaml")
     assert robot.l1 == pytest.approx(2.0) and robot.base2_x == pytest.approx(-1.0)
     assert robot.offset1 == pytest.approx(math.pi / 2) and robot.offset2 == 0.0
     assert robot.limits[1] == pytest.approx((math.pi / 2, math.pi))
@@ -69,13 +70,13 @@ def test_bad_fields_are_named_in_one_line(change: dict, message: str) -> None:
     data = {**THESIS, **change}
     data = {k: v for k, v in data.items() if v is not None}
     with pytest.raises(RobotFileError, match=message.replace("+", r"\+")) as err:
-        FiveBar.from_dict(data, "/some/where/fivebar.yaml")
+        fivebar_from_dict(data, "/some/where/fivebar.yaml")
     assert "\n" not in str(err.value)
 
 
 def test_robot_file_round_trip(tmp_path) -> None:
     robot = load_fivebar("fivebar_thesis").with_params({"l1": 1.86, "offset2": -0.01})
-    path = robot.save(tmp_path / "r.yaml")
+    path = write_fivebar(robot, tmp_path / "r.yaml")
     back = load_fivebar(path)
     assert np.array_equal(back.param_values, robot.param_values)
     assert (back.assembly, back.working_mode, back.limits) == (

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from kincal.errors import KincalError, UnreachableError
-from kincal.robots.fivebar import FiveBar, load_fivebar
+from kincal.parallel.files import load_fivebar
+from kincal.parallel.fivebar import FiveBar
+from kincal.parallel.workspace import plot_workspace, workspace
 
 MODES = ("++", "+-", "-+", "--")
 # Round trips away from singularities: the error is eps times the condition number
@@ -228,10 +230,10 @@ def test_with_params_is_a_new_value() -> None:
 def test_workspace_area_and_membership() -> None:
     # bases 1e-9 m apart: the region is one annulus, area 4 pi l1 l3
     robot = FiveBar(l1=1.0, l2=1.0, l3=2.0, l4=2.0, base1_x=0.0, base2_x=1e-9)
-    ws = robot.workspace("+-", resolution=600)
+    ws = workspace(robot, "+-", resolution=600)
     assert ws.area == pytest.approx(4 * np.pi * 1.0 * 2.0, rel=0.01)
     thesis = load_fivebar("fivebar_thesis")
-    ws = thesis.workspace(resolution=120)
+    ws = workspace(thesis, resolution=120)
     gx, gy = np.meshgrid(ws.xs, ws.ys)
     pts = np.c_[gx.ravel(), gy.ravel()]
     q, ok = thesis.ik_masked(pts)
@@ -242,5 +244,5 @@ def test_workspace_area_and_membership() -> None:
 
 
 def test_workspace_plot_written(tmp_path) -> None:
-    path = load_fivebar("fivebar").plot_workspace(tmp_path / "ws.png", resolution=60)
+    path = plot_workspace(load_fivebar("fivebar"), tmp_path / "ws.png", resolution=60)
     assert path.is_file() and path.stat().st_size > 1000

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from kincal.errors import KincalError
-from kincal.robots.mobility import Joint, Mechanism, dual_scara_thesis, mobility, planar_five_bar
+from kincal.parallel.mobility import Joint, Mechanism, dual_scara_thesis, mobility, planar_five_bar
 
 
 def test_thesis_dual_scara_has_four_freedoms() -> None:

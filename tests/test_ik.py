@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kincal.errors import KincalError
-from kincal.ik import (
+from kincal.motion.ik import (
     IKSolution,
     IKSolutions,
     check_solutions,
@@ -18,7 +18,7 @@ from kincal.ik import (
     reach_bound,
     solve_ik,
 )
-from kincal.ik_closed_form import ik_puma560, ik_scara, ik_spherical_rrp
+from kincal.motion.ik_closed_form import ik_puma560, ik_scara, ik_spherical_rrp
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
 from kincal.spatial import pose_error, xyzrpy_to_matrix
@@ -332,9 +332,10 @@ def test_cli_ik_fivebar_branch(tmp_path):
     from typer.testing import CliRunner
 
     from kincal.cli import app
+    from kincal.workflow.robots import load_any_robot
 
     runner = CliRunner()
-    robot = load_robot("fivebar_thesis")
+    robot = load_any_robot("fivebar_thesis")
     x = robot.fk([0.6, 2.5])
     xy = f"{float(x[0])!r},{float(x[1])!r}"
     res = runner.invoke(app, ["ik", "fivebar_thesis", "--position", xy, "--mode", "-+",

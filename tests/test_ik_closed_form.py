@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from kincal.errors import KincalError
-from kincal.ik_closed_form import (
+from kincal.motion.ik_closed_form import (
     PUMA_BRANCHES,
     closed_form_ik,
     ik_puma560,

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from kincal.errors import KincalError
+from kincal.identify.accuracy import predicted_position_std
 from kincal.identify.design import random_candidates, select_poses
 from kincal.identify.observability import (
     DEFAULT_INSTRUMENT,
@@ -25,7 +26,6 @@ from kincal.identify.observability import (
 )
 from kincal.identify.prediction import predict_accuracy, prediction_figure, workspace_grid
 from kincal.identify.solver import calibrate
-from kincal.identify.uncertainty import predicted_position_std
 from kincal.measure.models import PositionMeasurement
 from kincal.measure.simulate import perturb_robot, simulate_poses, simulate_positions
 from kincal.robots.files import load_robot

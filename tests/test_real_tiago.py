@@ -20,10 +20,10 @@ Full calibration, sixteen variants (every choice made without the validation fil
   ``k_j tau_j(q)``, ``tau`` the static gravity load computed from the URDF's
   ``<inertial>`` masses (:func:`kincal.robots.urdf.load_urdf_inertials`,
   :func:`kincal.robots.gravity.gravity_torques`) and ``k`` one compliance per joint
-  [rad/(N m), m/N] (:class:`kincal.measure.compliance.JointCompliance`);
+  [rad/(N m), m/N] (:class:`kincal.measure.joints.compliance.JointCompliance`);
 * ``... + hysteresis``: each joint lags its encoder by ``h_j d_j``, ``d_j = +-1`` the
   direction the joint moved in to reach the posture, read from the session's posture
-  order (:class:`kincal.measure.hysteresis.JointHysteresis`): backlash held by
+  order (:class:`kincal.measure.joints.hysteresis.JointHysteresis`): backlash held by
   friction on the side it was approached from.
   The non-geometric coefficients are estimated with the rest under the same automatic
   selection (no prior on them); validation uses the training coefficients with the
@@ -70,8 +70,8 @@ import pytest
 
 from kincal.identify.solver import calibrate
 from kincal.identify.validation import cross_validate, validate
-from kincal.joint_model import with_joint_model
-from kincal.measure.compliance import JointCompliance
+from kincal.measure.joints.compliance import JointCompliance
+from kincal.measure.joints.terms import with_joint_model
 from kincal.measure.models import PositionMeasurement
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tiago_mocap"
@@ -85,8 +85,8 @@ FIGAROH_FULL = (1.64, 3.07)   # mm, train / validation, "full joint placements (
 PRIOR = {"*.origin.x": 1e-3, "*.origin.y": 1e-3, "*.origin.z": 1e-3,
          "*.origin.r?": math.radians(0.1)}
 #: Non-geometric terms: joint hysteresis (play held by friction on the side the joint
-#: approached from, :class:`kincal.measure.hysteresis.JointHysteresis`) and gravity
-#: compliance (:class:`kincal.measure.compliance.JointCompliance`).
+#: approached from, :class:`kincal.measure.joints.hysteresis.JointHysteresis`) and gravity
+#: compliance (:class:`kincal.measure.joints.compliance.JointCompliance`).
 TERMS = {"": (), " + gravity compliance": ("compliance",), " + hysteresis": ("hysteresis",),
          " + gravity compliance + hysteresis": ("compliance", "hysteresis")}
 #: variant -> (markers used in training, non-geometric terms, calibrate options)
@@ -137,7 +137,7 @@ def masses():
 
 def model(robot, block, terms):
     """``block`` as calibrated: itself, or inside the joint model ``terms``
-    (:func:`kincal.joint_model.with_joint_model`, what ``--joint-model`` does: hysteresis
+    (:func:`kincal.measure.joints.terms.with_joint_model`, what ``--joint-model`` does: hysteresis
     with directions from the session's posture order, gravity compliance with the URDF's
     masses).  Built on a whole session; cross-validation folds are subsets of it (each
     posture keeps the direction it was approached from)."""

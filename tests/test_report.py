@@ -12,16 +12,9 @@ import pytest
 from kincal.identify.solver import calibrate
 from kincal.measure.registry import simulate_measurements
 from kincal.measure.simulate import perturb_robot
-from kincal.report import (
-    ErrorComparison,
-    error_metrics,
-    identifiability_sentences,
-    merge_errors,
-    render_html,
-    result_json,
-    write_html_report,
-)
-from kincal.report_plots import display_scale, parameter_history
+from kincal.report.html import identifiability_sentences, render_html, write_html_report
+from kincal.report.metrics import ErrorComparison, error_metrics, merge_errors, result_json
+from kincal.report.plots import display_scale, parameter_history
 from kincal.robots.files import load_robot
 
 PNG = b"\x89PNG\r\n\x1a\n"

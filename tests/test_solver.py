@@ -282,7 +282,11 @@ def test_levenberg_marquardt_stops_with_one_failed_trial():
 
     blk.evaluate = counted
     res = calibrate(robot, [blk])
-    assert res.converged and "no descent step longer than tol_step" in res.message
+    # Which of the two step rules ends the stage depends on the last bits of the BLAS in
+    # use (the last accepted step may already be below tol_step); either way no trial
+    # evaluation may be wasted at the minimum.
+    assert res.converged and ("no descent step longer than tol_step" in res.message
+                              or "step below tol_step" in res.message), res.message
     assert calls[0] <= res.iterations                  # was 11 extra at the last iteration
     prob, th0 = res.problem, res.theta0
     est = [prob.names.index(n) for n in res.estimated]

@@ -11,9 +11,7 @@ from typer.testing import CliRunner
 
 from kincal.cli import app
 from kincal.errors import KincalError, UnreachableError
-from kincal.robots.files import load_robot
-from kincal.spatial import log_so3, pose_error, xyzrpy_to_matrix
-from kincal.trajectory import (
+from kincal.motion.trajectory import (
     CartesianMotion,
     LinePath,
     TimingLaw,
@@ -31,6 +29,8 @@ from kincal.trajectory import (
     trapezoidal,
     via_trajectory,
 )
+from kincal.robots.files import load_robot
+from kincal.spatial import log_so3, pose_error, xyzrpy_to_matrix
 
 runner = CliRunner()
 

@@ -9,14 +9,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from kincal.identify.accuracy import predicted_position_std, predicted_rms
 from kincal.identify.identifiability import analyze
 from kincal.identify.solver import calibrate
 from kincal.identify.uncertainty import (
     correlation,
     covariance,
     cramer_rao,
-    predicted_position_std,
-    predicted_rms,
     standard_errors,
 )
 from kincal.identify.validation import cross_validate, error_statistics, validate

@@ -1,4 +1,4 @@
-"""The calibration workflow from Python (:mod:`kincal.workflow`), without the CLI.
+"""The calibration workflow from Python (:mod:`kincal.workflow.flow`), without the CLI.
 
 Truth: simulated robots with known parameters; the calibrated model is compared with
 the true robot by forward kinematics on held-out configurations.
@@ -16,7 +16,7 @@ from kincal.errors import KincalError
 from kincal.measure.registry import simulate_measurements, write_measurements
 from kincal.measure.simulate import perturb_robot
 from kincal.robots.files import load_robot
-from kincal.workflow import (
+from kincal.workflow.flow import (
     _render_report,
     block_values,
     check_flow_options,
@@ -88,12 +88,12 @@ def test_write_outputs_writes_every_file_and_the_json_lists_them(flow, tmp_path)
 
 
 def test_a_failure_while_rendering_writes_nothing(flow, tmp_path, monkeypatch):
-    import kincal.report
+    import kincal.report.html
 
     def broken(*args, **kwargs):
         raise KincalError("rendering failed")
 
-    monkeypatch.setattr(kincal.report, "render_html", broken)
+    monkeypatch.setattr(kincal.report.html, "render_html", broken)
     with pytest.raises(KincalError, match="rendering failed"):
         write_outputs(flow, str(tmp_path / "cal.yaml"), None, str(tmp_path / "r.json"),
                       str(tmp_path / "r.html"))

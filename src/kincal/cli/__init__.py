@@ -4,6 +4,8 @@ Each command group lives in its own module and registers on
 :data:`kincal.cli.app.app`; importing this package registers them all.  User
 errors (:class:`kincal.errors.KincalError`) become one line on stderr and exit
 code 2, never a traceback.
+
+Layer rule: the top layer; it may import every other layer, and nothing imports it.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Calibration commands: ``identifiability``, ``calibrate`` and ``validate``.
 
-The computation lives in :mod:`kincal.workflow`; these commands parse options, print
-tables (mm and degrees) and hand the outputs to :func:`kincal.workflow.write_outputs`.
+The computation lives in :mod:`kincal.workflow.flow`; these commands parse options, print
+tables (mm and degrees) and hand the outputs to :func:`kincal.workflow.flow.write_outputs`.
 Every command reads all its inputs and runs all its numerics before writing any output,
 and every output is written atomically, so a bad file or an unreachable target leaves
 nothing behind (the error is one line, exit code 2).  Sibling modules:
@@ -44,8 +44,8 @@ from kincal.cli.calibration_common import (
     serial,
 )
 from kincal.errors import KincalError
-from kincal.joint_model import parse_joint_model, with_joint_model
-from kincal.workflow import (
+from kincal.measure.joints.terms import parse_joint_model, with_joint_model
+from kincal.workflow.flow import (
     check_flow_options,
     check_options_used,
     extras_from_result,
@@ -285,7 +285,7 @@ def validate_cmd(
     Without --result each file's instrument parameters (frame and marker) are re-registered
     to the robot: they absorb a little of any robot error."""
     from kincal.io import write_json
-    from kincal.report import error_keys, error_metrics, merge_errors, quantity
+    from kincal.report.metrics import error_keys, error_metrics, merge_errors, quantity
 
     out = out_console(json_out)
     r = serial(load(robot, base_link, tip_link), "validate")

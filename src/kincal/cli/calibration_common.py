@@ -59,9 +59,9 @@ def out_console(json_path: str | None) -> Console:
 
 def load(spec: str, base_link: str | None = None, tip_link: str | None = None) -> Any:
     """Load ROBOT (library name, YAML or URDF path)."""
-    from kincal.robots.files import load_robot
+    from kincal.workflow.robots import load_any_robot
 
-    return load_robot(spec, base_link=base_link, tip_link=tip_link)
+    return load_any_robot(spec, base_link=base_link, tip_link=tip_link)
 
 
 def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None = None
@@ -82,7 +82,7 @@ def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None =
 
 def print_cross_validation(out: Any, cv: dict[str, Any]) -> None:
     """One line per error kind of ``run_flow(cross_validate=K)`` (mm / deg / px)."""
-    from kincal.report import quantity
+    from kincal.report.metrics import quantity
 
     for key, v in cv.items():
         if key.startswith("rms_"):
@@ -117,9 +117,9 @@ def check_unit(unit: str, dimension: str, option: str) -> str:
 
 def read_blocks(paths: Sequence[str], robot: Any, units: str | None,
                 ignore: Sequence[str] | None, out: Console | None = None) -> list[Any]:
-    """:func:`kincal.workflow.read_blocks`, printing the columns each file did not read."""
-    from kincal.workflow import ignored_columns
-    from kincal.workflow import read_blocks as read
+    """:func:`kincal.workflow.flow.read_blocks`, printing the columns each file did not read."""
+    from kincal.workflow.flow import ignored_columns
+    from kincal.workflow.flow import read_blocks as read
 
     blocks = read(paths, robot, units, ignore)
     if out is not None:
@@ -171,7 +171,7 @@ def scaled(v: float | None, factor: float) -> str:
 
 def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
     """The before/after table: RMS and max of every measured error kind (mm, deg, px)."""
-    from kincal.report import error_keys, error_metrics, quantity
+    from kincal.report.metrics import error_keys, error_metrics, quantity
 
     captions = [escape(c.title) for c in comparisons if " (" in c.title]
     t = Table(title="Errors before -> after calibration", caption="; ".join(captions) or None)
@@ -216,7 +216,7 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
 
 def print_identifiability(out: Console, res: Any, limit: int = 8) -> None:
     """What the data could not identify, grouped by what absorbs it."""
-    from kincal.report import identifiability_groups
+    from kincal.report.html import identifiability_groups
 
     rep = res.identifiability
     held = rep.not_identifiable
@@ -232,7 +232,7 @@ def print_identifiability(out: Console, res: Any, limit: int = 8) -> None:
 
 def print_patent(out: Console, info: Any) -> None:
     """The patent procedure's record: selection, cycles, comparison with one-stage LM."""
-    from kincal.report import quantity
+    from kincal.report.metrics import quantity
 
     d = info.to_dict()
     n_all = len(d["kept"]) + len(d["discarded"])

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import KincalError
-from kincal.robots.files import load_robot
+from kincal.workflow.robots import load_any_robot
 
 #: Options shared by every command that takes a robot or writes JSON.
 RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
@@ -53,7 +53,7 @@ def _is_float(s: str) -> bool:
 
 def robot_arg(spec: str, base_link: str | None = None, tip_link: str | None = None) -> Any:
     """Load ROBOT (library name, YAML or URDF path) for a command."""
-    return load_robot(spec, base_link=base_link, tip_link=tip_link)
+    return load_any_robot(spec, base_link=base_link, tip_link=tip_link)
 
 
 def joint_vector(robot: Any, text: str, deg: bool, option: str = "--q") -> np.ndarray:

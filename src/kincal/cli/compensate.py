@@ -2,7 +2,7 @@
 
 Reads a target CSV (``x y z`` and optionally ``rx ry rz`` roll-pitch-yaw, with units;
 optional joint columns seed the IK), solves the calibrated robot's IK for every target
-(:func:`kincal.compensate.compensate`) and writes the joint commands, plus, with
+(:func:`kincal.compensation.compensate.compensate`) and writes the joint commands, plus, with
 ``--nominal --filtered``, the targets to send to a controller that only knows the
 nominal model.  Nothing is written unless every target is reached.
 """
@@ -95,7 +95,7 @@ def compensate_cmd(
 ) -> None:
     """Joint commands that put the calibrated (real) robot on the targets, and filtered
     targets for a controller that only knows the nominal model."""
-    from kincal.compensate import compensate, require_all
+    from kincal.compensation.compensate import compensate, require_all
     from kincal.io import atomic_write_text, write_json
     from kincal.measure.files import UNITS, format_table, joint_columns
     from kincal.spatial import matrix_to_rpy

@@ -38,7 +38,7 @@ def demo(
     from kincal.measure.registry import get_instrument, simulate_measurements, write_measurements
     from kincal.measure.simulate import perturb_robot
     from kincal.robots.files import load_robot, robot_yaml_text
-    from kincal.workflow import block_values, run_flow, write_outputs
+    from kincal.workflow.flow import block_values, run_flow, write_outputs
 
     t0 = time.perf_counter()
     folder = Path(out_dir)

@@ -45,7 +45,7 @@ def export_cmd(
         if suffix == ".urdf" or as_ets:
             raise KincalError("the five-bar is a closed chain: it exports to YAML only "
                               "(without --as-ets)")
-        from kincal.robots.fivebar_files import write_fivebar
+        from kincal.parallel.files import write_fivebar
 
         write_fivebar(r, output)
         console.print(f"five-bar {escape(r.name)} -> {escape(output)}")

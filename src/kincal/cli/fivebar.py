@@ -1,6 +1,6 @@
 """Five-bar commands (``fivebar-thesis``, ``fivebar-workspace``, ``fivebar-mobility``,
 ``fivebar-simulate``) and the helpers the generic ``show``/``fk``/``ik``/``calibrate``
-commands call when the robot is a :class:`~kincal.robots.fivebar.FiveBar`.
+commands call when the robot is a :class:`~kincal.parallel.fivebar.FiveBar`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from kincal.cli.app import app
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
-    from kincal.robots.fivebar import FiveBar
-    from kincal.robots.fivebar_calibration import FiveBarCalibration
+    from kincal.parallel.calibration import FiveBarCalibration
+    from kincal.parallel.fivebar import FiveBar
 
 _METHODS = {
     "gauss-newton": "gauss-newton",
@@ -39,13 +39,10 @@ def _console(json_path: str | None) -> Console:
 
 
 def _load(spec: str) -> FiveBar:
-    from kincal.robots.fivebar import FiveBar, load_fivebar
+    from kincal.parallel.fivebar import FiveBar
+    from kincal.workflow.robots import load_any_robot
 
-    try:
-        from kincal.robots.files import load_robot
-    except ImportError:  # pragma: no cover - generic loader absent
-        return load_fivebar(spec)
-    robot = load_robot(spec)
+    robot = load_any_robot(spec)
     if not isinstance(robot, FiveBar):
         raise KincalError(f"robot {spec!r} is not a five-bar (kind: fivebar)")
     return robot
@@ -169,9 +166,9 @@ def calibrate_fivebar_file(
     report (``report_path``); each is optional.  ``free`` defaults to all ten
     robot parameters (plus the measurement frame when ``frame_free``).
     """
-    from kincal.robots.fivebar_calibration import ROBOT_FREE, calibrate
-    from kincal.robots.fivebar_data import read_fivebar_csv
-    from kincal.robots.fivebar_residuals import FRAME_NAMES
+    from kincal.parallel.calibration import ROBOT_FREE, calibrate
+    from kincal.parallel.data import read_fivebar_csv
+    from kincal.parallel.residuals import FRAME_NAMES
 
     key = method.lower()
     if key not in _METHODS:
@@ -188,9 +185,11 @@ def calibrate_fivebar_file(
     if out_path:
         from dataclasses import replace
 
-        replace(result.robot, name=f"{robot.name}_calibrated",
+        from kincal.parallel.files import write_fivebar
+
+        write_fivebar(replace(result.robot, name=f"{robot.name}_calibrated",
                 source=f"kincal calibration of {robot.name} from {Path(data_path).name}"
-                ).save(out_path)
+                ), out_path)
     if json_path:
         _write_json(json_path, result.to_dict())
     if report_path:
@@ -237,7 +236,7 @@ def fivebar_thesis(
     Bases B1 = (1, 0) m, B2 = (-1, 0) m; J3 from the direct kinematics with beta1 in
     (0, pi/2), beta2 in (pi/2, pi); well-conditioned configurations only; stop at 1e-10.
     """
-    from kincal.robots.fivebar_thesis import THESIS_TRUE, plot_thesis, run_thesis
+    from kincal.parallel.thesis import THESIS_TRUE, plot_thesis, run_thesis
 
     if n < 3:
         raise KincalError("option --n: at least 3 configurations are needed for 4 lengths")
@@ -285,7 +284,7 @@ def fivebar_workspace(
     resolution: Annotated[int, typer.Option(help="Grid points per axis.")] = 250,
 ) -> None:
     """Plot the reachable region of a working mode, with the Type-2 singular curves."""
-    from kincal.robots.fivebar_workspace import plot_workspace, workspace
+    from kincal.parallel.workspace import plot_workspace, workspace
 
     r = _load(robot)
     if mode is not None and mode not in ("++", "+-", "-+", "--"):
@@ -303,7 +302,7 @@ def fivebar_workspace(
 @app.command("fivebar-mobility")
 def fivebar_mobility() -> None:
     """Kutzbach/Grübler mobility of the thesis's dual SCARA (4) and of the planar five-bar (2)."""
-    from kincal.robots.mobility import dual_scara_thesis, planar_five_bar
+    from kincal.parallel.mobility import dual_scara_thesis, planar_five_bar
 
     t = Table(title="mobility F = lam (n - j - 1) + sum f_i  (Grübler: sum f_i - lam L)")
     for c in ("mechanism", "lam", "links n", "joints j", "sum f_i", "loops L", "Kutzbach",
@@ -331,8 +330,8 @@ def fivebar_simulate(
     q2_range: Annotated[str | None, typer.Option(help="min,max of beta2 [deg].")] = None,
 ) -> None:
     """Simulate a five-bar measurement file (readings in deg, points in mm) from a true robot."""
-    from kincal.robots.fivebar_data import write_fivebar_csv
-    from kincal.robots.fivebar_thesis import simulate
+    from kincal.parallel.data import write_fivebar_csv
+    from kincal.parallel.thesis import simulate
 
     nominal = _load(robot)
     changes = {}

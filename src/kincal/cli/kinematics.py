@@ -24,7 +24,8 @@ from kincal.cli.common import (
 )
 from kincal.io import write_json
 from kincal.robots.chain import Robot
-from kincal.robots.files import library_dir, library_names, read_robot_yaml
+from kincal.robots.files import library_names
+from kincal.workflow.robots import load_any_robot
 
 QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: rad for revolute, "
                                    "m for prismatic joints (see --deg).")]
@@ -43,7 +44,7 @@ def robots() -> None:
     for c in ("name", "joints", "convention", "description"):
         t.add_column(c, overflow="fold")
     for name in library_names():
-        r = read_robot_yaml(library_dir() / f"{name}.yaml")
+        r = load_any_robot(name)
         if _is_fivebar(r):
             kinds, conv = "2 actuated", "fivebar"
         else:

@@ -88,7 +88,7 @@ def ik(robot: RobotArg,
                           "branch")
     if (pose is None) == (position is None):
         raise KincalError("give exactly one of --pose x,y,z,rx,ry,rz or --position x,y,z")
-    from kincal.ik import check_solutions, solve_ik
+    from kincal.motion.ik import check_solutions, solve_ik
 
     if pose is not None:
         target: np.ndarray = _pose_from_option(pose, deg)
@@ -124,7 +124,7 @@ def ik(robot: RobotArg,
 
 
 def _branches(r: Any, target: np.ndarray, is_pose: bool) -> list[dict[str, Any]]:
-    from kincal.ik_closed_form import closed_form_ik
+    from kincal.motion.ik_closed_form import closed_form_ik
 
     cf = closed_form_ik(r, target[None] if is_pose else target[None])
     return [{"branch": name, "q": None if not cf.reachable[0, b] else cf.q[0, b].tolist(),
@@ -200,7 +200,7 @@ def trajectory(robot: RobotArg,
     the slowest joint), or a C2 spline through --via points.  Cartesian: a straight
     line or a circular arc with slerp orientation, joints from batched IK.
     """
-    from kincal import trajectory as tj
+    from kincal.motion import trajectory as tj
 
     r = robot_arg(robot)
     q_start = joint_vector(r, start, deg, "--start")
@@ -299,7 +299,7 @@ def clik_command(
     cannot reach (theta2 = 0 on its wall): J^-1 blows up there, damped least squares
     slides along the wall and rejoins the line at p_f.
     """
-    from kincal.clik import METHODS, plot_clik, run_seed003
+    from kincal.motion.clik import METHODS, plot_clik, run_seed003
 
     methods = method or ["inverse", "dls"]
     for m in methods:
@@ -333,7 +333,7 @@ def clik_command(
 
 
 def _clik_summary(results: list[Any], out: Path) -> dict[str, Any]:
-    from kincal.clik import SEED003_P_F, SEED003_P_I, SEED003_QF, seed003_robot
+    from kincal.motion.clik import SEED003_P_F, SEED003_P_I, SEED003_QF, seed003_robot
 
     robot = seed003_robot()
     runs = []

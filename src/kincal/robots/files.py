@@ -19,7 +19,7 @@ elementary transforms ``{transform: Rz, name: theta_offset[1], value: 0, joint: 
 scale: 1, role: offset}`` (``name: null`` for a fixed constant).  ``convention: urdf``
 points to a URDF file: ``{file: arm.urdf, base_link: base, tip_link: tool0}``.
 ``kind: fivebar`` files describe the five-bar parallel robot
-(:mod:`kincal.robots.fivebar`).
+(:mod:`kincal.parallel.fivebar`).
 
 Joint limits are in the file's angle unit for revolute joints and its length unit
 for prismatic ones.  Every error names the file and the field, on one line.
@@ -280,9 +280,9 @@ def robot_from_dict(data: Any, source: str) -> Any:
     r = FieldReader(source)
     data = r.mapping(data, "(top level)")
     if data.get("kind") == "fivebar":
-        from kincal.robots.fivebar import FiveBar
-
-        return FiveBar.from_dict(data, source)
+        raise RobotFileError("kind 'fivebar' is a parallel robot, not a serial chain: load it "
+                             "with kincal.load_robot or kincal.parallel.files.load_fivebar",
+                             source=source)
     if "kind" in data and data["kind"] != "serial":
         raise r.fail("kind", f"must be 'serial' or 'fivebar', got {data['kind']!r}")
     name = r.string(data.get("name", Path(source).stem), "name")
@@ -334,6 +334,23 @@ def library_dir() -> Path:
 def library_names() -> list[str]:
     """Names of the built-in robots (file stems), sorted."""
     return sorted(p.stem for p in library_dir().glob("*.yaml"))
+
+
+def robot_kind(spec: str | os.PathLike[str]) -> str:
+    """``"fivebar"`` when ``spec`` names a YAML robot file or built-in robot whose top
+    level says ``kind: fivebar``, else ``"serial"``.  Never raises: the loader reports
+    any problem with the file."""
+    s = str(spec)
+    path = Path(s)
+    if path.suffix.lower() == ".urdf":
+        return "serial"
+    if not path.is_file():
+        path = library_dir() / f"{s.lower()}.yaml"
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return "serial"
+    return "fivebar" if isinstance(data, Mapping) and data.get("kind") == "fivebar" else "serial"
 
 
 def load_robot(spec: str | os.PathLike[str], base_link: str | None = None,

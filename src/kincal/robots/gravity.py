@@ -20,7 +20,7 @@ joint, positive in the direction of increasing ``q_j``.  The torque the joint's 
 must supply to hold the posture is ``-tau``.  A joint with compliance ``k_j`` [rad/(N m)
 or m/N] therefore deflects in the direction of ``tau``: the link side sits at
 ``q_j + k_j tau_j`` while the motor-side encoder reads ``q_j`` (see
-:class:`kincal.measure.compliance.JointCompliance`).
+:class:`kincal.measure.joints.compliance.JointCompliance`).
 
 Where a mass is given: :class:`PointMass` ``(joint, mass, com)`` with ``com`` [m] in the
 frame just after joint ``joint``'s elementary transform ``X(c + s q)`` (the frame

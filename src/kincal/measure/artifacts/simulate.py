@@ -10,7 +10,7 @@ One placement:
    the seated tip is ``s + e_seat`` (``e_seat ~ N(0, point_std^2)`` per coordinate: the
    seating repeatability), the probe axis is ``-n`` tilted by up to ``cone_deg`` about
    a random axis and turned at random about itself, and the flange pose
-   ``T_e = (R, s - R t)`` is solved by :func:`kincal.ik.solve_ik` on the *true* robot
+   ``T_e = (R, s - R t)`` is solved by :func:`kincal.motion.ik.solve_ik` on the *true* robot
    (starting from ``q_c``);
 3. the recorded joint readings are ``q + e_q``, ``e_q ~ N(0, joint_std^2)`` per joint.
 
@@ -27,10 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError
-from kincal.ik import solve_ik
 from kincal.measure.artifacts.geometry import ArtifactGeometry
 from kincal.measure.artifacts.model import ArtifactMeasurement
 from kincal.measure.artifacts.probe import Probe
+from kincal.motion.ik import solve_ik
 from kincal.robots.chain import Robot
 from kincal.spatial import exp_so3
 

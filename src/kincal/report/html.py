@@ -1,0 +1,275 @@
+"""The calibration report as a single-file HTML page.
+
+The numbers it shows come from :mod:`kincal.report.metrics`.
+
+* :func:`identifiability_sentences` - what the data can and cannot identify, in words.
+* :func:`render_html` / :func:`write_html_report` - one HTML file, images embedded as
+  base64 PNG: summary, before/after table, identifiability, parameter table
+  (nominal, estimate, std, identifiable), convergence, one plot per parameter of its
+  value against the iteration, error histograms and per-measurement errors before
+  and after, correlation of the estimates.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.io import atomic_write_text
+from kincal.report.metrics import ErrorComparison, error_keys, error_metrics, quantity
+
+Array = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- words
+def _fmt(value: float | None, unit: str, digits: int = 4) -> str:
+    if value is None or not np.isfinite(value):
+        return "-"
+    if unit == "m":
+        return f"{value * 1e3:.{digits}f}"
+    if unit == "rad":
+        return f"{math.degrees(value):.{digits}f}"
+    return f"{value:.{digits}g}"
+
+
+def _disp_unit(unit: str) -> str:
+    return {"m": "mm", "rad": "deg"}.get(unit, unit)
+
+
+def identifiability_sentences(result: Any) -> list[str]:
+    """Plain sentences on what the data identifies (from the result's analysis)."""
+    d = result.to_dict()
+    params = d.get("parameters", [])
+    est = [p for p in params if p.get("estimated")]
+    ident = d.get("identifiability") or {}
+    out = [f"{d.get('identifiable_count', len(est))} of {len(params)} parameters are "
+           f"identifiable from these measurements; {len(est)} were estimated and the "
+           "others kept their nominal (or initial) values."]
+    rep = getattr(result, "identifiability", None)
+    problem = getattr(result, "problem", None)
+    if rep is not None and problem is not None:
+        out += [g + "; held at the initial value(s)." for g in
+                identifiability_groups(rep, problem.names, problem.roles)]
+    cs, cu = ident.get("cond_scaled"), ident.get("cond_unscaled")
+    if cs is not None:
+        out.append(f"Condition number of the column-scaled identification Jacobian: {cs:.3g}"
+                   + (f" (unscaled {cu:.3g})" if cu is not None else "") + ".")
+    describe = getattr(getattr(result, "identifiability", None), "describe", None)
+    if callable(describe):
+        told = describe()
+        lines = told.splitlines() if isinstance(told, str) else list(told)
+        return out + [str(ln).strip() for ln in lines if str(ln).strip()]
+    unobs = list(ident.get("unobservable", []))
+    if unobs:
+        out.append(f"{len(unobs)} parameter(s) have no effect on any measurement and cannot "
+                   f"be identified at all: {', '.join(unobs)}.")
+    for name, others in (ident.get("dependent", {}) or {}).items():
+        out.append(f"{name} cannot be told apart from {', '.join(others)}: the data sees only "
+                   "a combination of them, so it was held fixed.")
+    return out
+
+
+_ROBOT_ROLES = ("base", "tool", "offset", "length", "angle")
+_BLOCK_PART = {"instrument": "frame", "tool_point": "marker", "target": "target"}
+
+
+def identifiability_groups(report: Any, names: Sequence[str], roles: Sequence[str]
+                           ) -> list[str]:
+    """The non-identifiable parameters grouped by what absorbs them, one sentence each.
+
+    E.g. "base.x, base.y, theta_offset[1] are absorbed by the frame of tracker" (an
+    instrument in an unknown place hides the robot's base), "tool.x, d[6] are absorbed
+    by the marker of tracker", "d[3] cannot be separated from d[2]".
+    """
+    role = dict(zip(names, roles, strict=True))
+    groups: dict[str, list[str]] = {}
+    singles: list[str] = []
+    for n in report.not_identifiable:
+        if n in report.unobservable:
+            groups.setdefault("have no effect on the measurements", []).append(n)
+            continue
+        deps = list(report.dependent.get(n, []))
+        if deps and all(role.get(d) not in _ROBOT_ROLES for d in deps):
+            parts = sorted({f"{_BLOCK_PART.get(role.get(d, ''), 'parameters')} of "
+                            f"{d.split('.')[0]}" for d in deps})
+            groups.setdefault(f"are absorbed by the {' and the '.join(parts)}", []).append(n)
+        elif deps:
+            singles.append(f"{n} cannot be separated from {', '.join(deps)}")
+        else:
+            singles.append(f"{n} is not identifiable")
+    out = [f"{', '.join(v)} {k}" if len(v) > 1 else
+           f"{v[0]} {k.replace('are absorbed', 'is absorbed').replace('have no', 'has no')}"
+           for k, v in groups.items()]
+    return out + singles
+
+
+# --------------------------------------------------------------------------- HTML
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;max-width:1200px;
+margin:2em auto;padding:0 1em;color:#222}
+h1{font-size:1.6em}h2{font-size:1.25em;margin-top:1.8em;border-bottom:1px solid #ddd}
+table{border-collapse:collapse;font-size:.88em;margin:.6em 0}
+th,td{border:1px solid #ddd;padding:3px 8px;text-align:right}
+th{background:#f3f3f3}td.l,th.l{text-align:left}
+tr.no td{color:#999}img{max-width:100%}
+.ok{color:#1a7f37}.bad{color:#c0504d}.small{font-size:.85em;color:#555}
+"""
+
+
+def _img(png: bytes, alt: str) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def _metric_table(comparisons: Sequence[ErrorComparison]) -> str:
+    head = ["data", "quantity", "n", "", "RMS", "mean", "max"]
+    rows = []
+    for c in comparisons:
+        for k, key in enumerate(error_keys(c.before, c.after)):
+            name, f, unit = quantity(key)
+            for when, errs in (("before", c.before), ("after", c.after)):
+                m = error_metrics({key: errs[key]}) if key in errs else {}
+                first = when == "before"
+                cells = [html.escape(c.title) if first and k == 0 else "",
+                         f"{name} [{unit}]" if first else "",
+                         str(m.get("n", "")) if first else "", when]
+                cells += [_num(m.get(f"{s}_{key}"), f) for s in ("rms", "mean", "max")]
+                rows.append("<tr>" + "".join(
+                    f'<td class="l">{x}</td>' if i < 4 else f"<td>{x}</td>"
+                    for i, x in enumerate(cells)) + "</tr>")
+    notes = "".join(f"<li>{html.escape(c.title)}: {html.escape(c.note)}</li>"
+                    for c in comparisons if c.note)
+    return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows)
+            + "</table>" + (f'<ul class="small">{notes}</ul>' if notes else ""))
+
+
+def _num(v: float | None, factor: float) -> str:
+    return "-" if v is None or not np.isfinite(v) else f"{v * factor:.4f}"
+
+
+def _param_table(result: Any, truth: Mapping[str, float] | None) -> str:
+    params = result.to_dict()["parameters"]
+    head = ["parameter", "unit", "nominal", "estimate", "change", "std (1σ)", "identifiable",
+            "estimated"]
+    if truth:
+        head.insert(5, "true")
+    rows = []
+    for p in params:
+        u = p.get("unit", "")
+        nom, est, std = p.get("nominal"), p.get("estimate"), p.get("std")
+        change = None if nom is None or est is None else est - nom
+        cells = [html.escape(p["name"]), _disp_unit(u), _fmt(nom, u), _fmt(est, u),
+                 _fmt(change, u), _fmt(std, u) if p.get("estimated") else "-",
+                 '<span class="ok">yes</span>' if p.get("identifiable")
+                 else '<span class="bad">no</span>',
+                 "yes" if p.get("estimated") else "fixed"]
+        if truth:
+            cells.insert(5, _fmt(truth.get(p["name"]), u))
+        cls = "" if p.get("estimated") else ' class="no"'
+        rows.append(f"<tr{cls}>" + "".join(
+            f'<td class="l">{x}</td>' if i == 0 else f"<td>{x}</td>"
+            for i, x in enumerate(cells)) + "</tr>")
+    return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows)
+            + "</table>")
+
+
+def _history(result: Any) -> tuple[Array, list[str], Array, Array]:
+    """Parameter values per iteration (rows), stage names, cost and RMS."""
+    hist = list(getattr(result, "history", []) or [])
+    if not hist:
+        theta = np.asarray(result.theta, dtype=float)
+        return theta[None], ["final"], np.array([np.nan]), np.array([np.nan])
+    H = np.array([np.asarray(h.theta, dtype=float) for h in hist])
+    return (H, [str(h.stage) for h in hist], np.array([float(h.cost) for h in hist]),
+            np.array([float(h.rms) for h in hist]))
+
+
+def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str = "",
+                inputs: Mapping[str, str] | None = None,
+                truth: Mapping[str, float] | None = None, plots: bool = True,
+                extra_sections: Sequence[str] = ()) -> str:
+    """The report as one self-contained HTML document (images embedded).
+
+    ``extra_sections`` are HTML fragments placed before the footer (e.g. the cross-bar
+    patent's selection and comparison tables).
+    """
+    from kincal._version import __version__
+    from kincal.report import plots as rp
+
+    d = result.to_dict()
+    names = list(result.names)
+    units = list(getattr(result.problem, "units", [""] * len(names)))
+    chosen = set(result.estimated)
+    est_mask = np.array([n in chosen for n in names], dtype=bool)
+    title = title or f"kincal calibration of {getattr(result.robot, 'name', 'robot')}"
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+             f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"]
+    now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
+    conv = '<span class="ok">converged</span>' if d.get("converged") else \
+        '<span class="bad">did not converge</span>'
+    parts.append(f"<p>{conv} after {d.get('iterations')} iterations; "
+                 f"{int(est_mask.sum())} parameters estimated; "
+                 f"a-posteriori sigma0 = {d.get('sigma0', float('nan')):.3g} (1 = residuals at "
+                 f"the stated noise). {html.escape(str(getattr(result, 'message', '')))}</p>")
+    if inputs:
+        parts.append("<table>" + "".join(
+            f'<tr><th class="l">{html.escape(k)}</th><td class="l">{html.escape(str(v))}</td>'
+            "</tr>" for k, v in inputs.items()) + "</table>")
+    if comparisons:
+        parts.append("<h2>Errors before and after calibration</h2>")
+        parts.append(_metric_table(comparisons))
+    parts.append("<h2>What the data can identify</h2><ul>" + "".join(
+        f"<li>{html.escape(s)}</li>" for s in identifiability_sentences(result)) + "</ul>")
+    parts.append("<h2>Parameters</h2><p class='small'>lengths in mm, angles in degrees; "
+                 "std is the 1-sigma uncertainty of the estimate (scaled by sigma0); grey "
+                 "rows were held fixed.</p>")
+    parts.append(_param_table(result, truth))
+    if plots:
+        H, stages, cost, rms = _history(result)
+        if np.all(np.isfinite(cost)):
+            parts.append("<h2>Convergence</h2>" + _img(rp.convergence(cost, rms, stages),
+                                                      "convergence"))
+        idx = np.flatnonzero(est_mask)
+        parts.append("<h2>Estimated parameters against the iteration</h2><p class='small'>"
+                     "dashed vertical lines: start of a stage; dotted horizontal lines: "
+                     "true values (simulations only). A parameter that absorbs a dependent "
+                     "one (see above) converges to their combination, not to its own true "
+                     "value.</p>")
+        for png in rp.parameter_history(H[:, idx], [names[i] for i in idx],
+                                        [units[i] for i in idx], stages, truth):
+            parts.append(_img(png, "parameter history"))
+        sets = [(c.title, c.before, c.after) for c in comparisons]
+        if sets:
+            parts.append("<h2>Error distributions</h2>" + _img(rp.error_histograms(sets),
+                                                               "histograms"))
+            parts.append("<h2>Error of every measurement</h2>" + _img(
+                rp.per_pose_errors(sets), "per-measurement errors"))
+        C = getattr(result, "correlation", None)
+        if C is not None and 1 < len(idx) <= 80:
+            C = np.asarray(C, dtype=float)
+            if C.shape == (len(names), len(names)):
+                C = C[np.ix_(idx, idx)]
+            if C.shape == (len(idx), len(idx)) and np.all(np.isfinite(C)):
+                parts.append("<h2>Correlation of the estimates</h2>" + _img(
+                    rp.correlation(C, [names[i] for i in idx]), "correlation"))
+    parts.extend(extra_sections)
+    parts.append(f"<p class='small'>kincal {__version__}, {now}. Units inside kincal are SI "
+                 "(m, rad); the result JSON and robot files are SI.</p></body></html>")
+    return "\n".join(parts)
+
+
+def write_html_report(path: str | Path, result: Any, comparisons: Sequence[ErrorComparison],
+                      title: str = "", inputs: Mapping[str, str] | None = None,
+                      truth: Mapping[str, float] | None = None,
+                      extra_sections: Sequence[str] = ()) -> None:
+    """Write :func:`render_html` to ``path`` atomically."""
+    atomic_write_text(path, render_html(result, comparisons, title, inputs, truth,
+                                        extra_sections=extra_sections))

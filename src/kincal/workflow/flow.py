@@ -1,0 +1,545 @@
+"""The calibration workflow as plain functions: read data, calibrate, validate, write.
+
+What ``kincal calibrate`` / ``validate`` / ``demo`` do, usable from Python::
+
+    from kincal.robots.files import load_robot
+    from kincal.workflow.flow import read_blocks, run_flow, write_outputs
+
+    robot = load_robot("puma560")
+    blocks = read_blocks(["train.csv"], robot)
+    flow = run_flow(robot, blocks, read_blocks(["held.csv"], robot))
+    write_outputs(flow, "calibrated.yaml", json_out="result.json", report="report.html")
+
+* :func:`read_blocks` - measurement files, one block each, clashing names renamed;
+* :func:`run_flow` - calibrate (``procedure="lm"``: :func:`~kincal.identify.solver.calibrate`;
+  ``"patent"``: :func:`~kincal.identify.patent.calibrate_patent`), then the errors
+  before/after on the training and held-out data (:class:`~kincal.report.html.ErrorComparison`);
+* :func:`validate_blocks` - errors of a robot on held-out files;
+* :func:`write_outputs` - calibrated robot (YAML, URDF), result JSON, HTML report and,
+  for artifact data, the patent's figures 4 and 5, each rendered first and then written
+  atomically (a failure while rendering writes nothing).
+
+Option text is checked and parsed in :mod:`kincal.workflow.options` and the patent / artifact
+figure sections of the report are rendered in :mod:`kincal.workflow.report_sections`; both are
+re-exported here.
+
+Units are SI (m, rad) everywhere; the report shows mm and degrees.  Nothing here prints:
+progress goes to an optional callback, warnings into :attr:`FlowResult.warnings`.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.errors import KincalError, MeasurementFileError
+from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
+from kincal.workflow.options import (
+    LOSSES,
+    METHODS,
+    PROCEDURES,
+    STAGES,
+    check_flow_options,
+    check_options_used,
+    parse_prior,
+    parse_selection,
+    parse_stages,
+)
+from kincal.workflow.report_sections import (
+    artifact_figures,
+    figures_section_html,
+    patent_section_html,
+)
+from kincal.workflow.result import FlowResult
+
+Array = NDArray[np.float64]
+
+__all__ = ["FlowResult", "read_blocks", "ignored_columns", "check_options_used",
+           "parse_selection", "parse_stages", "parse_prior", "check_flow_options", "run_flow",
+           "validate_blocks", "reregister", "errors_with", "block_values", "truth_values",
+           "extras_from_result", "render_outputs", "write_outputs", "patent_section_html",
+           "figures_section_html", "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
+
+
+# --------------------------------------------------------------------------- reading data
+def read_blocks(paths: Sequence[str | Path], robot: Any, units: str | None = None,
+                ignore: Sequence[str] | None = None) -> list[Any]:
+    """Read measurement files (one block each), renaming blocks whose names clash.
+
+    Args:
+        paths: measurement CSV files.
+        robot: the robot whose joints the files' joint columns name.
+        units: ``--units`` text (``"x1=m,arm_1_joint=rad"``); entries matching no column
+            of a file are not passed to it (they may belong to another file).
+        ignore: ``--ignore`` patterns, likewise per file.
+
+    Every block gets ``source_path`` (its file).  Raises one-line errors for bad files.
+    """
+    from kincal.measure.files import parse_list_option, parse_units_option
+    from kincal.measure.registry import read_measurements
+
+    umap = parse_units_option(units)
+    drop = parse_list_option(ignore)
+    blocks: list[Any] = []
+    taken: set[str] = set()
+    for path in map(str, paths):
+        if not Path(path).is_file():
+            raise MeasurementFileError("no such measurement file", source=path)
+        got = read_measurements(path, robot, _matching(path, umap), _matching_list(path, drop))
+        for b in got:
+            if b.name in taken:
+                k = 2
+                while f"{b.name}{k}" in taken:
+                    k += 1
+                b = read_measurements(path, robot, _matching(path, umap),
+                                      _matching_list(path, drop), name=f"{b.name}{k}")[0]
+            taken.add(b.name)
+            b.source_path = path
+            blocks.append(b)
+    return blocks
+
+
+def ignored_columns(blocks: Sequence[Any]) -> list[tuple[str, list[str]]]:
+    """``(file, [column ...])`` of the columns each block's reader did not read."""
+    out = []
+    for b in blocks:
+        table = getattr(b, "table", None)
+        if table is not None and table.ignored:
+            out.append((str(getattr(b, "source_path", b.name)), list(table.ignored)))
+    return out
+
+
+def _header(path: str) -> list[str]:
+    from kincal.measure.files import read_header
+
+    return read_header(path)[1]
+
+
+def _matching(path: str, umap: dict[str, str]) -> dict[str, str]:
+    from kincal.measure.files import glob_regex
+
+    if not umap:
+        return {}
+    names = _header(path)
+    return {k: v for k, v in umap.items() if any(glob_regex(k).match(n) for n in names)}
+
+
+def _matching_list(path: str, patterns: list[str]) -> list[str]:
+    from kincal.measure.files import glob_regex
+
+    if not patterns:
+        return []
+    names = _header(path)
+    return [p for p in patterns if any(glob_regex(p).match(n) for n in names)]
+
+
+# --------------------------------------------------------------------------- calibration
+def errors_with(robot: Any, block: Any, extra: Array) -> dict[str, Array]:
+    """Physical errors (``position_m`` ...) of ``block`` under ``robot`` with its parameters."""
+    return {k: np.asarray(v, dtype=float) for k, v in block.errors(robot, extra).items()}
+
+
+def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixed: list[str],
+               procedure: str, progress: Callable[[Any], Any] | None,
+               options: Mapping[str, Any]) -> Any:
+    if procedure == "patent":
+        from kincal.identify.patent import calibrate_patent
+
+        extra = {"max_iter": options["max_iter"]} if options.get("max_iter") else {}
+        return calibrate_patent(robot, blocks, free=free_names, fixed=fixed,
+                                condition_growth=options.get("condition_growth"),
+                                cycles=options.get("cycles"),
+                                tolerance=options.get("tolerance") or 1e-7,
+                                progress=progress, compare=True, **extra)
+    from kincal.identify.solver import calibrate
+
+    return calibrate(robot, blocks, free=free_names, fixed=fixed, method=options["method"],
+                     stages=options.get("stages"), loss=options["loss"],
+                     loss_scale=options["loss_scale"], max_iter=options.get("max_iter") or 100,
+                     progress=progress, prior=options.get("prior") or None)
+
+
+def _with_origin(kept: Sequence[Any], original: Sequence[Any]) -> list[Any]:
+    """The solver's blocks with ``source_path`` / ``table`` of the blocks they came from
+    (the patent's selection copies the blocks it thins out)."""
+    by_name = {b.name: b for b in original}
+    for b in kept:
+        src = by_name.get(b.name)
+        if src is not None and b is not src:
+            for attr in ("source_path", "table"):
+                if hasattr(src, attr) and not hasattr(b, attr):
+                    setattr(b, attr, getattr(src, attr))
+    return list(kept)
+
+
+def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
+             free: str | None = None, fix: str | None = None, stages: list[str] | None = None,
+             method: str = "lm", loss: str = "linear", loss_scale: float = 3.0,
+             max_iter: int | None = None, validation_frames: str = "auto",
+             procedure: str = "lm", condition_growth: float | None = None,
+             cycles: int | None = None, tolerance: float | None = None,
+             prior: str | None = None, cross_validate: int | None = None,
+             progress: Callable[[Any], Any] | None = None) -> FlowResult:
+    """Calibrate, then compute the errors before/after on the training and held-out data.
+
+    Args:
+        robot: the nominal robot.
+        blocks, holdouts: training and held-out measurement blocks.
+        free, fix: ``--free`` / ``--fix`` patterns (names, ``*``, ``role:offset``).
+        stages, method, loss, loss_scale: the one-stage solver's options
+            (``procedure="lm"``).
+        max_iter: iterations (lm: in all, default 100; patent: per stage, default 20).
+        validation_frames: ``auto`` | ``training`` | ``register`` (see below).
+        procedure: ``lm`` (the one-stage solver) or ``patent`` (the cross-bar patent's
+            two stages, :func:`~kincal.identify.patent.calibrate_patent`, with its
+            comparison against one-stage LM).
+        condition_growth: patent only: discard a placement when the condition number
+            grows by more than this factor (None: keep every placement).
+        cycles: patent only: passes through the stages (1 = the patent literally;
+            None = until converged).
+        tolerance: patent only: stop when no predicted point moves more than this [m]
+            (default 1e-7 m).
+        prior: ``--prior`` text (:func:`parse_prior`, e.g. ``"*.origin.*=1mm"``): a
+            maximum a-posteriori estimate with Gaussian priors centred on the nominal
+            values (``procedure="lm"``).
+        cross_validate: K-fold cross-validation of the same calibration on the training
+            data (:func:`~kincal.identify.validation.cross_validate`, folds drawn with
+            seed 0; one training block, ``procedure="lm"``): how well the chosen model
+            predicts measurements it was not fitted to, from the training data alone.
+        progress: called with every :class:`~kincal.identify.solver.IterationRecord`.
+
+    *Before* = the nominal robot with the instruments registered to it (only the
+    blocks' own parameters fitted: the "registration only" baseline); *after* = the
+    calibrated robot with the frames estimated with it.  The training errors use the
+    blocks the solver used (``result.problem.blocks``: after the patent's selection,
+    only the kept placements).
+
+    Held-out blocks, for both robots:
+
+    * **same session** (``validation_frames="training"``, or ``"auto"`` when the file's
+      tag names a training block, e.g. ``name=tracker`` in both files): every block
+      parameter comes from training, nothing is refitted (FIGAROH's protocol);
+    * otherwise (``"register"``, or ``"auto"`` for a file without a name tag or with
+      another name): the instrument moved, so only its frame (role ``instrument``) is
+      fitted on the held-out data; the marker / target comes from the training block
+      of the same kind (when there is one), so it cannot absorb robot errors.
+
+    A same-session block whose errors are more than 5x those after re-registering the
+    frame raises a warning (the instrument probably moved).
+    """
+    from kincal.measure.base import stack
+    from kincal.report.metrics import ErrorComparison, merge_errors
+
+    check_flow_options(procedure=procedure, method=method, loss=loss, stages=stages,
+                       validation_frames=validation_frames, condition_growth=condition_growth,
+                       cycles=cycles, tolerance=tolerance, prior=prior)
+    if cross_validate is not None:
+        if procedure != "lm":
+            raise KincalError("--cross-validate works with --procedure lm")
+        if len(blocks) != 1:
+            raise KincalError(f"--cross-validate takes one training file (got {len(blocks)})")
+        if cross_validate < 2:
+            raise KincalError(f"option --cross-validate: needs at least 2 folds (got "
+                              f"{cross_validate})")
+    prob, _ = stack(robot, blocks)
+    free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
+    prior_s = parse_prior(prior, prob.names, prob.units)
+    options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
+               "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
+               "tolerance": tolerance, "prior": prior_s}
+    t0 = time.perf_counter()
+    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
+    seconds = time.perf_counter() - t0
+    cv = None
+    if cross_validate is not None:
+        from kincal.identify.validation import cross_validate as k_fold
+
+        got = k_fold(robot, blocks[0], folds=cross_validate, rng=np.random.default_rng(0),
+                     free=free_names, fixed=fixed, method=method, stages=stages, loss=loss,
+                     loss_scale=loss_scale, max_iter=max_iter or 100, prior=prior_s or None)
+        cv = {"folds": cross_validate, "seed": 0, "split": got["split"],
+              **{k: v for k, v in got.items() if k.startswith("rms_")}}
+    train = _with_origin(res.problem.blocks, blocks)
+    before = {b.name: reregister(robot, b, None, None) for b in train}
+    after = {b.name: res.theta[res.problem.block_slice(b.name)] for b in train}
+    comps = [ErrorComparison(
+        "train", "train" + _files(train),
+        merge_errors([errors_with(robot, b, before[b.name]) for b in train]),
+        merge_errors([errors_with(res.robot, b, after[b.name]) for b in train]),
+        "before: nominal robot, instrument frames and markers fitted to it; after: "
+        "calibrated robot and frames")]
+    warnings: list[str] = []
+    if prior_s and not 1 / 3 <= res.sigma0 <= 3:
+        warnings.append(
+            f"--prior: the residuals are {res.sigma0:.3g} times the measurements' standard "
+            "deviations (the files' sigma columns, or the default for files without one), "
+            f"so the data weigh {res.sigma0 ** 2:.3g} times too "
+            f"{'much' if res.sigma0 > 1 else 'little'} against the prior; give the files "
+            "a sigma column with the instrument's real uncertainty")
+    if holdouts:
+        comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
+                                         after, validation_frames, warnings))
+    return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv)
+
+
+def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdouts: list[Any],
+                        before: dict[str, Array], after: dict[str, Array], frames: str,
+                        warnings: list[str]) -> Any:
+    """The ``validation`` comparison of :func:`run_flow` (appends to ``warnings``)."""
+    from kincal.report.metrics import (
+        ErrorComparison,
+        error_keys,
+        error_metrics,
+        merge_errors,
+        quantity,
+    )
+
+    eb, ea, notes = [], [], []
+    for h in holdouts:
+        twin = _training_twin(h, train)
+        if frames == "training" and twin is None:
+            raise KincalError(f"held-out block {h.name!r} has no training block of its "
+                              "kind to take frames from")
+        same = twin is not None and (frames == "training" or (
+            frames == "auto" and twin.name == h.name and _explicit_name(h)))
+        if same:
+            xb, xa = before[twin.name], after[twin.name]
+            notes.append(f"{h.name}: same session, frames and markers from training "
+                         "(no refit)")
+            check = reregister(calibrated, h, twin, after[twin.name])
+            e1, e2 = errors_with(calibrated, h, xa), errors_with(calibrated, h, check)
+            key = error_keys(e1)[0]
+            reused = error_metrics(e1)[f"rms_{key}"]
+            fresh = error_metrics(e2)[f"rms_{key}"]
+            if reused > 5 * fresh and reused > 1e-4:
+                _, f, unit = quantity(key)
+                warnings.append(
+                    f"{Path(getattr(h, 'source_path', h.name)).name}: with the training "
+                    f"frames the held-out RMS is {reused * f:.3g} {unit}, after "
+                    f"re-registering the instrument frame {fresh * f:.3g} {unit}: the "
+                    "instrument probably moved; use --validation-frames register")
+        else:
+            xb = reregister(nominal, h, twin, before[twin.name] if twin else None)
+            xa = reregister(calibrated, h, twin, after[twin.name] if twin else None)
+            what = f"marker/target from training block {twin.name!r}" if twin else \
+                "all its parameters"
+            notes.append(f"{h.name}: instrument frame re-registered on the held-out "
+                         f"data ({what})")
+        eb.append(errors_with(nominal, h, xb))
+        ea.append(errors_with(calibrated, h, xa))
+    return ErrorComparison("validation", "held-out" + _files(holdouts), merge_errors(eb),
+                           merge_errors(ea), "; ".join(notes))
+
+
+def _explicit_name(block: Any) -> bool:
+    """True when the block's name came from its file's tag (not a default)."""
+    table = getattr(block, "table", None)
+    return table is None or "name" in table.tags
+
+
+def _training_twin(h: Any, blocks: Sequence[Any]) -> Any:
+    """The training block measured like ``h``: same name, else the only one of its kind."""
+    for b in blocks:
+        if b.name == h.name and type(b) is type(h):
+            return b
+    kind = [b for b in blocks if type(b) is type(h)]
+    return kind[0] if len(kind) == 1 else None
+
+
+def reregister(robot: Any, h: Any, twin: Any, twin_values: Array | None) -> Array:
+    """Fit ``h``'s instrument frame to ``robot`` (held fixed); other block parameters from
+    the training twin when it has them (matched by name after the block prefix).  Without
+    a twin every block parameter is fitted (the "registration only" fit) except the
+    non-geometric joint model's (compliance, hysteresis), held at 0."""
+    from kincal.identify.solver import calibrate
+
+    spec = h.parameters()
+    known: dict[str, float] = {}
+    if twin is not None and twin_values is not None:
+        tspec = twin.parameters()
+        known = {n[len(twin.name) + 1:]: float(v)
+                 for n, v, r in zip(tspec.names, twin_values, tspec.roles, strict=True)
+                 if r != "instrument"}
+    init, free = {}, []
+    for n, role in zip(spec.names, spec.roles, strict=True):
+        suffix = n[len(h.name) + 1:]
+        if role != "instrument" and suffix in known:
+            init[n] = known[suffix]
+        elif role in NON_GEOMETRIC_ROLES:
+            init[n] = 0.0           # no calibrated joint model: the encoders as they read
+        else:
+            free.append(n)
+    if not free:
+        return np.array([init[n] for n in spec.names], dtype=float)
+    res = calibrate(robot, [h], free=free, initial=init or None, tol_step=1e-12, max_iter=200)
+    return res.theta[res.problem.slices[0]]
+
+
+def block_values(values: Mapping[str, float], block: Any) -> Array:
+    """A block's parameter vector from ``{name: value}`` (in the block's order)."""
+    return np.array([values[n] for n in block.parameters().names])
+
+
+def _files(blocks: Sequence[Any]) -> str:
+    names = [Path(getattr(b, "source_path", "")).name for b in blocks]
+    names = [n for n in names if n]
+    return f" ({', '.join(names)})" if names else ""
+
+
+# --------------------------------------------------------------------------- validation
+def validate_blocks(robot: Any, blocks: Sequence[Any], before: Any = None,
+                    extras: Mapping[str, float] | None = None,
+                    protocol: str | None = None) -> list[Any]:
+    """Errors of ``robot`` (and of ``before``) on held-out blocks, one comparison each.
+
+    With ``extras`` (``{parameter: value}`` from a result JSON) every block parameter
+    is taken as it is (same session, no refit); without, each block's instrument
+    parameters are re-registered to the robot evaluated.  Returns
+    :class:`~kincal.report.html.ErrorComparison` (``before`` = ``after`` without ``before``).
+    """
+    from kincal.identify.validation import validate
+    from kincal.report.metrics import ErrorComparison
+
+    how = protocol or ("frames from the result file" if extras is not None
+                       else "instrument re-registered on this file")
+
+    def frames(r: Any, b: Any) -> Array:
+        if extras is not None:
+            return block_values(validate(r, [b], extras=dict(extras))["extras"][b.name], b)
+        return reregister(r, b, None, None)
+
+    comps = []
+    for b in blocks:
+        ea = errors_with(robot, b, frames(robot, b))
+        eb = errors_with(before, b, frames(before, b)) if before is not None else ea
+        comps.append(ErrorComparison("validation", Path(getattr(b, "source_path", b.name)
+                                                         ).name, eb, ea, how))
+    return comps
+
+
+def truth_values(path: str | Path) -> dict[str, float]:
+    """True parameter values from a robot file (and instrument truth from its notes)."""
+    from kincal.robots.files import load_robot
+
+    t = load_robot(path)
+    vals = {n: float(v) for n, v in zip(t.param_names, t.param_values, strict=True)}
+    note = str(getattr(t, "meta", {}).get("notes", ""))
+    if "instrument truth:" in note:
+        for part in note.split("instrument truth:", 1)[1].split(","):
+            if "=" in part:
+                k, v = part.split("=", 1)
+                try:
+                    vals[k.strip()] = float(v)
+                except ValueError:
+                    pass
+    return vals
+
+
+def extras_from_result(path: str | Path) -> dict[str, float]:
+    """``{parameter: estimate}`` of a result JSON written by ``kincal calibrate``."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        return {p["name"]: float(p["estimate"]) for p in doc["parameters"]}
+    except FileNotFoundError:
+        raise KincalError("no such result file", source=str(path)) from None
+    except (ValueError, KeyError, TypeError) as exc:
+        raise KincalError(f"not a kincal result JSON ({exc.__class__.__name__}: {exc})",
+                          source=str(path)) from None
+
+
+# --------------------------------------------------------------------------- outputs
+def _render_report(result: Any, comparisons: Sequence[Any], inputs: Mapping[str, str],
+                   truth: Mapping[str, float] | None, sections: Sequence[str]) -> str:
+    """:func:`kincal.report.html.render_html` with extra sections before the footer."""
+    from kincal.report.html import render_html
+
+    return render_html(result, comparisons, inputs=inputs, truth=truth,
+                       extra_sections=list(sections))
+
+
+def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None = None,
+                   json_out: str | None = None, report: str | None = None,
+                   inputs: Mapping[str, str] | None = None,
+                   truth: Mapping[str, float] | None = None,
+                   extra: Mapping[str, Any] | None = None
+                   ) -> tuple[dict[str, str], dict[str, str | bytes]]:
+    """Render every output of a calibration in memory.
+
+    Returns ``(planned, contents)``: ``planned`` maps ``robot``, ``urdf``, ``report``,
+    ``json`` and each figure key to its path; ``contents`` maps the same keys to the
+    text (or PNG bytes) to write.  A URDF robot's ``urdf`` entry is None: it is
+    written by :func:`~kincal.robots.urdf.write_calibrated_urdf` from the original file.
+    """
+    from kincal.io import _jsonable
+    from kincal.report.metrics import result_json
+    from kincal.robots.files import robot_yaml_text
+
+    res = flow.result
+    inputs = dict(inputs or {})
+    planned = {k: v for k, v in (("robot", output), ("urdf", urdf), ("report", report)) if v}
+    contents: dict[str, str | bytes] = {}
+    info = getattr(res, "patent", None)
+    figures = artifact_figures(flow, report) if report else {}
+    for key, (path, png) in figures.items():
+        planned[key] = path
+        contents[key] = png
+    if report:
+        units = dict(zip(res.names, res.problem.units, strict=True))
+        sections = ([patent_section_html(info, figures, units)] if info is not None else
+                    [figures_section_html(figures)] if figures else [])
+        contents["report"] = _render_report(res, flow.comparisons, inputs, truth, sections)
+    if output:
+        contents["robot"] = robot_yaml_text(res.robot)
+    if urdf and res.robot.meta.get("convention") != "urdf":
+        from kincal.robots.urdf import urdf_text
+
+        contents["urdf"] = urdf_text(res.robot)[0]
+    if json_out:
+        more = dict(extra or {})
+        if info is not None:
+            more["patent"] = info.to_dict()
+        doc = result_json(res, flow.comparisons, {"inputs": inputs, **more})
+        if flow.cross_validation is not None:
+            doc["metrics"]["cross_validation"] = dict(flow.cross_validation)
+        doc["outputs"] = dict(planned)
+        contents["json"] = json.dumps(doc, indent=2, default=_jsonable) + "\n"
+        planned["json"] = json_out
+    return planned, contents
+
+
+def write_outputs(flow: FlowResult, output: str | None = None, urdf: str | None = None,
+                  json_out: str | None = None, report: str | None = None,
+                  inputs: Mapping[str, str] | None = None,
+                  truth: Mapping[str, float] | None = None,
+                  extra: Mapping[str, Any] | None = None) -> dict[str, str]:
+    """Render everything (:func:`render_outputs`), then write each file atomically, the
+    JSON last, so a failure while rendering leaves no output behind.
+
+    Returns ``{what: path}`` of the files written (``robot``, ``urdf``, ``report``,
+    figure keys, ``json``).
+    """
+    from kincal.io import atomic_write_bytes, atomic_write_text
+
+    planned, contents = render_outputs(flow, output, urdf, json_out, report, inputs, truth,
+                                       extra)
+    for key, path in planned.items():
+        if key == "json" or key not in contents:
+            continue
+        data = contents[key]
+        if isinstance(data, bytes):
+            atomic_write_bytes(path, data)
+        else:
+            atomic_write_text(path, data)
+    if urdf and "urdf" not in contents:
+        from kincal.robots.urdf import write_calibrated_urdf
+
+        write_calibrated_urdf(None, flow.result.robot, urdf)
+    if json_out:
+        atomic_write_text(json_out, str(contents["json"]))
+    return {k: v for k, v in planned.items() if k != "json"}

@@ -1,0 +1,182 @@
+"""Options of the calibration workflow, checked and parsed before any file is read.
+
+What ``kincal calibrate`` / ``identifiability`` / ``validate`` do with their option text,
+usable from Python (:mod:`kincal.workflow.flow` re-exports every name):
+
+* :func:`check_flow_options` - one-line errors for options that do not fit together;
+* :func:`check_options_used` - every ``--units`` / ``--ignore`` entry matches a column;
+* :func:`parse_selection` - ``--free`` / ``--fix`` patterns -> parameter names;
+* :func:`parse_prior` - ``--prior`` text -> prior standard deviations [m / rad];
+* :func:`parse_stages` - ``--stages`` text -> the one-stage solver's stages.
+
+Every error is a one-line :class:`~kincal.errors.KincalError` naming the option.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+from kincal.errors import KincalError, MeasurementFileError
+from kincal.identify.solver import LOSSES, METHODS, STAGE_KEYWORDS
+
+__all__ = ["check_options_used", "parse_selection", "parse_stages", "parse_prior",
+           "check_flow_options", "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
+
+PROCEDURES = ("lm", "patent")
+STAGES = STAGE_KEYWORDS
+
+
+def check_options_used(paths: Sequence[str | Path], units: str | None,
+                       ignore: Sequence[str] | None) -> None:
+    """Every ``--units`` / ``--ignore`` entry must match a column of some file (typo guard)."""
+    from kincal.measure.files import (
+        glob_regex,
+        parse_list_option,
+        parse_units_option,
+        read_header,
+    )
+
+    for p in paths:
+        if not Path(p).is_file():
+            raise MeasurementFileError("no such measurement file", source=str(p))
+    names = [n for p in paths for n in read_header(str(p))[1]]
+    for key in list(parse_units_option(units)) + parse_list_option(ignore):
+        if not any(glob_regex(key).match(n) for n in names):
+            raise MeasurementFileError(f"--units/--ignore entry {key!r} matches no column of "
+                                       f"{', '.join(map(str, paths))}")
+
+
+def parse_selection(names: Sequence[str], roles: Sequence[str], free: str | None,
+                    fix: str | None) -> tuple[list[str] | None, list[str]]:
+    """``--free`` / ``--fix`` patterns (comma separated; ``role:offset`` selects a role).
+
+    Returns ``(free names or None for automatic, fixed names)``.
+    """
+    from kincal.identify.solver import match_names
+
+    def expand(text: str | None) -> list[str] | None:
+        if not text:
+            return None
+        out: list[str] = []
+        for p in (s.strip() for s in text.split(",")):
+            if not p:
+                continue
+            if p.startswith("role:"):
+                role = p[5:]
+                hit = [n for n, r in zip(names, roles, strict=True) if r == role]
+                if not hit:
+                    raise KincalError(f"no parameter has role {role!r} (roles: "
+                                      f"{', '.join(sorted(set(roles)))})")
+                out += hit
+            else:
+                out += [names[i] for i in match_names(names, [p])]
+        return list(dict.fromkeys(out))
+
+    return expand(free), expand(fix) or []
+
+
+_PRIOR_VALUE = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]+)?\s*\Z")
+
+
+def parse_prior(text: str | None, names: Sequence[str], units: Sequence[str]
+                ) -> dict[str, float]:
+    """``--prior`` text -> prior standard deviations ``{parameter name: s}`` [m / rad].
+
+    ``text`` is ``PATTERN=SIGMA_WITH_UNIT`` entries, comma separated, e.g.
+    ``"*.origin.*=1mm,*.origin.*=0.1deg"``: names or ``*`` / ``?`` patterns
+    (:func:`~kincal.identify.solver.match_names`), each with a value and its unit (any
+    unit of measurement files: ``mm``, ``um``, ``m``, ``deg``, ``mrad``, ``arcsec`` ...;
+    required, so that ``1`` is never read as 1 m).  An entry applies to the parameters
+    its pattern matches *whose unit is of the entry's dimension* (a length to lengths,
+    an angle to angles), so one pattern can take both; a later entry overrides an
+    earlier one for the names both give a value.  The value becomes SI,
+    ``s = value * unit factor`` (``1mm -> 0.001``, ``0.1deg -> 0.001745``).
+
+    Raises one-line :class:`~kincal.errors.KincalError` for an entry that is not
+    ``PATTERN=VALUE UNIT``, a missing or unknown unit, a value that is not positive, or
+    a pattern that matches no parameter of the unit's dimension.
+    """
+    from kincal.identify.solver import match_names
+    from kincal.measure.files import UNITS
+
+    out: dict[str, float] = {}
+    if not text:
+        return out
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        pattern, eq, value = (x.strip() for x in part.partition("="))
+        m = _PRIOR_VALUE.match(value) if eq and pattern else None
+        if m is None:
+            raise KincalError(f"option --prior: {part!r} is not PATTERN=SIGMA with a unit "
+                              "(e.g. '*.origin.*=1mm,*.origin.r?=0.1deg')")
+        number, unit = float(m.group(1)), m.group(2)
+        if unit is None:
+            raise KincalError(f"option --prior: {part!r} needs a unit (e.g. {pattern}="
+                              f"{m.group(1)}mm or {pattern}={m.group(1)}deg)")
+        if unit not in UNITS:
+            raise KincalError(f"option --prior: unknown unit {unit!r} in {part!r} (known: "
+                              f"{', '.join(UNITS)})")
+        if not (math.isfinite(number) and number > 0):
+            raise KincalError(f"option --prior: the standard deviation in {part!r} must be "
+                              "positive")
+        dim, factor = UNITS[unit]
+        try:
+            matched = match_names(names, pattern)
+        except KincalError as exc:
+            raise KincalError(f"option --prior: {exc}") from None
+        hit = [i for i in matched if units[i] in UNITS and UNITS[units[i]][0] == dim]
+        if not hit:
+            article = "an" if dim[0] in "aeiou" else "a"
+            raise KincalError(f"option --prior: {pattern!r} matches no {dim} parameter "
+                              f"(the unit of {part!r} is {article} {dim})")
+        for i in hit:
+            out[names[i]] = number * factor
+    return out
+
+
+def parse_stages(text: str | None) -> list[str] | None:
+    """``"offsets,all"`` -> ``["offsets", "all"]`` (the one-stage solver's stages)."""
+    if not text:
+        return None
+    st = [s.strip() for s in text.split(",") if s.strip()]
+    for s in st:
+        if s not in STAGES:
+            raise KincalError(f"option --stages: unknown stage {s!r} (use offsets, all, "
+                              "registration, comma separated)")
+    return st
+
+
+def _choice(value: str, option: str, allowed: Sequence[str]) -> str:
+    if value not in allowed:
+        raise KincalError(f"option {option}: {value!r} is not "
+                          f"{', '.join(allowed[:-1])} or {allowed[-1]}")
+    return value
+
+
+def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str = "linear",
+                       stages: Sequence[str] | None = None, validation_frames: str = "auto",
+                       condition_growth: float | None = None, cycles: int | None = None,
+                       tolerance: float | None = None, prior: str | None = None) -> None:
+    """One-line errors for options of :func:`run_flow` that do not fit together (checked
+    before any file is read; ``tolerance`` in m, reported in mm as ``--tolerance-mm``)."""
+    _choice(procedure, "--procedure", PROCEDURES)
+    _choice(method, "--method", METHODS)
+    _choice(loss, "--loss", LOSSES)
+    _choice(validation_frames, "--validation-frames", ("auto", "training", "register"))
+    if procedure == "patent":
+        if method != "lm" or loss != "linear" or stages or prior:
+            raise KincalError("--method, --loss, --stages and --prior choose the one-stage "
+                              "solver (--procedure lm); the patent has its own two stages")
+    elif condition_growth is not None or cycles is not None or tolerance is not None:
+        raise KincalError("--condition-growth, --cycles and --tolerance-mm need "
+                          "--procedure patent")
+    if condition_growth is not None and not condition_growth >= 1.0:
+        raise KincalError(f"option --condition-growth: must be >= 1 (got {condition_growth:g})")
+    if cycles is not None and cycles < 1:
+        raise KincalError(f"option --cycles: must be >= 1 (got {cycles})")
+    if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
+        raise KincalError(f"option --tolerance-mm: must be > 0 (got {tolerance * 1e3:g})")

@@ -1,0 +1,160 @@
+"""The calibration report's extra HTML sections: the patent's procedure and the
+artifact figures.
+
+* :func:`artifact_figures` - the patent's figures 4 and 5 of every training artifact
+  block, rendered in memory (PNG bytes and the path next to the report);
+* :func:`patent_section_html` - the patent's procedure: stages, kept and discarded
+  placements with their condition numbers, the comparison with one-stage LM;
+* :func:`figures_section_html` - figures 4 and 5 embedded as a section.
+
+:func:`kincal.workflow.flow.render_outputs` hands these sections to
+:func:`kincal.report.html.render_html`; :mod:`kincal.workflow.flow` re-exports the two HTML
+functions.  The report shows mm and degrees.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from kincal.workflow.result import FlowResult
+
+__all__ = ["artifact_figures", "patent_section_html", "figures_section_html"]
+
+
+def artifact_figures(flow: FlowResult, report: str) -> dict[str, tuple[str, bytes]]:
+    """The patent's figures 4 and 5 of every training artifact block, rendered in memory:
+    ``{key: (path next to the report, PNG bytes)}``."""
+    from kincal.measure.artifacts.model import ArtifactMeasurement
+
+    blocks = [b for b in flow.train if isinstance(b, ArtifactMeasurement)]
+    if not blocks or flow.nominal is None:
+        return {}
+    from kincal.report.artifact_plots import save_patent_figures
+
+    folder, stem = Path(report).parent, Path(report).stem
+    out: dict[str, tuple[str, bytes]] = {}
+    with tempfile.TemporaryDirectory(prefix="kincal-figures-") as tmp:
+        for b in blocks:
+            prefix = f"{stem}_figure" if len(blocks) == 1 else f"{stem}_{b.name}_figure"
+            made = save_patent_figures(b, flow.nominal, flow.result.robot, tmp,
+                                       flow.before.get(b.name), flow.after.get(b.name),
+                                       prefix=prefix)
+            for key, p in made.items():
+                tag = key if len(blocks) == 1 else f"{b.name}.{key}"
+                out[tag] = (str(folder / Path(p).name), Path(p).read_bytes())
+    return out
+
+
+def _fmt_cond(v: float | None) -> str:
+    """A condition number; None / inf (JSON null) is a rank-deficient matrix."""
+    return "inf" if v is None or not math.isfinite(v) else f"{v:.4g}"
+
+
+def _rms_cells(summary: Mapping[str, Any], keys: Sequence[str]) -> str:
+    from kincal.report.metrics import quantity
+
+    cells = []
+    for k in keys:
+        v = summary.get(k)
+        _, f, _ = quantity(k[4:])
+        cells.append(f"<td>{'-' if v is None else f'{v * f:.4f}'}</td>")
+    return "".join(cells)
+
+
+def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | None = None,
+                        units: Mapping[str, str] | None = None) -> str:
+    """The report's patent section: the procedure, kept and discarded placements with
+    their condition numbers, the comparison with one-stage LM and figures 4 and 5.
+
+    Args:
+        info: :class:`~kincal.identify.patent.PatentInfo` (or its ``to_dict()``).
+        figures: ``{key: (file, PNG bytes)}`` embedded at the end.
+        units: ``{parameter: "m" | "rad"}`` to show lengths in mm and angles in deg.
+    """
+    d = info.to_dict() if hasattr(info, "to_dict") else dict(info)
+    e = html.escape
+    parts = ["<h2>The patent's procedure</h2>"]
+    how = "one pass" if d["cycles"] == 1 else f"{d['cycles']} cycles"
+    parts.append(f"<p>{how} through {len(d['stages'])} stage(s) (one pass = the patent "
+                 "literally; more: repeated until no point moves): "
+                 + "; then ".join(e(f"{s['stage']} ({len(s['candidates'])} candidates)")
+                                  for s in d["stages"])
+                 + f". Point-correction tolerance {d['tolerance_m'] * 1e3:g} mm; "
+                 + ("converged" if d["converged"] else "<span class='bad'>NOT converged</span>")
+                 + (f" (last cycle moved the points by {d['cycle_corrections_m'][-1] * 1e3:.3g}"
+                    " mm)." if d["cycle_corrections_m"] else ".") + "</p>")
+    sel = d["selection"]
+    if d["condition_growth"] is None:
+        parts.append("<p>No data selection: every placement kept.</p>")
+    else:
+        parts.append(f"<h3>Data selection by the condition number</h3><p>A placement is "
+                     f"discarded when it makes the condition number of the scaled "
+                     f"identification matrix grow by more than a factor "
+                     f"{d['condition_growth']:g}. Kept {len(d['kept'])} of "
+                     f"{len(d['kept']) + len(d['discarded'])} placements"
+                     + (": discarded " + e(", ".join(f"{x['block']}:{x['placement']}"
+                                                     for x in d["discarded"]))
+                        if d["discarded"] else "") + ".</p>")
+        rows = "".join(
+            f"<tr class='{'' if s['kept'] else 'no'}'><td class='l'>{e(s['block'])}</td>"
+            f"<td class='l'>{e(str(s['placement']))}</td><td>{_fmt_cond(s['previous'])}</td>"
+            f"<td>{_fmt_cond(s['condition'])}</td>"
+            f"<td class='l'>{'kept' if s['kept'] else 'discarded'}</td></tr>" for s in sel)
+        parts.append("<table><tr><th class='l'>block</th><th class='l'>placement</th>"
+                     "<th>cond before</th><th>cond with it</th><th class='l'>decision</th>"
+                     f"</tr>{rows}</table><p class='small'>cond = inf while the matrix is "
+                     "rank deficient (every placement is kept until it is not).</p>")
+    comp = d.get("comparison")
+    if comp:
+        runs = [("patent", comp["patent"]), ("one-stage LM, same parameters",
+                                              comp["one_stage"]),
+                ("one-stage LM, automatic parameters", comp["automatic"])]
+        keys = sorted({k for _, s in runs for k in s if k.startswith("rms_")})
+        from kincal.report.metrics import quantity
+
+        head = "".join(f"<th>RMS {e(quantity(k[4:])[0])} [{e(quantity(k[4:])[2])}]</th>"
+                       for k in keys)
+        body = "".join(f"<tr><td class='l'>{e(n)}</td><td>{s['estimated']}</td>"
+                       f"<td>{s['sigma0']:.4g}</td><td class='l'>"
+                       f"{'yes' if s['converged'] else 'no'}</td>{_rms_cells(s, keys)}</tr>"
+                       for n, s in runs)
+        same = comp["same_parameters"]
+        parts.append("<h3>Comparison with one-stage Levenberg-Marquardt (same data)</h3>"
+                     "<table><tr><th class='l'>solver</th><th>estimated</th><th>sigma0</th>"
+                     f"<th class='l'>converged</th>{head}</tr>{body}</table>"
+                     f"<p>Same parameters: the largest difference is "
+                     f"{same['max_sigmas']:.3g} standard errors"
+                     + (f" ({e(same['worst'])})" if same["worst"] else "") + ".</p>")
+        if same["rows"]:
+            rows = []
+            for r in same["rows"]:
+                f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(
+                    (units or {}).get(r["name"], ""), (1.0, "SI"))
+                rows.append(f"<tr><td class='l'>{e(r['name'])}</td><td>{r['a'] * f:.5f}</td>"
+                            f"<td>{r['b'] * f:.5f}</td><td>{r['diff'] * f:.2e}</td>"
+                            f"<td class='l'>{u}</td><td>{r['sigmas']:.3g}</td></tr>")
+            parts.append("<table><tr><th class='l'>parameter</th><th>patent</th>"
+                         "<th>one-stage</th><th>difference</th><th class='l'>unit</th>"
+                         f"<th>in std</th></tr>{''.join(rows)}</table>")
+    if figures:
+        parts.append(figures_section_html(figures, heading="h3"))
+    return "\n".join(parts)
+
+
+def figures_section_html(figures: Mapping[str, tuple[str, bytes]], heading: str = "h2") -> str:
+    """The patent's figures 4 and 5 (``{key: (file, PNG bytes)}``) as a report section."""
+    e = html.escape
+    parts = [f"<{heading}>Artifact lengths from the joint readings (the patent's figures 4 "
+             f"and 5)</{heading}><p class='small'>figure 4: nominal model, figure 5: "
+             "calibrated model, same scale; the files are next to the report.</p>"]
+    for key, (path, png) in figures.items():
+        b64 = base64.b64encode(png).decode("ascii")
+        parts.append(f"<p class='small'>{e(key)} ({e(Path(path).name)})</p>"
+                     f"<img alt='{e(key)}' src='data:image/png;base64,{b64}'>")
+    return "\n".join(parts)

@@ -1,0 +1,47 @@
+"""What one calibration run produced: :class:`FlowResult`.
+
+Its own module so that the flow (:mod:`kincal.workflow.flow`) and the report
+sections (:mod:`kincal.workflow.report_sections`) can both use it without importing
+each other.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+__all__ = ["FlowResult"]
+
+
+@dataclasses.dataclass
+class FlowResult:
+    """Everything one calibration run produced.
+
+    Attributes:
+        result: the :class:`~kincal.identify.solver.CalibrationResult` (``result.patent``
+            for the patent procedure).
+        comparisons: errors before/after, ``train`` then ``validation``.
+        seconds: wall time of the calibration itself [s].
+        warnings: sentences for people (e.g. an instrument that probably moved).
+        nominal: the robot the calibration started from.
+        train: the training blocks used (the patent's selection keeps only some
+            placements); ``before`` / ``after``: their block parameters fitted to the
+            nominal robot / estimated with the calibrated one, by block name.
+        cross_validation: with ``run_flow(cross_validate=K)``: ``{"folds": K, "seed":
+            0, "split": "rows" | "placements", "rms_<kind>": pooled held-out RMS}``.
+    """
+
+    result: Any
+    comparisons: list[Any]
+    seconds: float
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    nominal: Any = None
+    train: list[Any] = dataclasses.field(default_factory=list)
+    before: dict[str, Array] = dataclasses.field(default_factory=dict)
+    after: dict[str, Array] = dataclasses.field(default_factory=dict)
+    cross_validation: dict[str, Any] | None = None
