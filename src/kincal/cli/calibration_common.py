@@ -106,7 +106,7 @@ def serial(robot: Any, command: str) -> Any:
 
 def check_unit(unit: str, dimension: str, option: str) -> str:
     """``unit`` if it is a ``dimension`` unit of measurement files, else a one-line error."""
-    from kincal.measure.files import UNITS
+    from kincal.units import UNITS
 
     if unit not in UNITS or UNITS[unit][0] != dimension:
         ok = [u for u, (d, _) in UNITS.items() if d == dimension]

@@ -97,8 +97,9 @@ def compensate_cmd(
     targets for a controller that only knows the nominal model."""
     from kincal.compensation.compensate import compensate, require_all
     from kincal.io import atomic_write_text, write_json
-    from kincal.measure.files import UNITS, format_table, joint_columns
+    from kincal.measure.files import format_table, joint_columns
     from kincal.spatial import matrix_to_rpy
+    from kincal.units import UNITS
 
     out = out_console(json_out)
     cal = serial(load(calibrated, base_link, tip_link), "compensate")

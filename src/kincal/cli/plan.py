@@ -336,7 +336,7 @@ def plan(
     accuracy after calibration before measuring anything."""
     from kincal.identify.design import write_poses
     from kincal.io import atomic_write_text, write_json
-    from kincal.measure.files import UNITS
+    from kincal.units import UNITS
 
     crit = _criterion(criterion)
     for u, dim, opt in ((angle_unit, "angle", "--angle-unit"),

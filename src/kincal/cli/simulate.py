@@ -117,7 +117,7 @@ def artifact_options(inst: Any, flags: dict[str, float | int | None]) -> dict[st
 
 def parse_noise(noise_mm: float | None, noise: str | None, inst: Any) -> float:
     """The instrument's main noise in its SI unit from --noise-mm or --noise VALUE+UNIT."""
-    from kincal.measure.files import UNITS
+    from kincal.units import UNITS
 
     dim = {"m": "length", "rad": "angle", "px": "pixel"}.get(inst.noise_unit, "dimensionless")
     if noise_mm is not None and noise is not None:

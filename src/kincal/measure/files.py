@@ -11,7 +11,8 @@ Rules (every violation is one :class:`~kincal.errors.MeasurementFileError` line
 naming the file, the line and the column; nothing is guessed):
 
 * **Units in every header.**  A column is ``BASE_UNIT`` with ``UNIT`` one of
-  :data:`UNITS` (``m mm um cm``, ``rad deg mrad urad arcsec``, ``px``, ``1``).
+  :data:`kincal.units.UNITS` (``m mm um cm``, ``rad deg mrad urad arcsec arcmin``,
+  ``s ms``, ``px``, ``1``).
   A column without a unit suffix needs its unit from the user (``units``: the CLI's
   ``--units x1=m,arm_1_joint=rad``; keys are column names or ``*``/``?`` patterns)
   or, for joint columns only, from the robot file: a URDF fixes joint units to
@@ -46,7 +47,6 @@ units they are asked to (default SI) through a temporary file and a rename.
 from __future__ import annotations
 
 import csv
-import math
 import os
 import re
 from collections.abc import Mapping, Sequence
@@ -59,23 +59,9 @@ from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text
+from kincal.units import UNITS
 
 Array = NDArray[np.float64]
-
-#: Units a column may carry: ``{suffix: (dimension, factor to SI)}``.
-UNITS: dict[str, tuple[str, float]] = {
-    "m": ("length", 1.0),
-    "mm": ("length", 1e-3),
-    "um": ("length", 1e-6),
-    "cm": ("length", 1e-2),
-    "rad": ("angle", 1.0),
-    "deg": ("angle", math.pi / 180.0),
-    "mrad": ("angle", 1e-3),
-    "urad": ("angle", 1e-6),
-    "arcsec": ("angle", math.pi / 648000.0),
-    "px": ("pixel", 1.0),
-    "1": ("dimensionless", 1.0),
-}
 
 #: First-line tag of a kincal measurement file.
 TAG_PREFIX = "# kincal measurements:"

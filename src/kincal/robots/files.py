@@ -59,9 +59,12 @@ from kincal.errors import RobotFileError
 from kincal.io import atomic_write_text
 from kincal.robots.chain import KINDS, ROLES, ChainBuilder, Robot
 from kincal.robots.dh import DHLink, dh_links, frame_values, from_dh
+from kincal.units import UNITS
 
-LENGTH_UNITS = {"m": 1.0, "mm": 1e-3}
-ANGLE_UNITS = {"rad": 1.0, "deg": math.pi / 180.0}
+#: Units a robot file may state (``units:``, ``joint_units:``), factors from the one
+#: table of :data:`kincal.units.UNITS`.
+LENGTH_UNITS = {u: UNITS[u][1] for u in ("m", "mm")}
+ANGLE_UNITS = {u: UNITS[u][1] for u in ("rad", "deg")}
 CONVENTIONS = ("standard_dh", "modified_dh", "hayati", "ets", "urdf")
 _FRAME_KEYS = ("x", "y", "z", "rx", "ry", "rz")
 

@@ -100,7 +100,7 @@ def parse_prior(text: str | None, names: Sequence[str], units: Sequence[str]
     a pattern that matches no parameter of the unit's dimension.
     """
     from kincal.identify.solver import match_names
-    from kincal.measure.files import UNITS
+    from kincal.units import UNITS
 
     out: dict[str, float] = {}
     if not text:

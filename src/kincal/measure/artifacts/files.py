@@ -58,7 +58,8 @@ from kincal.measure.artifacts.geometry import (
 )
 from kincal.measure.artifacts.model import ArtifactMeasurement
 from kincal.measure.artifacts.probe import Probe
-from kincal.measure.files import UNITS, joint_columns, read_table, split_unit
+from kincal.measure.files import joint_columns, read_table, split_unit
+from kincal.units import UNITS
 
 Array = NDArray[np.float64]
 

@@ -35,7 +35,7 @@ import yaml
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
-from kincal.measure.files import UNITS
+from kincal.units import UNITS
 
 Array = NDArray[np.float64]
 
