@@ -106,7 +106,9 @@ TIAGO = Path(__file__).resolve().parents[2] / "shared" / "data" / "tiago_mocap"
 def test_tiago_from_the_command_line(capsys, tmp_path):
     """The leave-one-out choice of test_real_tiago (least squares + gravity compliance +
     hysteresis, all four markers) from the command line: the same 56 parameters and the
-    same arm_6 play as the library call."""
+    same arm_6 play as the library call.  Least squares moves arm_5's origin by more than
+    10 tolerances (10 mm): the command says so and exits 1 (``--force`` still writes the
+    robot)."""
     code, out, err = run(
         capsys, "calibrate", TIAGO / "tiago_48_schunk.urdf", "--tip-link", "wrist_ft_tool_link",
         "--data", TIAGO / "train_2021-11-30.csv", "--validate",
@@ -114,8 +116,9 @@ def test_tiago_from_the_command_line(capsys, tmp_path):
         "--units", "x?=m,y?=m,z?=m,torso_lift_joint=m,arm_?_joint=rad",
         "--ignore", "shipped_row,t_start_robot,t_end_robot,marker_std_mm",
         "--joint-model", "hysteresis,compliance", "-o", tmp_path / "cal.yaml",
-        "--json", tmp_path / "res.json")
-    assert code == 0, err
+        "--json", tmp_path / "res.json", "--force")
+    assert code == 1 and "arm_5_joint.origin.x moved" in err, err
+    assert (tmp_path / "cal.yaml").is_file()
     doc = json.loads((tmp_path / "res.json").read_text())
     par = {p["name"]: p for p in doc["parameters"]}
     assert doc["identifiable_count"] == 56
@@ -141,7 +144,8 @@ def test_prior_with_unrealistic_measurement_sigma_warns(capsys, tmp_path):
         "x1=m,y1=m,z1=m,torso_lift_joint=m,arm_?_joint=rad", "--ignore",
         "x2,y2,z2,x3,y3,z3,x4,y4,z4,shipped_row,t_start_robot,t_end_robot,marker_std_mm",
         "--prior", "*.origin.*=1mm,*.origin.r?=0.1deg")
-    assert code == 0, err
+    # so weak a prior does not hold the origins: 13 mm, 5.9 deg from nominal
+    assert code == 1 and "arm_7_joint.origin.rx moved" in err, err
     text = " ".join(out.split())
     assert "--prior: the residuals are" in text and "give the files a sigma column" in text
 

@@ -40,3 +40,13 @@ class IdentifiabilityError(KincalError):
 
 class UnreachableError(KincalError):
     """A target pose cannot be reached."""
+
+
+class CheckFailedError(KincalError):
+    """The work ran, but its result failed a check the user must see (exit status 1).
+
+    E.g. a calibration that did not converge or whose estimates are implausible: the
+    command prints its tables and writes what it may (JSON, report), then this one line.
+    """
+
+    exit_code = 1

@@ -43,7 +43,7 @@ from kincal.cli.calibration_common import (
     scaled,
     serial,
 )
-from kincal.errors import KincalError
+from kincal.errors import CheckFailedError, KincalError
 from kincal.measure.joints.terms import parse_joint_model, with_joint_model
 from kincal.workflow.flow import (
     check_flow_options,
@@ -177,6 +177,10 @@ def calibrate_cmd(
                                               "file, shown in the report.")] = None,
     all_parameters: Annotated[bool, typer.Option("--all", help="List every parameter, not only "
                                                  "the estimated ones.")] = False,
+    force: Annotated[bool, typer.Option("--force", help="Write the calibrated robot even when "
+                                        "the calibration cannot be trusted (did not converge, "
+                                        "or an estimate more than 10 tolerances from nominal); "
+                                        "the exit status is still 1.")] = False,
     base_link: BaseLink = None, tip_link: TipLink = None,
 ) -> None:
     """Calibrate ROBOT from measurement files: estimate the identifiable parameters, report
@@ -236,7 +240,7 @@ def calibrate_cmd(
                        "cycles": "until converged" if cycles is None else str(cycles),
                        "tolerance": f"{(tolerance or 1e-7) * 1e3:g} mm"})
     written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
-                            {"seconds": flow.seconds})
+                            {"seconds": flow.seconds}, force=force)
     conv = "[green]converged[/green]" if res.converged else "[red]did not converge[/red]"
     out.print(f"{conv} in {res.iterations} iterations ({flow.seconds:.2f} s), "
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
@@ -263,6 +267,11 @@ def calibrate_cmd(
             f"{b} row {i + 1}" for b, i in res.outliers[:10]))
     for k, v in written.items():
         out.print(f"{k}: {escape(v)}")
+    if not flow.trusted:
+        withheld = [p for p in (output, urdf) if p and p not in written.values()]
+        tail = (f"; no calibrated robot written ({', '.join(withheld)}; --force writes it)"
+                if withheld else "; written anyway (--force)" if force and output else "")
+        raise CheckFailedError(flow.verdict.line() + tail)
 
 
 @app.command("validate")

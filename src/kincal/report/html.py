@@ -195,11 +195,12 @@ def _history(result: Any) -> tuple[Array, list[str], Array, Array]:
 def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str = "",
                 inputs: Mapping[str, str] | None = None,
                 truth: Mapping[str, float] | None = None, plots: bool = True,
-                extra_sections: Sequence[str] = ()) -> str:
+                extra_sections: Sequence[str] = (), notice: str = "") -> str:
     """The report as one self-contained HTML document (images embedded).
 
     ``extra_sections`` are HTML fragments placed before the footer (e.g. the cross-bar
-    patent's selection and comparison tables).
+    patent's selection and comparison tables); ``notice`` (plain text) is shown in red
+    right under the title (e.g. a calibration that cannot be trusted).
     """
     from kincal._version import __version__
     from kincal.report import plots as rp
@@ -212,6 +213,8 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
     title = title or f"kincal calibration of {getattr(result.robot, 'name', 'robot')}"
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
              f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"]
+    if notice:
+        parts.append(f"<p class='bad'><b>{html.escape(notice)}</b></p>")
     now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     conv = '<span class="ok">converged</span>' if d.get("converged") else \
         '<span class="bad">did not converge</span>'

@@ -148,7 +148,30 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
     for key in ("description", "source", "notes"):
         if key in data and data[key] is not None:
             meta[key] = str(data[key]).strip()
+    tol = _tolerances(r, data)
+    if tol:
+        meta["tolerances"] = tol
     return meta
+
+
+def _tolerances(r: FieldReader, data: Mapping[str, Any]) -> dict[str, str]:
+    """The optional ``tolerances:`` section: ``{role, name or pattern: value with unit}``
+    (``length: 0.5mm``, ``"d[3]": 2mm``, ``offset: none``), kept as text; its values are
+    parsed (units, patterns) by :mod:`kincal.identify.tolerances` when a calibration
+    uses them."""
+    value = data.get("tolerances")
+    if value is None:
+        return {}
+    m = r.mapping(value, "tolerances")
+    out: dict[str, str] = {}
+    for key, v in m.items():
+        if isinstance(v, bool) or not isinstance(v, str | int | float):
+            raise r.fail(f"tolerances.{key}", "must be a value with its unit (e.g. 0.5mm, "
+                         f"0.05deg) or none, got {v!r}")
+        if isinstance(v, int | float):
+            raise r.fail(f"tolerances.{key}", f"needs a unit (e.g. {v}mm or {v}deg)")
+        out[str(key)] = v.strip()
+    return out
 
 
 def _joint_units(r: FieldReader, data: Mapping[str, Any], robot: Robot
@@ -417,6 +440,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         if key in robot.meta:
             doc[key] = robot.meta[key]
     doc["units"] = {"length": "m", "angle": "rad"}
+    if robot.meta.get("tolerances"):
+        doc["tolerances"] = dict(robot.meta["tolerances"])
     ju = joint_units_of(robot)
     if ju is not None:
         doc["joint_units"] = ju

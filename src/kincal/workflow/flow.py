@@ -249,7 +249,8 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                               f"{cross_validate})")
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
-    prior_s = parse_prior(prior, prob.names, prob.units)
+    tols = tolerances_of(robot, prob, prior)
+    prior_s = parse_prior(prior, prob.names, prob.units) if tols.use_prior else {}
     options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
                "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
                "tolerance": tolerance, "prior": prior_s}
@@ -285,7 +286,21 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     if holdouts:
         comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
                                          after, validation_frames, warnings))
-    return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv)
+    from kincal.identify.checks import judge
+
+    return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
+                      tolerances=tols, verdict=judge(res, tols.sigma))
+
+
+def tolerances_of(robot: Any, prob: Any, prior: str | None = None) -> Any:
+    """The manufacturing tolerances of a calibration problem's parameters: role defaults,
+    the robot file's ``tolerances:`` section, then ``--prior`` entries
+    (:func:`~kincal.identify.tolerances.resolve_tolerances`)."""
+    from kincal.identify.tolerances import resolve_tolerances
+
+    meta = getattr(robot, "meta", {}) or {}
+    return resolve_tolerances(prob.names, prob.units, prob.roles, meta.get("tolerances"),
+                              prior, robot_source=str(meta.get("file", robot.name)))
 
 
 def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdouts: list[Any],
@@ -455,19 +470,32 @@ def extras_from_result(path: str | Path) -> dict[str, float]:
 
 # --------------------------------------------------------------------------- outputs
 def _render_report(result: Any, comparisons: Sequence[Any], inputs: Mapping[str, str],
-                   truth: Mapping[str, float] | None, sections: Sequence[str]) -> str:
+                   truth: Mapping[str, float] | None, sections: Sequence[str],
+                   notice: str = "") -> str:
     """:func:`kincal.report.html.render_html` with extra sections before the footer."""
     from kincal.report.html import render_html
 
     return render_html(result, comparisons, inputs=inputs, truth=truth,
-                       extra_sections=list(sections))
+                       extra_sections=list(sections), notice=notice)
+
+
+def _untrusted_notice(flow: FlowResult, force: bool, planned: Mapping[str, str]) -> str:
+    """The sentence outputs carry when the calibration cannot be trusted ("" otherwise)."""
+    if flow.trusted:
+        return ""
+    files = [planned[k] for k in ("robot", "urdf") if planned.get(k)]
+    what = ""
+    if files:
+        what = (f"; written anyway (--force): {', '.join(files)}" if force else
+                f"; no calibrated robot written ({', '.join(files)}; --force writes it)")
+    return flow.verdict.line() + what
 
 
 def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None = None,
                    json_out: str | None = None, report: str | None = None,
                    inputs: Mapping[str, str] | None = None,
                    truth: Mapping[str, float] | None = None,
-                   extra: Mapping[str, Any] | None = None
+                   extra: Mapping[str, Any] | None = None, force: bool = False
                    ) -> tuple[dict[str, str], dict[str, str | bytes]]:
     """Render every output of a calibration in memory.
 
@@ -475,6 +503,10 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
     ``json`` and each figure key to its path; ``contents`` maps the same keys to the
     text (or PNG bytes) to write.  A URDF robot's ``urdf`` entry is None: it is
     written by :func:`~kincal.robots.urdf.write_calibrated_urdf` from the original file.
+
+    A calibration that cannot be trusted (``flow.verdict``) plans no calibrated robot
+    (YAML, URDF) unless ``force``; its JSON and report say so (``verdict``,
+    ``not_written``, a notice under the report's title).
     """
     from kincal.io import _jsonable
     from kincal.report.metrics import result_json
@@ -483,6 +515,11 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
     res = flow.result
     inputs = dict(inputs or {})
     planned = {k: v for k, v in (("robot", output), ("urdf", urdf), ("report", report)) if v}
+    notice = _untrusted_notice(flow, force, planned)
+    withheld = {}
+    if not flow.trusted and not force:
+        withheld = {k: planned.pop(k) for k in ("robot", "urdf") if k in planned}
+        output = urdf = None
     contents: dict[str, str | bytes] = {}
     info = getattr(res, "patent", None)
     figures = artifact_figures(flow, report) if report else {}
@@ -493,7 +530,8 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         units = dict(zip(res.names, res.problem.units, strict=True))
         sections = ([patent_section_html(info, figures, units)] if info is not None else
                     [figures_section_html(figures)] if figures else [])
-        contents["report"] = _render_report(res, flow.comparisons, inputs, truth, sections)
+        contents["report"] = _render_report(res, flow.comparisons, inputs, truth, sections,
+                                            notice)
     if output:
         contents["robot"] = robot_yaml_text(res.robot)
     if urdf and res.robot.meta.get("convention") != "urdf":
@@ -507,7 +545,13 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         doc = result_json(res, flow.comparisons, {"inputs": inputs, **more})
         if flow.cross_validation is not None:
             doc["metrics"]["cross_validation"] = dict(flow.cross_validation)
+        if flow.verdict is not None:
+            doc["verdict"] = {**flow.verdict.to_dict(), "notice": notice}
+        if flow.tolerances is not None:
+            doc["tolerances"] = flow.tolerances.to_dict()
         doc["outputs"] = dict(planned)
+        if withheld:
+            doc["not_written"] = withheld
         contents["json"] = json.dumps(doc, indent=2, default=_jsonable) + "\n"
         planned["json"] = json_out
     return planned, contents
@@ -517,17 +561,21 @@ def write_outputs(flow: FlowResult, output: str | None = None, urdf: str | None 
                   json_out: str | None = None, report: str | None = None,
                   inputs: Mapping[str, str] | None = None,
                   truth: Mapping[str, float] | None = None,
-                  extra: Mapping[str, Any] | None = None) -> dict[str, str]:
+                  extra: Mapping[str, Any] | None = None, force: bool = False
+                  ) -> dict[str, str]:
     """Render everything (:func:`render_outputs`), then write each file atomically, the
     JSON last, so a failure while rendering leaves no output behind.
 
-    Returns ``{what: path}`` of the files written (``robot``, ``urdf``, ``report``,
-    figure keys, ``json``).
+    A calibration that cannot be trusted writes no calibrated robot (YAML, URDF) unless
+    ``force``.  Returns ``{what: path}`` of the files written (``robot``, ``urdf``,
+    ``report``, figure keys).
     """
     from kincal.io import atomic_write_bytes, atomic_write_text
 
     planned, contents = render_outputs(flow, output, urdf, json_out, report, inputs, truth,
-                                       extra)
+                                       extra, force)
+    if not flow.trusted and not force:
+        urdf = None
     for key, path in planned.items():
         if key == "json" or key not in contents:
             continue

@@ -34,6 +34,12 @@ class FlowResult:
             nominal robot / estimated with the calibrated one, by block name.
         cross_validation: with ``run_flow(cross_validate=K)``: ``{"folds": K, "seed":
             0, "split": "rows" | "placements", "rms_<kind>": pooled held-out RMS}``.
+        tolerances: the parameters' manufacturing tolerances
+            (:class:`~kincal.identify.tolerances.Tolerances`): the prior and the
+            plausibility bounds.
+        verdict: whether the calibration can be trusted
+            (:class:`~kincal.identify.checks.Verdict`: converged, every estimate within
+            10 tolerances of nominal).
     """
 
     result: Any
@@ -45,3 +51,10 @@ class FlowResult:
     before: dict[str, Array] = dataclasses.field(default_factory=dict)
     after: dict[str, Array] = dataclasses.field(default_factory=dict)
     cross_validation: dict[str, Any] | None = None
+    tolerances: Any = None
+    verdict: Any = None
+
+    @property
+    def trusted(self) -> bool:
+        """True unless the verdict says the calibration cannot be trusted."""
+        return self.verdict is None or bool(self.verdict.trusted)

@@ -1,0 +1,144 @@
+"""Can this calibration be trusted?  Convergence and plausibility, in one verdict.
+
+A calibration is *not trusted* when
+
+* the solver did not converge (``result.converged`` is False: ``max_iter`` reached,
+  no descent step, non-finite residuals, a base set still rank deficient at the end);
+* an estimate is implausible: ``|theta_j - nominal_j| > PLAUSIBLE * s_j`` with ``s_j``
+  the parameter's manufacturing tolerance (:mod:`kincal.identify.tolerances`;
+  ``PLAUSIBLE`` = 10).  A real robot is not 10 tolerances away from its drawing: such
+  an estimate is a weakly identifiable parameter set from noise, or a robot file that
+  does not describe the robot;
+* a standard error is absurd: more than :data:`ABSURD_STD` (1 m or 1 rad) for any
+  length or angle, tolerance or not (an instrument frame known to a metre is not known).
+
+:func:`judge` returns a :class:`Verdict` whose :meth:`~Verdict.line` is the one line the
+command line prints (exit status 1, no calibrated robot written unless ``--force``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from kincal.identify.tolerances import PLAUSIBLE
+
+__all__ = ["Verdict", "Implausible", "judge", "ABSURD_STD"]
+
+#: A standard error above this (per unit) is absurd whatever the parameter.
+ABSURD_STD = {"m": 1.0, "rad": 1.0}
+
+
+def _show(value: float, unit: str, signed: bool = False) -> str:
+    sign = "+" if signed else ""
+    if unit == "m":
+        return f"{value * 1e3:{sign}.4g} mm"
+    if unit == "rad":
+        return f"{math.degrees(value):{sign}.4g} deg"
+    return f"{value:{sign}.4g} {unit}"
+
+
+@dataclass(frozen=True)
+class Implausible:
+    """One implausible estimate.
+
+    Attributes:
+        name, unit: the parameter and its SI unit.
+        change: ``estimate - nominal`` [m / rad].
+        tolerance: its tolerance [m / rad] (None when judged by its std alone).
+        std: its standard error [m / rad].
+        reason: ``"change"`` (beyond the bound) or ``"std"`` (absurd uncertainty).
+    """
+
+    name: str
+    unit: str
+    change: float
+    tolerance: float | None
+    std: float
+    reason: str
+
+    def words(self, bound: float = PLAUSIBLE) -> str:
+        if self.reason == "change" and self.tolerance:
+            return (f"{self.name} moved {_show(self.change, self.unit, True)} "
+                    f"({abs(self.change) / self.tolerance:.3g}x its tolerance "
+                    f"{_show(self.tolerance, self.unit)})")
+        return f"{self.name} has a standard error of {_show(self.std, self.unit)}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "unit": self.unit, "change": self.change,
+                "tolerance": self.tolerance, "std": self.std, "reason": self.reason}
+
+
+@dataclass
+class Verdict:
+    """Whether a calibration can be trusted, and why not.
+
+    Attributes:
+        converged: the solver's convergence flag.
+        message: the solver's message (what stopped it).
+        implausible: the implausible estimates, worst first.
+        bound: the plausibility bound in tolerances.
+    """
+
+    converged: bool
+    message: str = ""
+    implausible: list[Implausible] = field(default_factory=list)
+    bound: float = PLAUSIBLE
+
+    @property
+    def trusted(self) -> bool:
+        return self.converged and not self.implausible
+
+    def reasons(self, limit: int = 4) -> list[str]:
+        """Sentences: non-convergence, then the implausible estimates."""
+        out = []
+        if not self.converged:
+            stop = [m.strip() for m in self.message.split(";") if m.strip()]
+            out.append("did not converge" + (f" ({stop[-1]})" if stop else ""))
+        if self.implausible:
+            words = [p.words(self.bound) for p in self.implausible[:limit]]
+            more = len(self.implausible) - limit
+            out.append(f"implausible estimate{'s' if len(self.implausible) > 1 else ''} "
+                       f"(beyond {self.bound:g}x the tolerance): " + ", ".join(words)
+                       + (f" and {more} more" if more > 0 else ""))
+        return out
+
+    def line(self) -> str:
+        """One line for stderr: ``calibration not trusted: ...``."""
+        if self.trusted:
+            return "calibration converged and every estimate is plausible"
+        return "calibration not trusted: " + "; ".join(self.reasons())
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"trusted": self.trusted, "converged": self.converged,
+                "bound_tolerances": self.bound, "reasons": self.reasons(limit=1000),
+                "implausible": [p.to_dict() for p in self.implausible]}
+
+
+def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE) -> Verdict:
+    """The :class:`Verdict` of a :class:`~kincal.identify.solver.CalibrationResult`.
+
+    Args:
+        result: the calibration (``theta``, ``theta0``, ``std``, ``estimated``).
+        tolerances: ``{name: tolerance}`` [m / rad] (:class:`~kincal.identify.tolerances.
+            Tolerances`' ``sigma``).
+        bound: implausible beyond ``bound`` tolerances from nominal.
+
+    Only estimated parameters are judged (the others keep their nominal values).
+    """
+    names = list(result.names)
+    units = list(result.problem.units)
+    bad: list[tuple[float, Implausible]] = []
+    for n in result.estimated:
+        i = names.index(n)
+        change = float(result.theta[i] - result.theta0[i])
+        std = float(result.std[i])
+        tol = tolerances.get(n)
+        if tol is not None and abs(change) > bound * tol:
+            bad.append((abs(change) / tol, Implausible(n, units[i], change, tol, std, "change")))
+        elif units[i] in ABSURD_STD and not std <= ABSURD_STD[units[i]]:
+            bad.append((math.inf, Implausible(n, units[i], change, tol, std, "std")))
+    bad.sort(key=lambda x: -x[0])
+    return Verdict(bool(result.converged), str(result.message), [b for _, b in bad], bound)
