@@ -37,6 +37,7 @@ from kincal.cli.calibration_common import (
     print_cross_validation,
     print_errors,
     print_identifiability,
+    print_ignored,
     print_parameters,
     print_patent,
     read_blocks,
@@ -56,6 +57,7 @@ from kincal.workflow.flow import (
     validate_blocks,
     write_outputs,
 )
+from kincal.workflow.session import read_session
 
 
 @app.command()
@@ -207,13 +209,11 @@ def calibrate_cmd(
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior)
-    terms = parse_joint_model(joint_model)
-    masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
-    all_files = list(data) + list(validate_files or [])
-    check_options_used(all_files, units, ignore)
-    blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
-    holdouts = with_joint_model(read_blocks(validate_files or [], r, units, ignore, out), r,
-                                terms, masses)
+    session = read_session(r, data, validate_files or [], units=units, ignore=ignore,
+                           joint_model=joint_model, spec=robot, base_link=base_link,
+                           tip_link=tip_link)
+    print_ignored(out, session.blocks + session.holdouts)
+    blocks, holdouts, terms = session.blocks, session.holdouts, session.terms
     truth_vals = truth_values(truth) if truth else None
     if urdf is None and output and r.meta.get("convention") == "urdf":
         urdf = str(Path(output).with_suffix(".urdf"))

@@ -25,6 +25,7 @@ from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink re-e
     err_console,
 )
 from kincal.errors import KincalError
+from kincal.workflow.session import joint_masses  # noqa: F401  (re-exported)
 
 JsonOpt = JsonOut
 
@@ -62,22 +63,6 @@ def load(spec: str, base_link: str | None = None, tip_link: str | None = None) -
     from kincal.workflow.robots import load_any_robot
 
     return load_any_robot(spec, base_link=base_link, tip_link=tip_link)
-
-
-def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None = None
-                 ) -> list[Any]:
-    """Link masses of ROBOT for ``--joint-model compliance``: a URDF's ``<inertial>``
-    elements on the chain ``base_link -> tip_link``; a one-line error otherwise."""
-    from kincal.robots.urdf import load_urdf_inertials
-
-    if not str(spec).lower().endswith(".urdf"):
-        raise KincalError(f"--joint-model compliance needs the link masses: {spec!r} is not a "
-                          "URDF file (give the robot as a URDF with <inertial> elements)")
-    masses = load_urdf_inertials(spec, base_link=base_link, tip_link=tip_link)
-    if not masses:
-        raise KincalError(f"--joint-model compliance: {spec!r} has no <inertial> mass on the "
-                          "chain", source=str(spec))
-    return masses
 
 
 def print_cross_validation(out: Any, cv: dict[str, Any]) -> None:
@@ -118,15 +103,21 @@ def check_unit(unit: str, dimension: str, option: str) -> str:
 def read_blocks(paths: Sequence[str], robot: Any, units: str | None,
                 ignore: Sequence[str] | None, out: Console | None = None) -> list[Any]:
     """:func:`kincal.workflow.flow.read_blocks`, printing the columns each file did not read."""
-    from kincal.workflow.flow import ignored_columns
     from kincal.workflow.flow import read_blocks as read
 
     blocks = read(paths, robot, units, ignore)
     if out is not None:
-        for path, cols in ignored_columns(blocks):
-            out.print(f"[dim]{escape(path)}: not read (not joint or measurement "
-                      f"columns): {escape(', '.join(cols))}[/dim]")
+        print_ignored(out, blocks)
     return blocks
+
+
+def print_ignored(out: Console, blocks: Sequence[Any]) -> None:
+    """One dim line per file: the columns its reader did not read."""
+    from kincal.workflow.flow import ignored_columns
+
+    for path, cols in ignored_columns(blocks):
+        out.print(f"[dim]{escape(path)}: not read (not joint or measurement "
+                  f"columns): {escape(', '.join(cols))}[/dim]")
 
 
 class Progress:

@@ -1,0 +1,93 @@
+"""One calibration session read from files: the robot, its training and held-out blocks.
+
+``kincal calibrate`` and every robot session of ``kincal fleet calibrate`` read their
+inputs through :func:`read_session`, so both calibrate exactly the same problem:
+
+1. the robot (:func:`~kincal.workflow.robots.load_any_robot`);
+2. the ``--units`` / ``--ignore`` check (:func:`~kincal.workflow.options.check_options_used`);
+3. the measurement files (:func:`~kincal.workflow.flow.read_blocks`), training and held-out;
+4. the non-geometric joint model around every block
+   (:func:`~kincal.measure.joints.terms.with_joint_model`), with the link masses of a URDF
+   for ``compliance`` (:func:`joint_masses`).
+
+Then :func:`~kincal.workflow.flow.run_flow` calibrates.  Nothing here prints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+from kincal.errors import KincalError
+
+__all__ = ["Session", "read_session", "joint_masses"]
+
+
+@dataclasses.dataclass
+class Session:
+    """The inputs of one calibration, read and checked.
+
+    Attributes:
+        robot: the nominal robot (serial :class:`~kincal.robots.chain.Robot`).
+        blocks, holdouts: training and held-out measurement blocks (inside the joint
+            model when ``terms`` is not empty).
+        terms: the joint-model terms (``("hysteresis", "compliance")`` or fewer).
+    """
+
+    robot: Any
+    blocks: list[Any]
+    holdouts: list[Any]
+    terms: tuple[str, ...]
+
+
+def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None = None
+                 ) -> list[Any]:
+    """Link masses of ROBOT for ``--joint-model compliance``: a URDF's ``<inertial>``
+    elements on the chain ``base_link -> tip_link``; a one-line error otherwise."""
+    from kincal.robots.urdf import load_urdf_inertials
+
+    if not str(spec).lower().endswith(".urdf"):
+        raise KincalError(f"--joint-model compliance needs the link masses: {spec!r} is not a "
+                          "URDF file (give the robot as a URDF with <inertial> elements)")
+    masses = load_urdf_inertials(spec, base_link=base_link, tip_link=tip_link)
+    if not masses:
+        raise KincalError(f"--joint-model compliance: {spec!r} has no <inertial> mass on the "
+                          "chain", source=str(spec))
+    return masses
+
+
+def read_session(robot: str | Any, data: Sequence[str], validate: Sequence[str] = (), *,
+                 units: str | None = None, ignore: Sequence[str] | None = None,
+                 joint_model: str | None = None, spec: str | None = None,
+                 base_link: str | None = None, tip_link: str | None = None) -> Session:
+    """Load the robot and read the training and held-out files of one calibration.
+
+    Args:
+        robot: a built-in name, a YAML or URDF path, or an already loaded serial robot.
+        spec: the loaded robot's name or path (for ``compliance``, the URDF's masses).
+        data, validate: training and held-out measurement files.
+        units, ignore: ``--units`` / ``--ignore`` (each entry applies to the files whose
+            columns it matches; one matching no file is an error).
+        joint_model: ``--joint-model`` text (``"hysteresis,compliance"``).
+        base_link, tip_link: URDF chain ends.
+
+    Raises one-line :class:`~kincal.errors.KincalError` for any bad input.
+    """
+    from kincal.measure.joints.terms import parse_joint_model, with_joint_model
+    from kincal.workflow.flow import read_blocks
+    from kincal.workflow.options import check_options_used
+    from kincal.workflow.robots import load_any_robot
+
+    if isinstance(robot, str):
+        spec = robot
+        robot = load_any_robot(robot, base_link=base_link, tip_link=tip_link)
+    r = robot
+    terms = parse_joint_model(joint_model)
+    if "compliance" in terms and spec is None:
+        raise KincalError("--joint-model compliance needs the robot's URDF file for the masses")
+    masses = joint_masses(spec or "", base_link, tip_link) if "compliance" in terms else None
+    check_options_used(list(data) + list(validate), units, ignore)
+    blocks = with_joint_model(read_blocks(data, r, units, ignore), r, terms, masses)
+    holdouts = with_joint_model(read_blocks(validate, r, units, ignore), r, terms, masses)
+    return Session(r, blocks, holdouts, terms)
