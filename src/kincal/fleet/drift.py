@@ -1,0 +1,204 @@
+"""Drift: did a robot change between its last two calibrations?
+
+For a robot's previous calibration ``a`` and latest ``b`` (two session dates), over the
+robot parameters estimated in both (the instruments' frames move between sessions and
+are not compared):
+
+* per parameter, the change ``delta_i = b_i - a_i`` in units of the combined standard
+  error ``s_i = sqrt(var_a,i + var_b,i)`` (independent sessions): ``z_i = delta_i / s_i``;
+* the chi-square statistic on the identifiable set,
+  ``chi2 = delta^T (C_a + C_b)^+ delta`` with ``dof = rank(C_a + C_b)``, and its p-value;
+* the previous calibration's position RMS on the new session's data (the cross-check,
+  :func:`kincal.fleet.tasks.crosscheck_session`) beside the new calibration's own.
+
+A robot is flagged when either test rejects "no change" at a family-wise false-alarm
+probability ``false_alarm`` per robot (default 0.001), split evenly between the two:
+``max |z_i| > z_crit`` with ``z_crit = Phi^-1(1 - false_alarm / (4 p))`` (two-sided,
+Bonferroni over ``p`` parameters), or ``P(chi2_dof > chi2) < false_alarm / 2``.
+
+The parameters beyond ``z_crit`` are the ones that moved; each gets a sentence
+(``d[3] +0.42 mm, 11σ: joint 3 hit something?``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from kincal.errors import KincalError
+from kincal.robots.chain import ROLES
+
+__all__ = ["ParameterChange", "Drift", "compare", "z_threshold", "fleet_drift"]
+
+
+@dataclasses.dataclass
+class ParameterChange:
+    """One robot parameter between two calibrations (SI: m, rad)."""
+
+    name: str
+    unit: str
+    role: str
+    before: float
+    after: float
+    sigma: float          # combined standard error of the change
+
+    @property
+    def change(self) -> float:
+        return self.after - self.before
+
+    @property
+    def z(self) -> float:
+        return self.change / self.sigma if self.sigma > 0 else math.inf * np.sign(self.change)
+
+    def text(self) -> str:
+        """``d[3] +0.4200 mm, 11.0σ: joint 3 hit something?``"""
+        f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(self.unit,
+                                                                        (1.0, self.unit))
+        return (f"{self.name} {self.change * f:+.4g} {u}, {abs(self.z):.1f}σ: "
+                f"{hint(self.name, self.role)}")
+
+
+def _joint(name: str) -> str:
+    m = re.search(r"\[(\w+)\]", name)
+    if m:
+        return f"joint {m.group(1)}"
+    return f"joint {name.split('.origin')[0].split('.')[0]}"
+
+
+def hint(name: str, role: str) -> str:
+    """What a moved parameter suggests, for people."""
+    if role == "offset":
+        return f"{_joint(name)}'s encoder zero moved (encoder slipped, replaced or re-mastered?)"
+    if role == "base":
+        return "the robot's base moved (re-mounted, or its bolts loosened?)"
+    if role == "tool":
+        return "the tool or flange changed (tool swapped or bent?)"
+    return f"{_joint(name)} hit something? (its link geometry changed)"
+
+
+@dataclasses.dataclass
+class Drift:
+    """The comparison of a robot's last two calibrations.
+
+    Attributes:
+        serial: the robot.
+        previous, latest: ``(record id, session date)``.
+        changes: every robot parameter estimated in both, ordered by ``|z|``.
+        chi2, dof, p_value: the chi-square test on the common identifiable set.
+        z_crit: the per-parameter threshold for this robot.
+        flagged: either test rejected "no change".
+        moved: the changes beyond ``z_crit`` (the largest ``|z|`` ones when only the
+            chi-square test rejected).
+        rms_latest_m: the latest calibration's training position RMS [m].
+        rms_previous_model_m: the previous calibration on the latest data [m] (None
+            until the cross-check is stored).
+    """
+
+    serial: str
+    previous: tuple[int, str]
+    latest: tuple[int, str]
+    changes: list[ParameterChange]
+    chi2: float
+    dof: int
+    p_value: float
+    z_crit: float
+    flagged: bool
+    moved: list[ParameterChange]
+    rms_latest_m: float | None = None
+    rms_previous_model_m: float | None = None
+
+    @property
+    def z_max(self) -> float:
+        return max((abs(c.z) for c in self.changes), default=0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"serial": self.serial, "previous": {"id": self.previous[0],
+                                                    "date": self.previous[1]},
+                "latest": {"id": self.latest[0], "date": self.latest[1]},
+                "flagged": self.flagged, "chi2": self.chi2, "dof": self.dof,
+                "p_value": self.p_value, "z_max": self.z_max, "z_crit": self.z_crit,
+                "rms_latest_m": self.rms_latest_m,
+                "rms_previous_model_m": self.rms_previous_model_m,
+                "moved": [c.text() for c in self.moved],
+                "changes": [{"name": c.name, "unit": c.unit, "role": c.role,
+                             "before": c.before, "after": c.after, "change": c.change,
+                             "sigma": c.sigma, "z": c.z} for c in self.changes]}
+
+
+def z_threshold(p: int, false_alarm: float) -> float:
+    """``Phi^-1(1 - false_alarm / (4 p))``: the per-parameter two-sided Bonferroni
+    threshold holding half of the false-alarm budget over ``p`` parameters."""
+    from scipy.stats import norm
+
+    return float(norm.isf(false_alarm / (4.0 * max(p, 1))))
+
+
+def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], np.ndarray,
+                                                     list[str]]:
+    params = {p["name"]: p for p in record["parameters"]
+              if p["role"] in ROLES and p["estimated"]}
+    return params, np.asarray(record["covariance"], dtype=float), list(record["estimated"])
+
+
+def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
+            false_alarm: float = 1e-3) -> Drift:
+    """:class:`Drift` of two full records of one robot (``previous`` first)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    if not 0 < false_alarm < 1:
+        raise KincalError(f"option --false-alarm: must be between 0 and 1 (got "
+                          f"{false_alarm:g})")
+    pa, Ca, ea = _robot_block(previous)
+    pb, Cb, eb = _robot_block(latest)
+    common = [n for n in eb if n in pa and n in pb]
+    ia = [ea.index(n) for n in common]
+    ib = [eb.index(n) for n in common]
+    C = Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)]
+    changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
+                               float(pb[n]["estimate"]), float(math.sqrt(max(C[k, k], 0.0))))
+               for k, n in enumerate(common)]
+    delta = np.array([c.change for c in changes])
+    chi2, dof = 0.0, 0
+    if common:
+        w, V = np.linalg.eigh(C)
+        keep = w > w.max() * 1e-12 if w.size and w.max() > 0 else np.zeros(w.size, bool)
+        proj = V[:, keep].T @ delta
+        chi2, dof = float(np.sum(proj**2 / w[keep])), int(keep.sum())
+    p_value = float(chi2_dist.sf(chi2, dof)) if dof else 1.0
+    z_crit = z_threshold(len(common), false_alarm)
+    changes.sort(key=lambda c: -abs(c.z))
+    moved = [c for c in changes if abs(c.z) > z_crit]
+    flagged = bool(moved) or p_value < false_alarm / 2
+    if flagged and not moved:
+        moved = changes[:3]
+    rms = (latest.get("metrics") or {}).get("train") or {}
+    return Drift(latest["serial"], (int(previous["id"]), previous["date"]),
+                 (int(latest["id"]), latest["date"]), changes, chi2, dof, p_value, z_crit,
+                 flagged, moved, rms.get("rms_position_m"))
+
+
+def fleet_drift(store: Any, false_alarm: float = 1e-3,
+                serials: Sequence[str] | None = None) -> list[Drift]:
+    """:func:`compare` for every robot of a history with two calibrated session dates."""
+    from kincal.fleet.store import latest_pairs
+
+    pairs = latest_pairs(store.summaries(serials))
+    if not pairs:
+        return []
+    checks = store.crosscheck_rows()
+    out = []
+    for start in range(0, len(pairs), 200):
+        chunk = pairs[start:start + 200]
+        full = {r["id"]: r for r in store.records([x["id"] for pair in chunk for x in pair])}
+        for prev, new in chunk:
+            d = compare(full[prev["id"]], full[new["id"]], false_alarm)
+            row = checks.get((new["id"], prev["id"]))
+            if row is not None and row["status"] == "ok":
+                d.rms_previous_model_m = row["rms_position_m"]
+            out.append(d)
+    return out
