@@ -102,41 +102,59 @@ class DaskEngine:
     def __init__(self, scheduler: str | None = None, workers: int | None = None,
                  window: int | None = None, timeout: float = 30.0) -> None:
         try:
-            from distributed import Client, LocalCluster
+            import distributed  # noqa: F401
         except ImportError:
             raise KincalError("the fleet engine needs Dask distributed: pip install "
                               "'kincal[fleet]'") from None
+        if scheduler and workers is not None:
+            raise KincalError("give either --scheduler or --workers: the workers of an "
+                              "existing cluster are started with it")
+        if workers is not None and workers < 1:
+            raise KincalError(f"option --workers: needs at least 1 (got {workers})")
+        self.scheduler = scheduler
+        self.timeout = timeout
         self.cluster: Any = None
+        self.client: Any = None
+        self.workers = workers if workers is not None else machine_cores()
+        self.threads = self.workers
+        self._window = window
+
+    def start(self) -> DaskEngine:
+        """Start the embedded cluster or connect to the scheduler (done by the first
+        map; a run with nothing to compute never starts a cluster)."""
+        if self.client is not None:
+            return self
+        from distributed import Client, LocalCluster
+
         quiet = logging.ERROR
         for name in ("distributed", "distributed.nanny", "distributed.scheduler",
                      "distributed.worker", "distributed.core", "tornado"):
             logging.getLogger(name).setLevel(quiet)
-        if scheduler:
-            if workers is not None:
-                raise KincalError("give either --scheduler or --workers: the workers of an "
-                                  "existing cluster are started with it")
+        if self.scheduler:
             try:
-                self.client = Client(scheduler, timeout=timeout, set_as_default=False)
+                self.client = Client(self.scheduler, timeout=self.timeout,
+                                     set_as_default=False)
             except (OSError, TimeoutError) as exc:
                 raise KincalError(f"option --scheduler: cannot reach a Dask scheduler at "
-                                  f"{scheduler} ({type(exc).__name__}: {exc})") from None
+                                  f"{self.scheduler} ({type(exc).__name__}: {exc})") from None
         else:
-            n = workers if workers is not None else machine_cores()
-            if n < 1:
-                raise KincalError(f"option --workers: needs at least 1 (got {n})")
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, silence_logs=quiet,
-                                        host="127.0.0.1")
+            self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
+                                        processes=True, dashboard_address=None,
+                                        silence_logs=quiet, host="127.0.0.1")
             self.client = Client(self.cluster, set_as_default=False)
-        self.address = self.client.scheduler.address
         info = self.client.scheduler_info()
         self.workers = len(info["workers"])
         self.threads = sum(w.get("nthreads", 1) for w in info["workers"].values()) or 1
-        self.window = window or max(16, 8 * self.threads)
+        return self
+
+    @property
+    def window(self) -> int:
+        return self._window or max(16, 8 * self.threads)
 
     def describe(self) -> str:
-        where = "embedded LocalCluster" if self.cluster is not None else self.address
-        return f"Dask distributed ({where}, {self.workers} worker(s), {self.threads} thread(s))"
+        if self.scheduler:
+            return f"Dask distributed (scheduler {self.scheduler})"
+        return f"Dask distributed (embedded LocalCluster, {self.workers} worker process(es))"
 
     def map_unordered(self, fn: Callable[[Any], Any], items: Iterable[Any]
                       ) -> Iterator[Outcome]:
@@ -144,9 +162,10 @@ class DaskEngine:
         result, None)`` or ``(index, None, exception)`` as each finishes."""
         from distributed import as_completed
 
+        self.start()
         it = enumerate(items)
         pending: dict[str, int] = {}
-        done = as_completed()
+        done = as_completed(loop=self.client.loop)
         exhausted = False
 
         def refill() -> None:
@@ -188,14 +207,16 @@ class DaskEngine:
 
     def worker_pids(self) -> dict[str, int]:
         """``{worker address: process id}`` (tests kill one)."""
-        return self.client.run(os.getpid)
+        return self.start().client.run(os.getpid)
 
     def close(self) -> None:
         try:
-            self.client.close()
+            if self.client is not None:
+                self.client.close()
         finally:
             if self.cluster is not None:
                 self.cluster.close()
+            self.client = self.cluster = None
 
     def __enter__(self) -> DaskEngine:
         return self

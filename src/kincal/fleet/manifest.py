@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
-import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -139,13 +138,13 @@ def _calibration(doc: _Doc, path: tuple[Any, ...], value: Any) -> dict[str, Any]
 
 
 def _length(doc: _Doc, path: tuple[Any, ...], text: str) -> float:
-    from kincal.measure.files import UNITS
+    from kincal.units import parse_quantity
 
-    m = re.fullmatch(r"\s*([-+0-9.eE]+)\s*([a-z]+)\s*", text)
-    if not m or UNITS.get(m.group(2), ("",))[0] != "length":
-        doc.fail(path, f"{text!r} is not a length with its unit (e.g. 0.1mm)")
-    assert m is not None
-    return float(m.group(1)) * UNITS[m.group(2)][1]
+    try:
+        return parse_quantity(text, "length", str(path[-1]))
+    except KincalError as exc:
+        doc.fail(path, str(exc))
+        raise
 
 
 def _merge(base: dict[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:

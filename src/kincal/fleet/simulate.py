@@ -148,6 +148,7 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
                                                             true.param_values.tolist(),
                                                             strict=True))}
         entries = []
+        first_design: tuple[list[Any], dict[str, float]] = ([], {})
         for s, date in enumerate(dates):
             if s == sessions - 1 and k in drift_set:
                 info["drift"], true = _drift(true, first_design, rng, drift_sigma, ROLES)
