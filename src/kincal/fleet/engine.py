@@ -51,6 +51,26 @@ def describe_failure(exc: BaseException) -> str:
     return f"{name}: {text}" if text else name
 
 
+def _check_reachable(address: str) -> None:
+    """A one-line error at once when nothing listens at ``tcp://HOST:PORT`` (the Dask
+    client would retry a refused connection until its timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    try:
+        parts = urlsplit(address if "://" in address else f"tcp://{address}")
+        host, port = parts.hostname, parts.port
+    except ValueError:
+        host = port = None
+    if parts.scheme not in ("tcp", "tls") or not host or not port:
+        raise KincalError(f"option --scheduler: {address!r} is not tcp://HOST:PORT")
+    try:
+        socket.create_connection((host, port), timeout=10).close()
+    except OSError as exc:
+        raise KincalError(f"option --scheduler: cannot reach a Dask scheduler at {address} "
+                          f"({exc.strerror or exc})") from None
+
+
 class SerialEngine:
     """Run tasks one after the other in this process."""
 
@@ -131,6 +151,7 @@ class DaskEngine:
                      "distributed.worker", "distributed.core", "tornado"):
             logging.getLogger(name).setLevel(quiet)
         if self.scheduler:
+            _check_reachable(self.scheduler)
             try:
                 self.client = Client(self.scheduler, timeout=self.timeout,
                                      set_as_default=False)
