@@ -9,7 +9,7 @@ the covariance is a binary little-endian float64 matrix.
 =====================  ======================================================
 serial, session_date    the robot and the day it was measured
 fingerprint             SHA-256 of the inputs (:func:`kincal.fleet.tasks.fingerprint`)
-status, reason          ``ok`` / ``not converged`` / ``failed``, and why (one line)
+status, reason          ``ok`` / ``not converged`` / ``untrusted`` / ``failed``, why
 kincal_version          the kincal that computed it; ``created_at`` when (UTC)
 robot, options, files   the robot spec, the options (JSON), data / held-out files (JSON)
 converged, iterations   the solver's outcome; ``sigma0`` the a-posteriori variance factor

@@ -11,8 +11,9 @@ what was injected:
   ``noise`` [m] per coordinate;
 * ``drifted`` robots change one identifiable parameter between their last two sessions
   by ``drift_sigma`` times its predicted combined standard error
-  ``sigma_c = sqrt(2) * sigma_1``, where ``sigma_1 = sqrt(((J^T J)^-1)_ii)`` comes from the
-  whitened Jacobian of the first session's design at the truth (identifiable set only);
+  ``sigma_c = sqrt(2) * sigma_1``, where ``sigma_1`` is the standard error of the first
+  session's calibration at the stated noise (:func:`predicted_std`), drawn among the
+  parameters whose drift stays within three times their manufacturing error;
 * ``broken`` robots get an unreadable last-session file (a row with a non-numeric
   value).
 
@@ -62,18 +63,15 @@ def serial_name(k: int) -> str:
 
 def predicted_std(robot: Any, blocks: list[Any], truth: dict[str, float]
                   ) -> dict[str, float]:
-    """Predicted standard error [m, rad] of every identifiable parameter of a design:
-    ``sqrt(diag((J^T J)^-1))`` with ``J`` the whitened Jacobian at the true values."""
-    from kincal.identify.identifiability import analyze
-    from kincal.measure.base import stack
+    """Predicted standard error [m, rad] of every parameter kincal estimates from a design:
+    the calibration of ``blocks`` started at the true values (``truth``), its covariance
+    ``sigma0^2 (J^T J)^-1`` divided by ``sigma0^2`` (the stated noise, not the sample's)."""
+    from kincal.identify.solver import calibrate
 
-    prob, theta = stack(robot, blocks)
-    theta = np.array([truth.get(n, v) for n, v in zip(prob.names, theta, strict=True)])
-    _, J = prob.residuals_and_jacobian(theta)
-    rep = analyze(J, prob.names, roles=prob.roles)
-    idx = [prob.names.index(n) for n in rep.identifiable]
-    cov = np.linalg.inv(J[:, idx].T @ J[:, idx])
-    return {n: float(math.sqrt(cov[k, k])) for k, n in enumerate(rep.identifiable)}
+    known = {n: v for n, v in truth.items() if n not in robot.param_names}
+    res = calibrate(robot, blocks, initial=known or None)
+    s0 = res.sigma0 if res.sigma0 > 0 else 1.0
+    return {n: float(res.std[res.names.index(n)] / s0) for n in res.estimated}
 
 
 def _corrupt(path: Path, rng: np.random.Generator) -> int:
@@ -151,7 +149,9 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
         first_design: tuple[list[Any], dict[str, float]] = ([], {})
         for s, date in enumerate(dates):
             if s == sessions - 1 and k in drift_set:
-                info["drift"], true = _drift(true, first_design, rng, drift_sigma, ROLES)
+                info["drift"], true = _drift(true, first_design, rng, drift_sigma, ROLES,
+                                             {"m": length_error, "rad": angle_error,
+                                              "offset": offset_error})
                 info["drift"]["from"], info["drift"]["to"] = dates[s - 1], date
             blocks, inst_truth = simulate_measurements("position", true, rng, poses, noise)
             if s == 0:
@@ -181,24 +181,34 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
 
 
 def _drift(true: Any, design: tuple[list[Any], dict[str, float]], rng: np.random.Generator,
-           size: float, roles: tuple[str, ...]) -> tuple[dict[str, Any], Any]:
+           size: float, roles: tuple[str, ...], scale: dict[str, float]
+           ) -> tuple[dict[str, Any], Any]:
     """Move one identifiable joint parameter (not base / tool) of ``true`` by ``size``
-    predicted combined standard errors."""
+    predicted combined standard errors; only parameters whose drift stays within three
+    times their role's manufacturing error (``scale``: ``offset``, ``m``, ``rad``) are
+    drawn, so a drift is a plausible knock, not a broken robot."""
     blocks, inst_truth = design
     truth = {**dict(zip(true.param_names, true.param_values.tolist(), strict=True)),
              **inst_truth}
     sig = predicted_std(true, blocks, truth)
-    robot_roles = dict(zip(true.param_names, true.param_roles, strict=True))
-    pick = [n for n in sig if robot_roles.get(n) in roles and robot_roles[n] not in
-            ("base", "tool")]
+    role = dict(zip(true.param_names, true.param_roles, strict=True))
+    unit = dict(zip(true.param_names, true.param_units, strict=True))
+
+    def cap(n: str) -> float:
+        return 3.0 * (scale["offset"] if role[n] == "offset" and unit[n] == "rad"
+                      else scale[unit[n]])
+
+    pick = [n for n in sig if role.get(n) in roles and role[n] not in ("base", "tool")
+            and size * math.sqrt(2.0) * sig[n] <= cap(n)]
     if not pick:
-        raise KincalError("no identifiable joint parameter to drift")
+        raise KincalError(f"no identifiable joint parameter can drift by {size:g} σ within "
+                          "three times its manufacturing error: lower --drift-sigma or "
+                          "measure more poses")
     name = pick[int(rng.integers(len(pick)))]
     sigma_c = math.sqrt(2.0) * sig[name]
     change = float(rng.choice([-1.0, 1.0]) * size * sigma_c)
     i = true.param_names.index(name)
     values = true.param_values.copy()
     values[i] += change
-    unit = true.param_units[i]
-    return ({"parameter": name, "change": change, "unit": unit, "sigma_combined": sigma_c,
-             "sigmas": size}, true.with_params(values))
+    return ({"parameter": name, "change": change, "unit": unit[name],
+             "sigma_combined": sigma_c, "sigmas": size}, true.with_params(values))

@@ -41,7 +41,7 @@ from kincal.fleet.tasks import summary_rms
 __all__ = ["HistoryStore", "database_url", "FINISHED"]
 
 #: Statuses of a record that a re-run does not recompute.
-FINISHED = ("ok", "not converged")
+FINISHED = ("ok", "not converged", "untrusted")
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 F = TypeVar("F", bound=Callable[..., Any])
 

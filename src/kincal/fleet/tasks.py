@@ -170,7 +170,8 @@ def calibrate_session(task: SessionTask) -> dict[str, Any]:
     """Calibrate one robot session as ``kincal calibrate`` would; return its record.
 
     Record keys: ``fleet, serial, date, fingerprint, kincal_version, robot, options,
-    data, validate, worker``; ``status`` (``ok``, ``not converged`` or ``failed``) and
+    data, validate, worker``; ``status`` (``ok``; ``not converged`` or ``untrusted``:
+    the checks ``kincal calibrate`` applies, :attr:`FlowResult.trusted`; ``failed``) and
     ``reason`` (one line; None when ok); ``converged, iterations, sigma0, seconds``;
     ``parameters`` (``CalibrationResult.to_dict()["parameters"]``: name, unit, role,
     nominal, estimate, std, identifiable, estimated), ``estimated`` and ``covariance``
@@ -207,8 +208,10 @@ def _calibrate(task: SessionTask, t0: float) -> dict[str, Any]:
     if flow.cross_validation is not None:
         metrics["cross_validation"] = dict(flow.cross_validation)
     return {**_base_record(task),
-            "status": "ok" if res.converged else "not converged",
-            "reason": None if res.converged else f"did not converge: {res.message}",
+            "status": "ok" if flow.trusted else "not converged" if not res.converged
+            else "untrusted",
+            "reason": None if flow.trusted else (flow.verdict.line() if flow.verdict
+                                                  is not None else res.message),
             "converged": bool(res.converged), "iterations": int(res.iterations),
             "sigma0": float(res.sigma0), "seconds": time.perf_counter() - t0,
             "parameters": doc["parameters"], "estimated": list(res.estimated),
