@@ -1,36 +1,33 @@
-"""Calibration benchmark: kincal against pybotics on the same simulated UR10 problem.
+"""Calibration benchmark: kincal against the honest peer, against pybotics, and its scaling.
 
-Problem (identical for both): the UR10 modified-DH model of pybotics
-(``pybotics.predefined_models.ur10``), a "true" robot with Gaussian errors on every
-DH parameter (0.5 mm lengths, 0.05 deg angles, 0.1 deg joint offsets) and a tool
-point 100 mm off the flange, measured by a tracker 0.9 m away and turned by 20 deg
-(its frame unknown to both tools) at N random configurations with 0.01 mm noise per
-coordinate.  Both tools start from the nominal model with the tool point at the
-flange and estimate the same parameters: the tracker frame (pybotics: its world
-frame, started at identity; kincal: its closed-form initial guess), the identifiable
-DH parameters (kincal's identifiability analysis of this problem: the tracker frame
-takes the place of the first link's constants, the tool point that of the last
-link's) and the tool point.  Accuracy is the RMS position error on held-out
-configurations, each tool using its own forward kinematics and its training frames.
+**The honest peer** (``--section peers``, :mod:`calibration_peers`): FIGAROH's recipe written
+out for the same problem - a vectorised-NumPy forward kinematics (and, when ``pin`` is
+installed, Pinocchio's, looped over the configurations as FIGAROH does) inside
+``scipy.optimize.least_squares(method="lm")`` with its finite-difference Jacobian - over
+exactly the parameters kincal estimates, from the same start (the nominal robot, kincal's
+closed-form tracker frame and markers; the peer's start is computed outside its timing).
+Problems: the PUMA 560 of kincal's library with one marker (26 parameters estimated) and
+the Franka Panda (7R, modified DH) with three markers (37), each perturbed (1 mm / 0.05 deg
+/ 0.1 deg) and measured by a tracker 0.9 m away, turned, with 0.01 mm noise per
+coordinate, at N = 1k, 10k, 100k configurations.  Accuracy is the RMS distance between
+each tool's predicted and the *true* (noise-free) marker positions on 2 000 held-out
+configurations.
 
-pybotics: ``OptimizationHandler`` + ``scipy.optimize.least_squares(optimize_accuracy)``
-(its documented calibration recipe: finite-difference Jacobian, one residual per
-pose = the 3-D error norm).  kincal: ``kincal.identify.solver.calibrate`` with a
-``PositionMeasurement`` block (analytic Jacobian, Levenberg-Marquardt).
+**pybotics** (``--section pybotics``): the UR10 of pybotics' MDH table, 1 000 poses, its
+documented recipe (``OptimizationHandler`` + ``least_squares(optimize_accuracy)``).
 
-Then the scaling run: kincal alone for N = 1k, 10k, 100k position measurements,
-each in a fresh process to report its wall time (and CPU time: on a shared machine
-the steadier number), time per measurement and peak resident memory (``ru_maxrss``:
-the whole process, data included).  The problem is
-the one above (UR10, its estimated set) or, with ``--scaling-robot puma560``, the
-PUMA 560 of kincal's library with a tool point, a perturbed "true" robot and the
-automatic parameter selection (``free=None``: 26 identifiable of 45).  The target
-(issue 3): time linear in N, 100k measurements in well under 10 s and < 1 GB.
+**Scaling** (``--section scaling``): kincal alone, PUMA 560, N = 10^3 ... 10^7 position
+measurements, one fresh process per N: wall and CPU time, time per measurement, peak
+resident memory (``ru_maxrss``: the whole process, the data included).
 
-Run (pybotics lives in the benchmark environment)::
+Timing: every contender once per round, the order rotated, at least five rounds; the
+tables quote medians and the median of the same-round ratios (:mod:`timing`), never
+best-of.  One BLAS thread for everyone.  The machine and its load are printed.
 
-    /work/benchvenv/bin/python benchmarks/calibration.py [--poses 1000] [--skip-pybotics]
-        [--scaling 1000,10000,100000] [--scaling-robot ur10|puma560] [--skip-comparison]
+Run (the peers live in the benchmark environment, ``pip install -e ".[bench]"``)::
+
+    python benchmarks/calibration.py [--section peers,pybotics,scaling] [--rounds 5]
+        [--sizes 1000,10000,100000] [--pin-max 10000] [--scaling 1000,...,10000000]
 """
 
 from __future__ import annotations
@@ -54,6 +51,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from kincal.identify.identifiability import analyze  # noqa: E402
 from kincal.identify.solver import calibrate  # noqa: E402
@@ -121,12 +119,10 @@ def estimated_set(q: np.ndarray, y: np.ndarray) -> list[str]:
     return list(rep.identifiable)
 
 
-def run_kincal(q: np.ndarray, y: np.ndarray, free: list[str]) -> tuple[float, object]:
+def run_kincal(q: np.ndarray, y: np.ndarray, free: list[str]):
     robot = kincal_robot(UR10_MDH)
-    t0 = time.perf_counter()
     block = PositionMeasurement(q, y, NOISE_MM * 1e-3)
-    res = calibrate(robot, [block], free=free, method="lm")
-    return time.perf_counter() - t0, res
+    return calibrate(robot, [block], free=free, method="lm")
 
 
 def kincal_errors(res, q: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -144,15 +140,13 @@ def run_pybotics(q: np.ndarray, y_mm: np.ndarray, free: list[str]):
     names = [f"{p}[{i}]" for i in range(1, 7) for p in ("alpha", "a", "theta_offset", "d")]
     mask = [n in free for n in names]
     robot = Robot.from_parameters(UR10_MDH.copy())
-    t0 = time.perf_counter()
     handler = OptimizationHandler(robot=robot, kinematic_chain_mask=mask,
                                   tool_mask=[True, True, True, False, False, False],
                                   world_mask=[True] * 6)
     x0 = handler.generate_optimization_vector()
     res = least_squares(optimize_accuracy, x0, args=(handler, q, y_mm))
-    seconds = time.perf_counter() - t0
     handler.apply_optimization_vector(res.x)
-    return seconds, handler.robot, res
+    return handler.robot, res
 
 
 def pybotics_errors(robot, q: np.ndarray, y_mm: np.ndarray) -> np.ndarray:
@@ -178,129 +172,215 @@ def rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2)))
 
 
-def puma_problem(n: int) -> tuple[object, object]:
-    """PUMA 560 (library) with a tool point, measured by a tracker: (robot, block)."""
+#: The honest-peer problems: (library robot, DH convention of its file, markers in the
+#: tool frame [m]).  PUMA 560: one marker, 26 parameters; Panda: three markers, 37.
+PROBLEMS = {
+    "puma560": ("standard", [[0.01, -0.02, 0.03]]),
+    "panda": ("modified", [[0.01, -0.02, 0.03], [0.06, 0.0, 0.02], [0.0, 0.07, 0.01]]),
+}
+#: Tracker pose in the robot's world frame, (x, y, z, roll, pitch, yaw) [m, rad].
+INSTRUMENT = [0.8, -0.4, 0.2, math.radians(-3), math.radians(5), math.radians(20)]
+
+
+def peer_problem(name: str, n: int, holdout: int = 2000, seed: int = 0):
+    """(nominal robot, training block, held-out q, true held-out positions (N, K, 3))."""
     from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
-    from kincal.robots.dh import dh_links
     from kincal.robots.files import load_robot
 
-    robot = from_dh(dh_links(load_robot("puma560")), name="puma560",
-                    tool=[0.05, 0.03, 0.1, 0, 0, 0])
-    rng = np.random.default_rng(n)
-    true = perturb_robot(robot, np.random.default_rng(0))
+    robot = load_robot(name)
+    markers = np.array(PROBLEMS[name][1])
+    rng = np.random.default_rng(seed)
+    true = perturb_robot(robot, rng)
     q = random_configurations(robot, n, rng)
-    block = simulate_positions(true, q, rng, NOISE_MM * 1e-3,
-                               [0.8, -0.4, 0.2, math.radians(-3), math.radians(5),
-                                math.radians(20)], [0.01, -0.02, 0.03])
+    m = markers[0] if len(markers) == 1 else markers
+    block = simulate_positions(true, q, rng, NOISE_MM * 1e-3, INSTRUMENT, m)
+    qv = random_configurations(robot, holdout, rng)
+    yv = simulate_positions(true, qv, rng, 0.0, INSTRUMENT, m)._y
+    return robot, block, qv, yv
+
+
+def peers(sizes: list[int], rounds: int, pin_max: int, robots: list[str]) -> None:
+    """kincal against the NumPy and Pinocchio least_squares peers (interleaved medians)."""
+    from timing import load_average, machine
+
+    try:
+        import pinocchio  # noqa: F401
+        have_pin = True
+    except ImportError:
+        have_pin = False
+        print("pinocchio not installed (pip install pin): its column is left out")
+    print(f"\nkincal vs the honest peer (least_squares 'lm', finite differences); "
+          f"{rounds} interleaved rounds, medians\n{machine()}")
+    head = (f"{'robot':<9}{'P':>4}{'N':>8}{'kincal [s]':>12}{'NumPy+lsq [s]':>15}{'ratio':>8}"
+            f"{'pin+lsq [s]':>13}{'ratio':>8}{'it':>4}{'nfev':>6}"
+            f"{'RMS vs truth [um]: kincal':>27}{'NumPy':>8}{'pin':>8}")
+    print(head)
+    print("-" * len(head))
+    for name in robots:
+        for n in sizes:
+            print(peer_row(name, n, rounds, have_pin and n <= pin_max), flush=True)
+    print(f"load average after: {load_average()}")
+
+
+def peer_row(name: str, n: int, rounds: int, with_pin: bool) -> str:
+    """One line of the peer table: ``name`` at ``n`` configurations."""
+    from calibration_peers import DHModel, calibrate_peer
+    from timing import interleaved
+
+    robot, block, qv, yv = peer_problem(name, n)
+    prob, theta0 = stack(robot, [block])
+    res = calibrate(robot, [block])
+    free = [prob.names.index(s) for s in res.estimated]
+    model = DHModel(prob.names, robot.n, PROBLEMS[name][0], block.K)
+    y, sigma = block._y, NOISE_MM * 1e-3
+    fns = {"kincal": lambda: calibrate(robot, [block]),
+           "numpy": lambda: calibrate_peer(model, block.q, y, sigma, theta0, free)}
+    if with_pin:
+        fk = model.pinocchio()
+        fns["pin"] = lambda: calibrate_peer(model, block.q, y, sigma, theta0, free, fk)
+    t = interleaved(fns, rounds=rounds, warmup=False)
+
+    def truth_rms(theta: np.ndarray) -> float:
+        pred = model.observe(theta, model.fk_numpy(theta, qv))
+        return rms(np.linalg.norm(pred - yv, axis=-1)) * 1e6
+
+    rk = t.results["kincal"]
+    ek = np.linalg.norm(_predict_on(block, rk.robot, rk.theta[prob.slices[0]], qv) - yv, axis=-1)
+    rn = t.results["numpy"]
+    cells = [f"{name:<9}{len(free):>4}{n:>8}{t.median('kincal'):>12.3f}"
+             f"{t.median('numpy'):>15.3f}{t.ratio('numpy', 'kincal'):>7.1f}x"]
+    pin_rms = f"{'-':>8}"
+    if with_pin:
+        cells.append(f"{t.median('pin'):>13.3f}{t.ratio('pin', 'kincal'):>7.1f}x")
+        pin_rms = f"{truth_rms(t.results['pin'].theta):>8.2f}"
+    else:
+        cells.append(f"{'-':>13}{'-':>8}")
+    cells.append(f"{rk.iterations:>4}{rn.nfev:>6}{rms(ek) * 1e6:>27.2f}"
+                 f"{truth_rms(rn.theta):>8.2f}{pin_rms}")
+    return "".join(cells)
+
+
+def _predict_on(block: PositionMeasurement, robot, extra: np.ndarray, q: np.ndarray
+                ) -> np.ndarray:
+    """The block's prediction (N, K, 3) at other configurations ``q``."""
+    other = PositionMeasurement(q, np.zeros((len(q), block.K, 3)), block.sigma[0, 0],
+                                block.name, block.K)
+    return other.predict(robot, extra)
+
+
+def pybotics_section(poses: int, holdout: int, rounds: int) -> None:
+    """kincal against pybotics on its UR10 (interleaved medians)."""
+    from timing import interleaved, load_average, machine
+
+    try:
+        import pybotics  # noqa: F401
+    except ImportError:
+        print("pybotics not installed in this environment: pip install -e '.[bench]'")
+        return
+    rng = np.random.default_rng(2024)
+    table = true_table(rng)
+    q = rng.uniform(-np.pi, np.pi, (poses, 6))
+    y = measure(table, q, rng)
+    qv = rng.uniform(-np.pi, np.pi, (holdout, 6))
+    yv = measure(table, qv, rng)
+    free = estimated_set(q, y)
+    print(f"\nUR10 (pybotics MDH), {poses} poses, noise {NOISE_MM} mm, {len(free)} parameters "
+          f"estimated; {rounds} interleaved rounds, medians\n{machine()}")
+    print(f"model check: max |kincal FK - pybotics FK| = {check_models_agree(q, table):.2e} m")
+    t = interleaved({"kincal": lambda: run_kincal(q, y, free),
+                     "pybotics": lambda: run_pybotics(q, y * 1e3, free)}, rounds=rounds)
+    res = t.results["kincal"]
+    pb_robot, pb_res = t.results["pybotics"]
+    ek, ep = kincal_errors(res, qv, yv), pybotics_errors(pb_robot, qv, yv * 1e3)
+    nom = np.linalg.norm(measure(UR10_MDH, qv, None) - yv, axis=1)
+    head = f"{'tool':<38}{'time [s]':>10}{'iter/nfev':>10}{'valid RMS':>11}{'valid max':>11}"
+    print(head + "   (errors in mm)")
+    print("-" * len(head))
+    print(f"{'nominal model (no calibration)':<38}{'-':>10}{'-':>10}"
+          f"{rms(nom) * 1e3:>11.4f}{np.max(nom) * 1e3:>11.4f}")
+    for label, key, it, e in (("kincal (LM, analytic J)", "kincal", res.iterations, ek),
+                              ("pybotics (least_squares, FD J)", "pybotics", pb_res.nfev, ep)):
+        print(f"{label:<38}{t.median(key):>10.3f}{it:>10}{rms(e) * 1e3:>11.4f}"
+              f"{np.max(e) * 1e3:>11.4f}")
+    print(f"kincal is {t.ratio('pybotics', 'kincal'):.0f}x faster (median of same-round "
+          f"ratios); load average after: {load_average()}")
+
+
+def scaling_problem(n: int):
+    """PUMA 560 measured at ``n`` configurations, simulated in pieces (O(piece) memory
+    beyond the data): (nominal robot, block)."""
+    from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+    from kincal.robots.files import load_robot
+
+    robot = load_robot("puma560")
+    true = perturb_robot(robot, np.random.default_rng(0))
+    rng = np.random.default_rng(n)
+    q = random_configurations(robot, n, rng)
+    block = simulate_positions(true, q, rng, NOISE_MM * 1e-3, INSTRUMENT, PROBLEMS["puma560"][1][0])
     return robot, block
 
 
-def child(n: int, robot_name: str) -> None:
+def child(n: int) -> None:
     """One scaling point in a fresh process: print time and peak RSS as JSON."""
-    if robot_name == "puma560":
-        robot, block = puma_problem(n)
-        calibrate(*puma_problem(50))                      # warm-up (lazy imports)
-        c0, t0 = time.process_time(), time.perf_counter()
-        res = calibrate(robot, [block], method="lm")
-        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
-        rms_mm = float(np.sqrt(np.mean(res.errors()[block.name]["position_m"] ** 2))) * 1e3
-    else:
-        rng = np.random.default_rng(n)
-        table = true_table(np.random.default_rng(0))
-        q = rng.uniform(-np.pi, np.pi, (n, 6))
-        y = measure(table, q, rng)
-        free = estimated_set(q[:300], y[:300])
-        run_kincal(q[:50], y[:50], free)                  # warm-up (lazy imports)
-        c0 = time.process_time()
-        seconds, res = run_kincal(q, y, free)
-        cpu = time.process_time() - c0
-        rms_mm = rms(kincal_errors(res, q, y)) * 1e3
+    robot, block = scaling_problem(n)
+    calibrate(*scaling_problem(50))                      # warm-up (lazy imports)
+    c0, t0 = time.process_time(), time.perf_counter()
+    res = calibrate(robot, [block], method="lm")
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    rms_mm = float(np.sqrt(np.mean(res.errors()[block.name]["position_m"] ** 2))) * 1e3
     print(json.dumps({"n": n, "seconds": seconds, "cpu_seconds": cpu, "peak_mb": peak,
                       "iterations": res.iterations, "params": len(res.estimated),
                       "rms_mm": rms_mm}))
 
 
-def scaling(sizes: list[int], robot_name: str) -> None:
+def scaling(sizes: list[int]) -> None:
     """The scaling table: one fresh process per N."""
-    print(f"\nscaling (kincal, {robot_name}, position measurements, fresh process per N):")
-    head = (f"{'N':>8}{'time [s]':>10}{'CPU [s]':>9}{'time/N [us]':>13}{'peak RSS [MB]':>15}"
+    from timing import load_average, machine
+
+    print(f"\nscaling (kincal, PUMA 560, position measurements, fresh process per N)\n"
+          f"{machine()}")
+    head = (f"{'N':>9}{'time [s]':>10}{'CPU [s]':>9}{'time/N [us]':>13}{'peak RSS [MB]':>15}"
             f"{'iterations':>12}{'params':>8}{'RMS [mm]':>10}")
     print(head)
     print("-" * len(head))
     for n in sizes:
-        out = subprocess.run([sys.executable, __file__, "--child", str(n), "--scaling-robot",
-                              robot_name], capture_output=True, text=True, check=True).stdout
+        out = subprocess.run([sys.executable, __file__, "--child", str(n)],
+                             capture_output=True, text=True, check=True).stdout
         d = json.loads(out.strip().splitlines()[-1])
-        print(f"{d['n']:>8}{d['seconds']:>10.3f}{d['cpu_seconds']:>9.3f}"
+        print(f"{d['n']:>9}{d['seconds']:>10.3f}{d['cpu_seconds']:>9.3f}"
               f"{d['seconds'] / n * 1e6:>13.2f}"
               f"{d['peak_mb']:>15.0f}{d['iterations']:>12}{d['params']:>8}"
               f"{d['rms_mm']:>10.4f}", flush=True)
+    print(f"load average after: {load_average()}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--poses", type=int, default=1000)
+    ap.add_argument("--section", default="peers,pybotics,scaling",
+                    help="comma-separated: peers, pybotics, scaling")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (>= 5)")
+    ap.add_argument("--sizes", default="1000,10000,100000", help="N of the peer comparison")
+    ap.add_argument("--robots", default="puma560,panda", help="peer-comparison problems")
+    ap.add_argument("--pin-max", type=int, default=10000,
+                    help="largest N for the Pinocchio peer (it loops over configurations)")
+    ap.add_argument("--poses", type=int, default=1000, help="pybotics comparison poses")
     ap.add_argument("--holdout", type=int, default=200)
-    ap.add_argument("--skip-pybotics", action="store_true")
-    ap.add_argument("--scaling", default="1000,10000,100000",
-                    help="comma-separated N of the scaling run (empty: skip it)")
-    ap.add_argument("--scaling-robot", choices=("ur10", "puma560"), default="ur10")
-    ap.add_argument("--skip-comparison", action="store_true",
-                    help="only the scaling run")
+    ap.add_argument("--scaling", default="10000,100000,1000000",
+                    help="comma-separated N of the scaling run")
     ap.add_argument("--child", type=int, default=0, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        child(a.child, a.scaling_robot)
+        child(a.child)
         return
-    sizes = [int(s) for s in a.scaling.split(",") if s]
-    if a.skip_comparison:
-        scaling(sizes, a.scaling_robot)
-        return
-    rng = np.random.default_rng(2024)
-    table = true_table(rng)
-    q = rng.uniform(-np.pi, np.pi, (a.poses, 6))
-    y = measure(table, q, rng)
-    qv = rng.uniform(-np.pi, np.pi, (a.holdout, 6))
-    yv = measure(table, qv, rng)
-    free = estimated_set(q, y)
-    print(f"UR10 (pybotics MDH), {a.poses} poses, noise {NOISE_MM} mm, {len(free)} parameters "
-          f"estimated: {', '.join(free)}")
-    rows = []
-    run_kincal(q[:50], y[:50], free)                      # warm-up (lazy imports)
-    tk, res = min((run_kincal(q, y, free) for _ in range(3)), key=lambda r: r[0])
-    ek = kincal_errors(res, qv, yv)
-    rows.append(("kincal (LM, analytic J)", tk, res.iterations, rms(kincal_errors(res, q, y)),
-                 rms(ek), float(np.max(ek))))
-    # nominal for reference
-    nom_err = np.linalg.norm(measure(UR10_MDH, qv, None) - yv, axis=1)
-    if not a.skip_pybotics:
-        try:
-            import pybotics  # noqa: F401
-        except ImportError:
-            print("pybotics not installed in this environment: run with the benchmark venv")
-            a.skip_pybotics = True
-    if not a.skip_pybotics:
-        print(f"model check: max |kincal FK - pybotics FK| = "
-              f"{check_models_agree(q, table):.2e} m")
-        tp, robot, r = run_pybotics(q, y * 1e3, free)
-        ep = pybotics_errors(robot, qv, yv * 1e3)
-        rows.append(("pybotics (scipy least_squares, FD J)", tp, r.nfev,
-                     rms(pybotics_errors(robot, q, y * 1e3)), rms(ep), float(np.max(ep))))
-    print()
-    head = f"{'tool':<38}{'time [s]':>10}{'iter/nfev':>10}{'train RMS':>11}{'valid RMS':>11}" \
-           f"{'valid max':>11}"
-    print(head + "   (errors in mm)")
-    print("-" * len(head))
-    print(f"{'nominal model (no calibration)':<38}{'-':>10}{'-':>10}{'-':>11}"
-          f"{rms(nom_err) * 1e3:>11.4f}{np.max(nom_err) * 1e3:>11.4f}")
-    for name, t, it, tr, va, mx in rows:
-        print(f"{name:<38}{t:>10.3f}{it:>10}{tr * 1e3:>11.4f}{va * 1e3:>11.4f}{mx * 1e3:>11.4f}")
-    if len(rows) == 2:
-        print(f"\nspeed-up kincal vs pybotics: {rows[1][1] / rows[0][1]:.0f}x; validation RMS "
-              f"ratio {rows[0][4] / rows[1][4]:.3f}")
-    if sizes:
-        scaling(sizes, a.scaling_robot)
+    sections = set(a.section.split(","))
+    if "peers" in sections:
+        peers([int(s) for s in a.sizes.split(",") if s], a.rounds, a.pin_max,
+              a.robots.split(","))
+    if "pybotics" in sections:
+        pybotics_section(a.poses, a.holdout, a.rounds)
+    if "scaling" in sections:
+        scaling([int(s) for s in a.scaling.split(",") if s])
 
 
 if __name__ == "__main__":
