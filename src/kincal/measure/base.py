@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg.lapack import dtpqrt
 
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
@@ -203,6 +204,23 @@ class MeasurementModel(ABC):
         r, Jr, Je = self.evaluate(robot, extra, jacobian=True)
         yield slice(0, r.size), r, Jr, Je  # type: ignore[misc]
 
+    def system_pieces(self, robot: Robot, extra: Array, robot_columns: NDArray[np.intp],
+                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS
+                      ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
+        """The residuals and the Jacobian columns a least-squares step needs, in pieces.
+
+        Yields ``(sl, order, r, Jr, Je)``: the piece covers the block's residual rows
+        ``sl``; its ``n`` rows are taken in the order ``order`` (positions within ``sl``,
+        None for the natural order); ``r`` (n,) their whitened residuals, ``Jr``
+        (len(robot_columns), n) and ``Je`` (len(own_columns), n) the columns
+        ``robot_columns`` of ``J_robot`` and ``own_columns`` of ``J_extra``,
+        *transposed* (one row per parameter, so that a piece is written column by
+        column), in that row order.  The default takes them from
+        :meth:`evaluate_chunks`; blocks with a faster path override it.
+        """
+        for sl, r, Jr, Je in self.evaluate_chunks(robot, extra, rows):
+            yield sl, None, r, Jr[:, robot_columns].T, Je[:, own_columns].T
+
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         """Physical errors per measurement for reports, e.g. ``{"position_m": (N,)}``.
 
@@ -346,9 +364,11 @@ class StackedProblem:
 
         With ``W = diag(weights)`` (default 1) and ``J`` the columns ``columns`` of
         ``dr/dtheta`` (default all), factorises ``[W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]``
-        piece by piece: each block's pieces of about ``rows`` rows are reduced by a
-        tiled QR (:func:`r_factor`) and merged, ``R <- triangle of [R; piece]``, so
-        neither ``J`` nor ``Q`` is ever formed (memory ``O(P^2 + M)``, time ``O(M P^2)``).
+        piece by piece: each block hands out pieces of about ``rows`` rows with only
+        the selected columns (:meth:`MeasurementModel.system_pieces`), and each piece is
+        folded into the triangle as it comes, ``R <- triangle of [R; piece]`` (LAPACK's
+        ``dtpqrt``, :func:`_fold`), so neither ``J`` nor ``Q`` is ever formed (memory
+        ``O(P^2 + rows P)`` beyond the residuals, time ``O(M P^2)``).
 
         Everything a Gauss-Newton / Levenberg-Marquardt step, the identifiability
         analysis and the covariance need follows from the triangle:
@@ -374,32 +394,46 @@ class StackedProblem:
         rob_src = np.flatnonzero(where[:P] >= 0)
         rob_dst = where[rob_src]
         r = np.empty(M)
-        R = np.zeros((0, p + 1))
-        pending: list[Array] = []
-        pending_rows = 0
-        for i, off, sl, rc, Jr, Je in self._pieces(theta, rows):
-            n = rc.size
-            idx = slice(off + sl.start, off + sl.stop)
-            r[idx] = rc
+        # [W^1/2 J | W^1/2 r]^T piece by piece into B (p + 1, n) (row-major, i.e. the
+        # piece in LAPACK's column-major order), folded into the triangle by dtpqrt
+        T = np.zeros((p + 1, p + 1), order="F")
+        nb = min(8, p + 1)
+        buf = np.empty(0)
+        robot, extras = self.split(theta)
+        offset = 0
+        for i, (b, e) in enumerate(zip(self.blocks, extras, strict=True)):
+            m = b.num_residuals()
             own = self.slices[i]
             own_src = np.flatnonzero(where[own] >= 0)
-            A = np.zeros((n, p + 1))
-            if rob_src.size:
-                A[:, rob_dst] = Jr[:, rob_src]
-            if own_src.size:
-                A[:, where[own][own_src]] = Je[:, own_src]
-            A[:, p] = rc
-            if w is not None:
-                A *= np.sqrt(w[idx])[:, None]
-            pending.append(r_factor(A))
-            pending_rows += pending[-1].shape[0]
-            if pending_rows > 64 * (p + 1):
-                R = r_factor(np.concatenate([R, *pending]))
-                pending, pending_rows = [], 0
-        if pending:
-            R = r_factor(np.concatenate([R, *pending]))
+            own_dst = where[own][own_src]
+            dst_r, dst_o = _as_slice(rob_dst), _as_slice(own_dst)
+            covered = rob_src.size + own_src.size == p
+            for sl, order, rc, Jr, Je in b.system_pieces(robot, e, rob_src, own_src, rows):
+                if sl.stop > m:
+                    raise KincalError(f"measurement block {b.name!r} returned more residuals "
+                                      f"than its residual_owner() lists ({m})")
+                n = rc.size
+                if n == 0:
+                    continue
+                idx = slice(offset + sl.start, offset + sl.stop) if order is None \
+                    else offset + sl.start + order
+                r[idx] = rc
+                if buf.size < (p + 1) * n:
+                    buf = np.empty((p + 1) * n)
+                B = buf[: (p + 1) * n].reshape(p + 1, n)
+                if not covered:
+                    B[:p] = 0.0
+                if rob_src.size:
+                    B[dst_r] = Jr
+                if own_src.size:
+                    B[dst_o] = Je
+                B[p] = rc
+                if w is not None:
+                    B *= np.sqrt(w[idx])
+                T = _fold(T, B, nb)
+            offset += m
         rw2 = r * r if w is None else w * r * r
-        return CompressedSystem._from_triangle(R, r, 0.5 * float(np.sum(rw2)), cols)
+        return CompressedSystem._from_triangle(T, r, 0.5 * float(np.sum(rw2)), cols)
 
     def normal_equations(self, theta: Array, weights: ArrayLike | None = None,
                          columns: Sequence[int] | None = None) -> tuple[Array, Array, float]:
@@ -557,6 +591,27 @@ _TILE_GROUP = 32
 
 def _tile_rows(p: int) -> int:
     return max(TILE_ROWS, 4 * p)
+
+
+def _as_slice(idx: NDArray[np.intp]) -> slice | NDArray[np.intp]:
+    """``idx`` as a slice when it is a run of consecutive integers (a view, not a copy)."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
+def _fold(T: Array, B: Array, nb: int) -> Array:
+    """The triangle of ``[T; B^T]`` for an upper-triangular ``T`` (p, p) (column-major)
+    and more rows ``B^T`` (``B`` (p, n), row-major: ``B^T`` is column-major).
+
+    LAPACK's ``dtpqrt`` (blocked Householder QR of a triangle on top of a rectangle)
+    does it in ``2 n p^2`` flops without touching the zeros of ``T``; ``B`` is
+    overwritten.  ``R^T R`` grows by ``B B^T``, the same as a QR of all rows at once.
+    """
+    out, _, _, info = dtpqrt(0, nb, T, B.T, overwrite_a=1, overwrite_b=1)
+    if info != 0:                                   # pragma: no cover - LAPACK argument check
+        raise RuntimeError(f"dtpqrt failed (info {info})")
+    return out
 
 
 def r_factor(A: ArrayLike) -> Array:

@@ -138,6 +138,13 @@ def _configuration_slices(N: int, rows_per_configuration: int, rows: int) -> Ite
         yield slice(start, min(N, start + step))
 
 
+def _marker_order(L: int, K: int) -> NDArray[np.intp]:
+    """Natural row (configuration, marker, coordinate) of each row of a piece ordered
+    (marker, coordinate, configuration): ``3 K l + 3 k + i`` at position ``(k, i, l)``."""
+    return (np.arange(3 * K, dtype=np.intp)[:, None]
+            + 3 * K * np.arange(L, dtype=np.intp)[None, :]).reshape(-1)
+
+
 class _Scratch:
     """Working arrays reused by the pieces of one evaluation.
 
@@ -247,9 +254,67 @@ class PositionMeasurement(MeasurementModel):
         return 3 * self.K * self.N
 
     def predict(self, robot: Robot, extra: ArrayLike) -> Array:
-        """Predicted observations ``y_pred`` (N, K, 3) [m]."""
+        """Predicted observations ``y_pred`` (N, K, 3) [m] (in pieces of configurations)."""
         extra = np.asarray(extra, dtype=float)
-        return self._points(robot.fk(self.q), self._frames(extra))[1]
+        H, m = self._left(extra), extra[6:].reshape(self.K, 3)
+        out = np.empty((self.N, self.K, 3))
+        for cs in _configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
+            Y, _, _ = robot.point_jacobian(self.q[cs], m, H, ())
+            out[cs] = Y.transpose(2, 0, 1)
+        return out
+
+    @staticmethod
+    def _left(extra: Array) -> Array:
+        """``T_I^-1`` (4, 4): the instrument's view of the robot's world frame."""
+        TI = frame_matrix(extra[:6])
+        H = np.eye(4)
+        H[:3, :3] = TI[:3, :3].T
+        H[:3, 3] = -TI[:3, :3].T @ TI[:3, 3]
+        return H
+
+    def system_pieces(self, robot: Robot, extra: Array, robot_columns: NDArray[np.intp],
+                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS
+                      ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
+        """The selected columns straight from the chain's point Jacobian.
+
+        The chain runs from the instrument's frame (``H = T_I^-1`` in front of it,
+        :meth:`~kincal.robots.chain.Robot.point_jacobian`), so the robot columns
+        ``dy / dc`` come out in the instrument frame for the marker itself, configurations
+        last: a piece's rows are ordered (marker, coordinate, configuration).  Block
+        columns as in :meth:`_fill`: ``-R_I^T`` (translation), ``y x E'_c`` (rotation),
+        ``R_I^T R_e`` (marker); every row divided by its ``sigma``.
+        """
+        extra = np.asarray(extra, dtype=float)
+        G, _, m, Ep = self._frames(extra)
+        H = self._left(extra)
+        K, step = self.K, 3 * self.K
+        cols = tuple(int(c) for c in robot_columns)
+        own = [int(c) for c in own_columns]
+        for cs in _configuration_slices(self.N, step, rows):
+            L = cs.stop - cs.start
+            Y, D, Rot = robot.point_jacobian(self.q[cs], m, H, cols, rotation=True)
+            wT = (1.0 / self.sigma[cs]).T                         # (K, L)
+            y = Y.copy() if any(3 <= c < 6 for c in own) else None  # predictions
+            Y -= self._y[cs].transpose(1, 2, 0)
+            Y *= wT[:, None, :]                                   # whitened residuals
+            D *= wT[None, :, None, :]
+            Je = np.empty((len(own), K, 3, L))
+            for j, c in enumerate(own):
+                if c < 3:                                         # -R_I^T
+                    np.multiply(-G[:, c][None, :, None], wT[:, None, :], out=Je[j])
+                elif c < 6:                                       # y x E'_c
+                    E = Ep[:, c - 3]
+                    for i in range(3):
+                        a, b = (i + 1) % 3, (i + 2) % 3
+                        np.multiply(y[:, a], E[b], out=Je[j, :, i])  # type: ignore[index]
+                        Je[j, :, i] -= y[:, b] * E[a]                # type: ignore[index]
+                    Je[j] *= wT[:, None, :]
+                else:                                             # R_I^T R_e, marker k
+                    k, cc = divmod(c - 6, 3)
+                    Je[j] = 0.0
+                    np.multiply(Rot[cc], wT[k], out=Je[j, k])     # type: ignore[index]
+            yield (slice(step * cs.start, step * cs.stop), _marker_order(L, K), Y.reshape(-1),
+                   D.reshape(len(cols), step * L), Je.reshape(len(own), step * L))
 
     def _frames(self, extra: Array) -> tuple[Array, Array, Array, Array]:
         """Constants of one evaluation: ``R_I^T``, ``t_I``, the markers ``m`` (K, 3) and

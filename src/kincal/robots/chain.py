@@ -334,6 +334,39 @@ class Robot:
             Jp = Jp[:, :, self.param_indices(names)]
         return Jp[0] if single else Jp
 
+    def point_jacobian(self, q: ArrayLike, points: ArrayLike, left: ArrayLike | None = None,
+                       columns: Sequence[int] | None = None, rotation: bool = False
+                       ) -> tuple[Array, Array, Array | None]:
+        """Points fixed on the tool and their parameter Jacobian, configurations last.
+
+        ``y_k(q) = H T(q) m_k`` for the points ``m_k`` (K, 3) in the tool frame [m] and
+        a constant frame ``H`` (4, 4) in front of the chain (``left``, e.g. the inverse
+        of an instrument's frame; default identity).  The derivative with respect to
+        parameter ``c`` is the unit twist of its transform evaluated at the point,
+        ``a x (y_k - o)`` for a rotation and ``a`` for a translation (axis ``a`` and
+        origin ``o`` in ``H``'s frame): one chain pass gives the points and only the
+        parameter columns asked for, without the 6-row parameter Jacobian.
+
+        Args:
+            q: (N, n) configurations.
+            points: (K, 3) (or (3,)) points in the tool frame [m].
+            left: the frame ``H``; default identity.
+            columns: parameter indices of the Jacobian columns (default all).
+            rotation: also return the tool rotation.
+
+        Returns:
+            ``Y`` (K, 3, N) [m], ``D`` (C, K, 3, N) with ``D[j, k, i, l] = d y_{l,k,i} /
+            d param_{columns[j]}`` [m/m or m/rad], and ``Rot`` (3, 3, N) with
+            ``Rot[c, i, l] = (R_H R_e(q_l))[i, c]`` (or None).  This layout (the
+            configuration index last) lets a least-squares solver take whole columns.
+        """
+        q2, _ = self._check_q(q)
+        m = np.asarray(points, dtype=float).reshape(-1, 3)
+        cols = tuple(range(self.num_params)) if columns is None else \
+            tuple(int(c) for c in columns)
+        return self._plan.points(q2, m, None if left is None else np.asarray(left, float),
+                                 cols, rotation)
+
     def frames(self, q: ArrayLike) -> Array:
         """Frames after every joint (for plotting): (N, n + 2, 4, 4) base, joints, tool."""
         q2, single = self._check_q(q)
@@ -614,18 +647,19 @@ class _Plan:
         c -= 1.0
         return c, s
 
-    def _sweep(self, q: Array, sl: slice, b: dict[str, Array], record: bool
-               ) -> tuple[Array, Array | None]:
+    def _sweep(self, q: Array, sl: slice, b: dict[str, Array], record: bool,
+               prefix: Array | None = None) -> tuple[Array, Array | None]:
         """Run one block of configurations.
 
         Returns the end frame (4, 3, L) and, when ``record``, the frames ``S`` (J + 1, 4,
-        3, L) with ``S[m]`` the frame just after joint ``m``.
+        3, L) with ``S[m]`` the frame just after joint ``m``.  ``prefix`` (4, 3, 1)
+        replaces the chain's constant prefix (e.g. with a frame in front of it).
         """
         L = sl.stop - sl.start
         S = b.get("S")
         cur = S[0] if record else b["X"]  # type: ignore[index]
         spare = None if record else b["Y"]
-        np.copyto(cur, self.prefix)
+        np.copyto(cur, self.prefix if prefix is None else prefix)
         if self.J == 0:
             return cur, S
         V = self._joint_values(q, sl, b["V"])
@@ -661,6 +695,144 @@ class _Plan:
                     nxt[3] += t1
             cur = nxt
         return cur, S
+
+    # ------------------------------------------------------------- tool points
+    def _selection(self, columns: tuple[int, ...]) -> dict[str, Any]:
+        """What :meth:`points` needs for the parameters ``columns`` (kept per column set).
+
+        The rows (parameter transforms) of those parameters in chain order, where each
+        one's derivative goes, the constant-prefix rows (axis, origin) and, per joint
+        frame ``S_m``, the coefficients ``C`` (k, 6) that give the rows' derivatives
+        as one matrix product with ``[S_c x (y - p_m) (c = 0, 1, 2); S_c]``
+        (see :meth:`points`).
+        """
+        cache = self.__dict__.setdefault("_selections", {})
+        sel = cache.get(columns)
+        if sel is not None:
+            return sel
+        pos = {c: k for k, c in enumerate(columns)}
+        rows = [r for r in range(self.R) if int(self.row_param[r]) in pos]
+        dest = np.array([pos[int(self.row_param[r])] for r in rows], dtype=np.intp)
+        where = {r: k for k, r in enumerate(rows)}
+        pre = [r for r in range(self.pre_rows.stop) if r in where]
+        groups = []
+        for m, rs, UA, UO in self.groups:
+            idx = [r - rs.start for r in range(rs.start, rs.stop) if r in where]
+            if not idx:
+                continue
+            k0 = where[rs.start + idx[0]]
+            a, o = UA[idx, :3], UO[idx, :3]
+            rot = self.rows_rot[np.arange(rs.start, rs.stop)[idx]]
+            C = np.zeros((len(idx), 6))
+            C[rot, :3] = a[rot]
+            C[rot, 3:] = -np.cross(a[rot], o[rot])
+            C[~rot, 3:] = a[~rot]
+            groups.append((m, slice(k0, k0 + len(idx)), C))
+        sel = {"n": len(rows), "dest": dest,
+               "direct": bool(np.array_equal(dest, np.arange(len(columns)))),
+               "pre": len(pre), "pre_ax": self.pre_ax[pre, :, 0],
+               "pre_org": self.pre_org[pre, :, 0], "pre_rot": self.rows_rot[pre],
+               "groups": groups}
+        cache[columns] = sel
+        return sel
+
+    def points(self, q: Array, points: Array, left: Array | None, columns: tuple[int, ...],
+               rotation: bool) -> tuple[Array, Array, Array | None]:
+        """Tool points, their parameter Jacobian and the tool rotation, configurations last.
+
+        For the points ``m_k`` (K, 3) in the tool frame and a constant frame ``H`` in
+        front of the chain (``left``; identity when None), ``y_k = H T(q) m_k``.  The
+        chain runs from ``H``'s frame, so every axis ``a`` and origin ``o`` of a
+        parameter's transform is already in it and the derivative is the unit twist
+        evaluated at the point: ``dy_k / dc = a x (y_k - o)`` (rotation), ``a``
+        (translation).  Only the parameters ``columns`` are computed.
+
+        A transform after joint ``m`` has ``a = sum_c A_c S_c`` and ``o = p_m + sum_c
+        O_c S_c`` in that joint's frame ``(S_0, S_1, S_2, p_m)`` (constants ``A``, ``O``),
+        and ``S_c x S_d = S_e`` for (c, d, e) cyclic, so
+
+            a x (y - o) = sum_c A_c [S_c x (y - p_m)] - sum_c (A x O)_c S_c :
+
+        all the rows after one joint are one (k, 6) x (6, 3L) matrix product with the six
+        vectors ``S_c x (y - p_m)``, ``S_c``.  Rows before the first joint have constant
+        ``a``, ``o``: ``a x y - a x o``.
+
+        Returns ``Y`` (K, 3, N), ``D`` (C, K, 3, N) (``D[j, k, i, l] = dy_{l,k,i} /
+        dc_{columns[j]}``) and, when ``rotation``, ``Rot`` (3, 3, N): the columns of the
+        tool rotation in ``H``'s frame (``Rot[c, i, l] = (R_H R_e(q_l))[i, c]``).
+        """
+        N, K, C = q.shape[0], points.shape[0], len(columns)
+        Y = np.empty((K, 3, N))
+        Dout = np.empty((C, K, 3, N))
+        Rot = np.empty((3, 3, N)) if rotation else None
+        if N == 0:
+            return Y, Dout, Rot
+        sel = self._selection(columns) if C else None
+        H = np.eye(4) if left is None else np.asarray(left, dtype=float)
+        full = H @ np.concatenate([self.prefix[:, :, 0].T, [[0.0, 0.0, 0.0, 1.0]]])
+        prefix = np.ascontiguousarray(full[:3, :].T)[:, :, None]
+        if sel is not None and sel["pre"]:
+            a = sel["pre_ax"] @ H[:3, :3].T                       # (kp, 3) in H's frame
+            o = sel["pre_org"] @ H[:3, :3].T + H[:3, 3]
+            rot = sel["pre_rot"]
+            M = np.zeros((len(a), 3, 3))                         # a x y = M y, M = [a]x
+            M[:, 0, 1], M[:, 0, 2], M[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
+            M[:, 1, 0], M[:, 2, 0], M[:, 2, 1] = a[:, 2], -a[:, 1], a[:, 0]
+            M[~rot] = 0.0
+            const = np.where(rot[:, None], -np.cross(a, o), a)
+            pre = (M.reshape(-1, 3), const.reshape(-1, 1))
+        record = C > 0
+        L = self._block_size(N, False, record)
+        for start in range(0, N, L):
+            sl = slice(start, min(N, start + L))
+            Lb = sl.stop - sl.start
+            b = self._scratch(Lb, record, record)
+            F, S = self._sweep(q, sl, b, record, prefix)
+            Yb = Y[:, :, sl]
+            for k in range(K):                                   # y_k = p + R m_k
+                np.copyto(Yb[k], F[3])
+                for c in range(3):
+                    if points[k, c] != 0.0:
+                        Yb[k] += points[k, c] * F[c]
+            if Rot is not None:
+                Rot[:, :, sl] = F[:3]
+            if sel is None:
+                continue
+            Db = Dout[..., sl]
+            if sel["n"] < C or not sel["direct"]:
+                Db[...] = 0.0
+            if sel["n"] == 0:
+                continue
+            if "Z" not in b:
+                b["Z"], b["dY"] = np.empty((6, 3, Lb)), np.empty((3, Lb))
+                b["out"] = np.empty((self.R, 3, Lb))
+            Z, d = b["Z"], b["dY"]
+            one_block = Lb == N and sel["direct"] and K == 1    # write D in place
+            for k in range(K):
+                yk = Yb[k]
+                # rows written in place (one block, one point) or into a buffer
+                base = Dout[:, k] if one_block else b["out"]
+                if sel["pre"]:
+                    out = base[: sel["pre"]].reshape(-1, Lb)
+                    np.matmul(pre[0], yk, out=out)
+                    out += pre[1]
+                for m, rows, Cg in sel["groups"]:
+                    np.subtract(yk, S[m][3], out=d)              # y - p_m
+                    Sm = S[m][:3]                                # (3 columns, 3, L)
+                    for i in range(3):                           # Z[c] = S_c x (y - p_m)
+                        j, l = (i + 1) % 3, (i + 2) % 3
+                        np.multiply(Sm[:, j], d[l], out=Z[:3, i])
+                        Z[:3, i] -= Sm[:, l] * d[j]
+                    Z[3:] = Sm
+                    np.matmul(Cg, Z.reshape(6, 3 * Lb),
+                              out=base[rows].reshape(rows.stop - rows.start, 3 * Lb))
+                if not one_block:
+                    part = b["out"][: sel["n"]]
+                    if sel["direct"]:
+                        Db[:, k] = part
+                    else:
+                        np.add.at(Db[:, k], sel["dest"], part)
+        return Y, Dout, Rot
 
     # ------------------------------------------------------------- jacobians
     @staticmethod
