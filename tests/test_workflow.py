@@ -144,7 +144,7 @@ def test_option_parsing():
     ({"procedure": "patent", "loss": "huber"}, "the patent has its own two stages"),
     ({"cycles": 2}, "need --procedure patent"),
     ({"procedure": "patent", "cycles": 0}, "--cycles: must be >= 1"),
-    ({"procedure": "patent", "tolerance": -1e-6}, "--tolerance-mm: must be > 0 (got -0.001)"),
+    ({"procedure": "patent", "tolerance": -1e-6}, "--tolerance: must be > 0 (got -0.001 mm)"),
     ({"method": "newton"}, "--method: 'newton' is not lm or gauss-newton"),
     ({"validation_frames": "same"}, "--validation-frames"),
 ])

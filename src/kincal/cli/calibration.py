@@ -26,6 +26,8 @@ from kincal.cli.calibration_common import (
     IgnoreOpt,
     JointModelOpt,
     JsonOpt,
+    OptionalDataOpt,
+    OptionalRobotArg,
     Progress,
     RobotArg,
     TipLink,
@@ -44,7 +46,19 @@ from kincal.cli.calibration_common import (
     scaled,
     serial,
 )
+from kincal.cli.options import length_option
+from kincal.cli.setupfile import (
+    ConfigOpt,
+    HoldOpt,
+    InstrumentOpt,
+    OptionOpt,
+    as_sources,
+    held_robot,
+    require_robot,
+    uses_setup,
+)
 from kincal.errors import CheckFailedError, KincalError
+from kincal.io import check_outputs
 from kincal.measure.joints.terms import parse_joint_model, with_joint_model
 from kincal.workflow.flow import (
     check_flow_options,
@@ -112,8 +126,9 @@ def identifiability(
 
 
 @app.command("calibrate")
+@uses_setup
 def calibrate_cmd(
-    robot: RobotArg, data: DataOpt,
+    ctx: typer.Context, robot: OptionalRobotArg = None, data: OptionalDataOpt = None,
     output: Annotated[str | None, typer.Option("-o", "--output", help="Calibrated robot file "
                                                "(YAML, SI units).")] = None,
     validate_files: Annotated[list[str] | None, typer.Option(
@@ -146,9 +161,11 @@ def calibrate_cmd(
     cycles: Annotated[int | None, typer.Option(
         "--cycles", metavar="N", help="--procedure patent: passes through the two stages; "
         "1 = the patent literally (default: until no point moves).")] = None,
-    tolerance_mm: Annotated[float | None, typer.Option(
-        "--tolerance-mm", help="--procedure patent: a stage stops when no predicted probe "
-        "point moves more than this [mm] (default 1e-4).")] = None,
+    tolerance_text: Annotated[str | None, typer.Option(
+        "--tolerance", metavar="LENGTH", help="--procedure patent: a stage stops when no "
+        "predicted probe point moves more than this, with its unit (default 0.1um).")
+    ] = None,
+    tolerance_mm: Annotated[float | None, typer.Option("--tolerance-mm", hidden=True)] = None,
     free: Annotated[str | None, typer.Option("--free", help="Parameters to estimate: names, * "
                                              "patterns or role:offset (default: every "
                                              "identifiable one).")] = None,
@@ -184,19 +201,27 @@ def calibrate_cmd(
                                         "or an estimate more than 10 tolerances from nominal); "
                                         "the exit status is still 1.")] = False,
     base_link: BaseLink = None, tip_link: TipLink = None,
+    config: ConfigOpt = None, hold: HoldOpt = None, instrument: InstrumentOpt = None,
+    option: OptionOpt = None,
 ) -> None:
     """Calibrate ROBOT from measurement files: estimate the identifiable parameters, report
     errors before/after (training and held-out), write the calibrated robot, JSON and report.
+
+    --config setup.yaml takes the robot, the files (each with its own reading options),
+    the options and the outputs from a setup file (`kincal init` writes one).
 
     --procedure patent follows the cross-bar patent: angles (joint offsets, twists), then
     lengths, with an optional condition-number data selection; the JSON and report add its
     record and a comparison with one-stage Levenberg-Marquardt on the same data."""
     out = out_console(json_out)
-    r = load(robot, base_link, tip_link)
+    robot = require_robot(robot, "calibrate")
+    if not data:
+        raise KincalError("`kincal calibrate` needs --data FILE (or data: in the setup file)")
+    r = held_robot(ctx, load(robot, base_link, tip_link), hold)
     if is_fivebar(r):
         from kincal.cli.fivebar import calibrate_fivebar_file
 
-        if len(data) != 1:
+        if len(data) != 1 or not isinstance(data[0], str):
             raise KincalError("five-bar calibration takes one --data file")
         if procedure != "lm":
             raise KincalError("--procedure patent works on serial robots")
@@ -204,14 +229,18 @@ def calibrate_cmd(
             raise KincalError("--prior and --joint-model work on serial robots")
         calibrate_fivebar_file(r, data[0], output, json_out, report, method)
         return
-    tolerance = tolerance_mm * 1e-3 if tolerance_mm is not None else None
+    tolerance = length_option(tolerance_text, "--tolerance", tolerance_mm, "--tolerance-mm")
     check_flow_options(procedure=procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior)
-    session = read_session(r, data, validate_files or [], units=units, ignore=ignore,
-                           joint_model=joint_model, spec=robot, base_link=base_link,
-                           tip_link=tip_link)
+    train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
+                                     instrument=instrument, options=option)
+    check_outputs({"-o": output, "--urdf": urdf, "--json": json_out, "--report": report},
+                  {"--data": [s.path for s in train_src],
+                   "--validate": [s.path for s in held_src]})
+    session = read_session(r, train_src, held_src, joint_model=joint_model, spec=robot,
+                           base_link=base_link, tip_link=tip_link)
     print_ignored(out, session.blocks + session.holdouts)
     blocks, holdouts, terms = session.blocks, session.holdouts, session.terms
     truth_vals = truth_values(truth) if truth else None
@@ -226,8 +255,8 @@ def calibrate_cmd(
                         tolerance=tolerance, prior=prior, cross_validate=cross_validate,
                         progress=bar)
     res = flow.result
-    inputs = {"robot": robot, "data": ", ".join(data),
-              "validation": ", ".join(validate_files or []) or "-",
+    inputs = {"robot": robot, "data": ", ".join(s.path for s in train_src),
+              "validation": ", ".join(s.path for s in held_src) or "-",
               "procedure": procedure, "method": method, "loss": loss,
               "stages": stages or "all", "validation frames": validation_frames,
               "free": free or "automatic (identifiable set)", "fixed": fix or "-",

@@ -49,9 +49,12 @@ from __future__ import annotations
 import csv
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -59,9 +62,13 @@ from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text
+from kincal.robots.hold import held_joints
 from kincal.units import UNITS
 
 Array = NDArray[np.float64]
+
+#: How far [rad / m] a held joint's column may read from its held value.
+HELD_TOLERANCE = 1e-4
 
 #: First-line tag of a kincal measurement file.
 TAG_PREFIX = "# kincal measurements:"
@@ -187,7 +194,9 @@ def _robot_joint_units(robot: Any) -> dict[str, str]:
     if isinstance(declared, Mapping):
         return {str(k): str(v) for k, v in declared.items()}
     if declared == "si" or meta.get("convention") == "urdf":
-        return {j.name: j.unit for j in robot.joints}
+        kinds = {j.name: j.kind for j in robot.joints}
+        kinds.update(dict(meta.get("held_joint_kinds") or {}))
+        return {n: "rad" if k == "revolute" else "m" for n, k in kinds.items()}
     return {}
 
 
@@ -207,6 +216,43 @@ def _read_lines(path: str | os.PathLike[str]) -> list[str]:
     return text.splitlines()
 
 
+_TAG_OVERRIDES: ContextVar[Mapping[str, dict[str, str]]] = ContextVar(
+    "kincal_tag_overrides", default=MappingProxyType({}))
+
+
+def _path_key(path: str | os.PathLike[str]) -> str:
+    return os.path.realpath(os.fspath(path))
+
+
+@contextmanager
+def tag_overrides(path: str | os.PathLike[str], tags: Mapping[str, str]) -> Iterator[None]:
+    """Read ``path`` as if its tag line also said ``tags`` (they win over the file's).
+
+    How a setup file or ``--instrument`` / ``--option`` give a file's instrument and its
+    options (``instrument=two-socket``, ``length_mm=50``) without editing the file.
+    """
+    current = dict(_TAG_OVERRIDES.get())
+    key = _path_key(path)
+    current[key] = {**current.get(key, {}), **{str(k): str(v) for k, v in tags.items()}}
+    token = _TAG_OVERRIDES.set(current)
+    try:
+        yield
+    finally:
+        _TAG_OVERRIDES.reset(token)
+
+
+def file_tags(path: str | os.PathLike[str], first_line: str) -> dict[str, str]:
+    """The tags of ``path``: its tag line's, updated by any :func:`tag_overrides`."""
+    tags = parse_tags(first_line)
+    extra = _TAG_OVERRIDES.get().get(_path_key(path))
+    return {**tags, **extra} if extra else tags
+
+
+def has_tag_line(path: str | os.PathLike[str]) -> bool:
+    """True when the file's first line is a ``# kincal measurements:`` tag line."""
+    return _read_lines(path)[0].startswith(TAG_PREFIX)
+
+
 def parse_tags(first_line: str) -> dict[str, str]:
     """Tags of a ``# kincal measurements: instrument=NAME; name=BLOCK`` line, else ``{}``."""
     if not first_line.startswith(TAG_PREFIX):
@@ -222,7 +268,7 @@ def parse_tags(first_line: str) -> dict[str, str]:
 def read_header(path: str | os.PathLike[str]) -> tuple[dict[str, str], list[str], int]:
     """The tags, the header's column names and the header's line number (1-based)."""
     lines = _read_lines(path)
-    tags = parse_tags(lines[0])
+    tags = file_tags(path, lines[0])
     for i, line in enumerate(lines):
         s = line.strip()
         if not s or s.startswith("#"):
@@ -253,7 +299,7 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
     src = str(path)
     units = dict(units or {})
     lines = _read_lines(path)
-    tags = parse_tags(lines[0])
+    tags = file_tags(path, lines[0])
     body = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and
             not ln.lstrip().startswith("#")]
     if not body:
@@ -286,6 +332,8 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
 
     jnames = [j.name for j in robot.joints] if joints and robot is not None else []
     jkind = {j.name: j.kind for j in robot.joints} if jnames else {}
+    held = held_joints(robot) if jnames else {}
+    jkind.update(dict(robot.meta.get("held_joint_kinds") or {}) if held else {})
     robot_units = _robot_joint_units(robot) if jnames else {}
     lower_j = {n.lower(): n for n in jnames}
 
@@ -300,8 +348,11 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         base, unit = split_unit(name)
         if base not in jnames and name in jnames:       # a joint whose name ends in _m ...
             base, unit = name, None
-        if base in jnames:
-            role, want = "joint", ("angle" if jkind[base] == "revolute" else "length")
+        if base not in held and name in held:
+            base, unit = name, None
+        if base in jnames or base in held:
+            role = "joint" if base in jnames else "held"
+            want = "angle" if jkind[base] == "revolute" else "length"
         else:
             fld = next((f for f in fields if f.matches(base)), None)
             if fld is None:
@@ -325,7 +376,7 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         if given is None and unit is None:     # patterns only fill in missing units
             given = next((v for _, v, rx in unit_rx if rx.match(name)), None)
         unit = unit or given
-        if unit is None and role == "joint":
+        if unit is None and role in ("joint", "held"):
             unit = robot_units.get(base)
         if unit is None:
             example = f"{base}_{'deg' if want == 'angle' else 'mm' if want == 'length' else 'px'}"
@@ -382,8 +433,19 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
          else np.zeros((len(rows), 0)))
     values = {b: arr[:, k] for k, (_, b, _, r) in enumerate(used) if r == "obs"}
     col_names = {b: names[c] for c, b, _, r in used if r == "obs"}
-    return MeasurementTable(src, tags, q, values, {b: u for _, b, u, _ in used}, linenos,
-                            ignored, col_names, header_line)
+    for k, (c, b, u, r) in enumerate(used):
+        if r != "held":
+            continue
+        off = np.abs(arr[:, k] - held[b])
+        if np.max(off) > HELD_TOLERANCE:
+            i = int(np.flatnonzero(off > HELD_TOLERANCE)[0])
+            raise fail(f"column {c + 1} ({names[c]}): joint {b} is held at "
+                       f"{held[b] / UNITS[u][1]:.6g} {u}, but this row reads "
+                       f"{cells[i][k].strip()} {u}: it moved (remove it from hold)",
+                       line=int(linenos[i]))
+        ignored.append(f"{names[c]} (held joint)")
+    return MeasurementTable(src, tags, q, values, {b: u for _, b, u, r in used if r != "held"},
+                            linenos, ignored, col_names, header_line)
 
 
 def _a(word: str) -> str:

@@ -27,12 +27,13 @@ from __future__ import annotations
 import importlib
 import inspect
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from kincal.errors import MeasurementFileError
+from kincal.measure.files import tag_overrides
 
 #: Modules that register instruments when imported (added to as modules land).
 INSTRUMENT_MODULES: list[str] = [
@@ -169,15 +170,15 @@ def detect_instrument(path: str | Path, ignore: Sequence[str] = ()) -> str:
         MeasurementFileError: no tag and the columns are not unambiguously position or
             pose columns.
     """
-    from kincal.measure.files import glob_regex, read_header, split_unit
+    from kincal.measure.files import glob_regex, has_tag_line, read_header, split_unit
 
     tags, names, line = read_header(path)
     drop = [glob_regex(p) for p in ignore]
     names = [n for n in names if not any(rx.match(n) for rx in drop)]
-    if tags:
-        if "instrument" not in tags:
-            raise MeasurementFileError("line 1: missing 'instrument=NAME'", source=str(path))
+    if "instrument" in tags:
         return tags["instrument"]
+    if has_tag_line(path):
+        raise MeasurementFileError("line 1: missing 'instrument=NAME'", source=str(path))
     bases = {split_unit(n)[0] for n in names}
     has_xyz = {"x", "y", "z"} <= bases
     markers = {b for b in bases if re.fullmatch(r"[xyz]\d+", b)}
@@ -195,7 +196,8 @@ def detect_instrument(path: str | Path, ignore: Sequence[str] = ()) -> str:
 
 def read_measurements(path: str | Path, robot: Any, units: dict[str, str] | None = None,
                       ignore: Sequence[str] = (), name: str | None = None,
-                      instrument: str | None = None) -> list[Any]:
+                      instrument: str | None = None,
+                      tags: Mapping[str, str] | None = None) -> list[Any]:
     """Read any measurement CSV, dispatching on its instrument.
 
     Args:
@@ -206,10 +208,15 @@ def read_measurements(path: str | Path, robot: Any, units: dict[str, str] | None
         name: block name to use instead of the file's ``name=`` tag.
         instrument: the instrument when the file has no tag line (a tag wins; a
             different tag is an error).
+        tags: tag-line entries that override the file's (``{"instrument": "two-socket",
+            "length_mm": "50"}``): how a setup file describes a file it cannot edit.
 
     Returns:
         The measurement blocks (usually one).
     """
+    if tags:
+        with tag_overrides(path, tags):
+            return read_measurements(path, robot, units, ignore, name, instrument)
     detected = None
     try:
         detected = detect_instrument(path, ignore)

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kincal.errors import KincalError, MeasurementFileError
+from kincal.errors import KincalError
 from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
 from kincal.workflow.options import (
     LOSSES,
@@ -73,36 +73,18 @@ def read_blocks(paths: Sequence[str | Path], robot: Any, units: str | None = Non
     """Read measurement files (one block each), renaming blocks whose names clash.
 
     Args:
-        paths: measurement CSV files.
+        paths: measurement CSV files (or folders of per-socket files).
         robot: the robot whose joints the files' joint columns name.
-        units: ``--units`` text (``"x1=m,arm_1_joint=rad"``); entries matching no column
-            of a file are not passed to it (they may belong to another file).
+        units: ``--units`` text (``"x1=m,arm_1_joint=rad"``); each entry goes to the
+            files whose columns it matches (an entry matching no file is an error).
         ignore: ``--ignore`` patterns, likewise per file.
 
     Every block gets ``source_path`` (its file).  Raises one-line errors for bad files.
+    :func:`kincal.workflow.sources.read_sources` reads files with options of their own.
     """
-    from kincal.measure.files import parse_list_option, parse_units_option
-    from kincal.measure.registry import read_measurements
+    from kincal.workflow.sources import read_sources, sources_from_options
 
-    umap = parse_units_option(units)
-    drop = parse_list_option(ignore)
-    blocks: list[Any] = []
-    taken: set[str] = set()
-    for path in map(str, paths):
-        if not Path(path).is_file():
-            raise MeasurementFileError("no such measurement file", source=path)
-        got = read_measurements(path, robot, _matching(path, umap), _matching_list(path, drop))
-        for b in got:
-            if b.name in taken:
-                k = 2
-                while f"{b.name}{k}" in taken:
-                    k += 1
-                b = read_measurements(path, robot, _matching(path, umap),
-                                      _matching_list(path, drop), name=f"{b.name}{k}")[0]
-            taken.add(b.name)
-            b.source_path = path
-            blocks.append(b)
-    return blocks
+    return read_sources(sources_from_options([str(p) for p in paths], units, ignore), robot)
 
 
 def ignored_columns(blocks: Sequence[Any]) -> list[tuple[str, list[str]]]:
@@ -113,30 +95,6 @@ def ignored_columns(blocks: Sequence[Any]) -> list[tuple[str, list[str]]]:
         if table is not None and table.ignored:
             out.append((str(getattr(b, "source_path", b.name)), list(table.ignored)))
     return out
-
-
-def _header(path: str) -> list[str]:
-    from kincal.measure.files import read_header
-
-    return read_header(path)[1]
-
-
-def _matching(path: str, umap: dict[str, str]) -> dict[str, str]:
-    from kincal.measure.files import glob_regex
-
-    if not umap:
-        return {}
-    names = _header(path)
-    return {k: v for k, v in umap.items() if any(glob_regex(k).match(n) for n in names)}
-
-
-def _matching_list(path: str, patterns: list[str]) -> list[str]:
-    from kincal.measure.files import glob_regex
-
-    if not patterns:
-        return []
-    names = _header(path)
-    return [p for p in patterns if any(glob_regex(p).match(n) for n in names)]
 
 
 # --------------------------------------------------------------------------- calibration
@@ -316,7 +274,9 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
     )
 
     eb, ea, notes = [], [], []
+    default = frames
     for h in holdouts:
+        frames = getattr(getattr(h, "source", None), "frames", None) or default
         twin = _training_twin(h, train)
         if frames == "training" and twin is None:
             raise KincalError(f"held-out block {h.name!r} has no training block of its "

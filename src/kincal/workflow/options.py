@@ -162,7 +162,7 @@ def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str =
                        condition_growth: float | None = None, cycles: int | None = None,
                        tolerance: float | None = None, prior: str | None = None) -> None:
     """One-line errors for options of :func:`run_flow` that do not fit together (checked
-    before any file is read; ``tolerance`` in m, reported in mm as ``--tolerance-mm``)."""
+    before any file is read; ``tolerance`` in m)."""
     _choice(procedure, "--procedure", PROCEDURES)
     _choice(method, "--method", METHODS)
     _choice(loss, "--loss", LOSSES)
@@ -172,11 +172,11 @@ def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str =
             raise KincalError("--method, --loss, --stages and --prior choose the one-stage "
                               "solver (--procedure lm); the patent has its own two stages")
     elif condition_growth is not None or cycles is not None or tolerance is not None:
-        raise KincalError("--condition-growth, --cycles and --tolerance-mm need "
+        raise KincalError("--condition-growth, --cycles and --tolerance need "
                           "--procedure patent")
     if condition_growth is not None and not condition_growth >= 1.0:
         raise KincalError(f"option --condition-growth: must be >= 1 (got {condition_growth:g})")
     if cycles is not None and cycles < 1:
         raise KincalError(f"option --cycles: must be >= 1 (got {cycles})")
     if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
-        raise KincalError(f"option --tolerance-mm: must be > 0 (got {tolerance * 1e3:g})")
+        raise KincalError(f"option --tolerance: must be > 0 (got {tolerance * 1e3:g} mm)")

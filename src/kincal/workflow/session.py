@@ -57,7 +57,7 @@ def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None =
     return masses
 
 
-def read_session(robot: str | Any, data: Sequence[str], validate: Sequence[str] = (), *,
+def read_session(robot: str | Any, data: Sequence[Any], validate: Sequence[Any] = (), *,
                  units: str | None = None, ignore: Sequence[str] | None = None,
                  joint_model: str | None = None, spec: str | None = None,
                  base_link: str | None = None, tip_link: str | None = None) -> Session:
@@ -66,7 +66,9 @@ def read_session(robot: str | Any, data: Sequence[str], validate: Sequence[str] 
     Args:
         robot: a built-in name, a YAML or URDF path, or an already loaded serial robot.
         spec: the loaded robot's name or path (for ``compliance``, the URDF's masses).
-        data, validate: training and held-out measurement files.
+        data, validate: training and held-out measurement files (paths, or
+            :class:`~kincal.workflow.sources.DataSource` with reading options of their
+            own, e.g. from a setup file).
         units, ignore: ``--units`` / ``--ignore`` (each entry applies to the files whose
             columns it matches; one matching no file is an error).
         joint_model: ``--joint-model`` text (``"hysteresis,compliance"``).
@@ -75,9 +77,8 @@ def read_session(robot: str | Any, data: Sequence[str], validate: Sequence[str] 
     Raises one-line :class:`~kincal.errors.KincalError` for any bad input.
     """
     from kincal.measure.joints.terms import parse_joint_model, with_joint_model
-    from kincal.workflow.flow import read_blocks
-    from kincal.workflow.options import check_options_used
     from kincal.workflow.robots import load_any_robot
+    from kincal.workflow.sources import DataSource, read_sources, sources_from_options
 
     if isinstance(robot, str):
         spec = robot
@@ -87,7 +88,13 @@ def read_session(robot: str | Any, data: Sequence[str], validate: Sequence[str] 
     if "compliance" in terms and spec is None:
         raise KincalError("--joint-model compliance needs the robot's URDF file for the masses")
     masses = joint_masses(spec or "", base_link, tip_link) if "compliance" in terms else None
-    check_options_used(list(data) + list(validate), units, ignore)
-    blocks = with_joint_model(read_blocks(data, r, units, ignore), r, terms, masses)
-    holdouts = with_joint_model(read_blocks(validate, r, units, ignore), r, terms, masses)
+    paths = [str(f) for f in list(data) + list(validate) if not isinstance(f, DataSource)]
+    converted = iter(sources_from_options(paths, units, ignore) if paths else [])
+
+    def sources(files: Sequence[Any]) -> list[DataSource]:
+        return [f if isinstance(f, DataSource) else next(converted) for f in files]
+
+    train, held = sources(data), sources(validate)
+    blocks = with_joint_model(read_sources(train, r), r, terms, masses)
+    holdouts = with_joint_model(read_sources(held, r), r, terms, masses)
     return Session(r, blocks, holdouts, terms)

@@ -26,6 +26,7 @@ from kincal.measure.artifacts.files import (
     merge_blocks,
     read_artifact,
     read_socket_files,
+    read_socket_folder,
     write_artifact,
 )
 from kincal.measure.artifacts.geometry import (
@@ -47,7 +48,8 @@ from kincal.measure.registry import Instrument, register
 
 __all__ = ["ArtifactGeometry", "Distance", "Perpendicular", "ArtifactMeasurement",
            "ConstraintValues", "Probe", "SocketData", "read_artifact", "write_artifact",
-           "merge_blocks", "read_socket_files", "read_geometry", "write_geometry",
+           "merge_blocks", "read_socket_files", "read_socket_folder", "read_geometry",
+           "write_geometry",
            "simulate_artifact", "OPTIONS"]
 
 #: Options shared by the three simulators: ``{name: (default, help)}``.

@@ -180,7 +180,6 @@ def read_artifact(path: str | Path, robot: Any, units: Mapping[str, str] | None 
     ``geometry`` / ``probe`` / ``sockets`` override the file's tags.  ``robot`` gives
     the joint columns and propagates ``joint_std`` into the weights.
     """
-    src = str(path)
     t = read_table(path, robot, (), units, ignore)
     tags = t.tags
     text = _text_columns(path, t.lines)
@@ -195,6 +194,16 @@ def read_artifact(path: str | Path, robot: Any, units: Mapping[str, str] | None 
         if so not in geom.sockets:
             raise t.error(f"socket {so!r} is not one of the {geom.kind}'s sockets "
                           f"({', '.join(geom.sockets)})", int(t.lines[i]))
+    block = _block(t.q, placement, point, tags, path, robot, name, geom, probe, sockets)
+    block.table = t  # type: ignore[attr-defined]
+    return [block]
+
+
+def _block(q: Array, placement: Sequence[str], point: Sequence[str], tags: Mapping[str, str],
+           path: str | Path, robot: Any, name: str | None, geom: ArtifactGeometry,
+           probe: Probe | None = None, sockets: str | None = None) -> ArtifactMeasurement:
+    """The block of an artifact file from its rows and tags (probe, noise, socket mode)."""
+    src = str(path)
     prb = probe or probe_from_tags(tags, path)
     vals = _tag_values(tags, src)
     joint_std = _get(vals, "joint_std", "angle", src, 0.0)
@@ -202,15 +211,41 @@ def read_artifact(path: str | Path, robot: Any, units: Mapping[str, str] | None 
                      DEFAULT_POINT_STD if joint_std == 0 else 0.0)
     mode = sockets or tags.get("sockets", "eliminate")
     try:
-        block = ArtifactMeasurement(t.q, placement, point, geom, prb, mode,
-                                    name or tags.get("name") or geom.kind.replace("-", ""),
-                                    joint_std=joint_std, point_std=point_std, robot=robot)
+        return ArtifactMeasurement(q, list(placement), list(point), geom, prb, mode,
+                                   name or tags.get("name") or geom.kind.replace("-", ""),
+                                   joint_std=joint_std, point_std=point_std, robot=robot)
     except MeasurementFileError:
         raise
     except KincalError as exc:
         raise MeasurementFileError(str(exc), source=src) from None
-    block.table = t  # type: ignore[attr-defined]
-    return [block]
+
+
+def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
+                       name: str | None = None, angle_unit: str = "rad"
+                       ) -> list[ArtifactMeasurement]:
+    """A MUKCa-style socket folder as one artifact block (one placement).
+
+    The folder holds one headerless file per socket (``hole_0.csv``, ``hole_1.csv``:
+    one configuration per row, the robot's joints in its order, in ``angle_unit``,
+    radians as the MUKCa recorder writes them).  Files carry no tag line, so ``tags``
+    says what the artifact is: ``instrument`` (default ``two-socket``), its length
+    (``length_mm=50``), the probe (``probe=tool`` ...), ``point_std_<u>`` and the rest
+    of the artifact tags (module docstring).  The placement is the folder's name.
+    """
+    src = str(path)
+    data = read_socket_files(path, angle_unit=angle_unit)
+    if robot is not None and data.q.shape[1] != robot.n:
+        raise MeasurementFileError(f"{data.q.shape[1]} joint values per row, but robot "
+                                   f"{robot.name!r} has {robot.n} joints "
+                                   f"({', '.join(robot.joint_names)})", source=src)
+    tags = {"instrument": "two-socket", **dict(tags)}
+    geom = geometry_from_tags(tags, path)
+    for so in dict.fromkeys(data.socket):
+        if so not in geom.sockets:
+            raise MeasurementFileError(f"socket file {so!r} is not one of the {geom.kind}'s "
+                                       f"sockets ({', '.join(geom.sockets)}): name the files "
+                                       "after them", source=src)
+    return [_block(data.q, data.placement, data.socket, tags, path, robot, name, geom)]
 
 
 def merge_blocks(blocks: Sequence[ArtifactMeasurement], name: str | None = None

@@ -72,7 +72,7 @@ def with_joint_model(blocks: Sequence[Any], robot: Any, terms: Sequence[str],
             w = JointHysteresis(w, robot)
         if "compliance" in terms:
             w = JointCompliance.gravity(w, robot, list(masses or ()))
-        for attr in ("source_path", "table"):
+        for attr in ("source_path", "source", "table"):
             if hasattr(b, attr):
                 setattr(w, attr, getattr(b, attr))
         out.append(w)

@@ -1,0 +1,379 @@
+"""Setup files on the command line: ``--config setup.yaml`` and ``kincal init``.
+
+:func:`uses_setup` wraps a command so that ``--config FILE`` fills every option the
+command line did not give from the setup file (:mod:`kincal.workflow.config`): the
+robot, its links, ``data:`` and ``validate:`` (as
+:class:`~kincal.workflow.sources.DataSource`, each with its own reading options),
+every ``calibration:`` key (the option of the same long name) and ``outputs:``.
+Flags win: ``--data`` on the command line replaces the file's ``data:`` list.
+
+``kincal init ROBOT --data F`` writes a commented setup file from what it finds in the
+data files.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from kincal.cli.app import app
+from kincal.cli.common import BaseLink, TipLink, console
+from kincal.errors import KincalError
+
+ConfigOpt = Annotated[str | None, typer.Option(
+    "--config", metavar="SETUP.yaml", help="Setup file holding the robot, data files (each "
+    "with its own --units/--ignore/instrument), calibration options and outputs (`kincal "
+    "init` writes one); options on the command line override it.")]
+HoldOpt = Annotated[list[str] | None, typer.Option(
+    "--hold", metavar="JOINT=VALUE", help="A joint that never moves, held at this value "
+    "with its unit (e.g. tool_mount_joint=0deg); repeatable.")]
+InstrumentOpt = Annotated[str | None, typer.Option(
+    "--instrument", "-i", help="Read the data files as this instrument (overrides their tag "
+    "line), e.g. two-socket for a folder of per-socket files.")]
+OptionOpt = Annotated[list[str] | None, typer.Option(
+    "--option", metavar="KEY=VALUE", help="Instrument option for the data files, with its "
+    "unit (repeatable): length=50mm, probe=tool, point_std=0.05mm.")]
+
+#: Where ``ctx.meta`` keeps the loaded setup for the command.
+SETUP_META = "kincal.setup"
+
+
+def _long_options(command: Any) -> dict[str, str]:
+    """``{"--cross-validate": "cross_validate", ...}`` of a click command."""
+    out = {}
+    for p in command.params:
+        for o in getattr(p, "opts", []):
+            if o.startswith("--"):
+                out[o] = p.name
+    return out
+
+
+def setup_values(setup: Any, command: Any) -> dict[str, Any]:
+    """``{parameter name: value}`` a setup gives a command (click parameter names)."""
+    opts = _long_options(command)
+    vals: dict[str, Any] = {}
+
+    def put(key: str, value: Any, what: str) -> None:
+        name = opts.get("--" + key.replace("_", "-"))
+        if name is None:
+            raise KincalError(f"{setup.where(what, key) if what else setup.where(key)}: "
+                              f"`kincal {command.name}` has no option --"
+                              f"{key.replace('_', '-')}")
+        vals[name] = value
+
+    if setup.robot is not None:
+        vals["robot"] = setup.robot
+    for key in ("base_link", "tip_link"):
+        if getattr(setup, key) is not None:
+            put(key, getattr(setup, key), "")
+    if setup.data:
+        put("data", list(setup.data), "")
+    if setup.validate:
+        put("validate", list(setup.validate), "")
+    for k, v in setup.calibration.items():
+        put(k, v, "calibration")
+    for k, v in setup.outputs.items():
+        put(k, v, "outputs")
+    return vals
+
+
+def uses_setup(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Let a command take ``--config FILE``: options not on the command line come from it.
+
+    The command's first parameter must be ``ctx: typer.Context`` and it must have a
+    ``config`` parameter; the loaded :class:`~kincal.workflow.config.Setup` is in
+    ``ctx.meta["kincal.setup"]`` (:func:`current_setup`).
+    """
+
+    @functools.wraps(fn)
+    def wrapper(ctx: typer.Context, **kwargs: Any) -> Any:
+        path = kwargs.get("config")
+        if path:
+            from kincal.workflow.config import load_setup
+
+            setup = load_setup(path)
+            ctx.meta[SETUP_META] = setup
+            for name, value in setup_values(setup, ctx.command).items():
+                source = ctx.get_parameter_source(name)
+                if getattr(source, "name", "") != "COMMANDLINE":
+                    kwargs[name] = value
+        return fn(ctx, **kwargs)
+
+    return wrapper
+
+
+def current_setup(ctx: typer.Context) -> Any:
+    """The setup of the running command's ``--config`` (None without one)."""
+    return ctx.meta.get(SETUP_META)
+
+
+def require_robot(robot: str | None, command: str) -> str:
+    """ROBOT from the command line or the setup file; a one-line error without either."""
+    if not robot:
+        raise KincalError(f"`kincal {command}` needs ROBOT (a built-in name, a YAML or URDF "
+                          "file) or --config with robot:")
+    return robot
+
+
+def parse_pairs(items: Sequence[str] | None, option: str, example: str, sep: str = ","
+                ) -> dict[str, str]:
+    """``KEY=VALUE`` items of a repeatable option (also ``sep`` separated) -> a dict."""
+    out: dict[str, str] = {}
+    for item in items or []:
+        for part in item.split(sep):
+            if not part.strip():
+                continue
+            key, eq, value = (s.strip() for s in part.partition("="))
+            if not eq or not key or not value:
+                raise KincalError(f"option {option}: {part.strip()!r} is not KEY=VALUE "
+                                  f"(e.g. {example})")
+            out[key] = value
+    return out
+
+
+def parse_hold(items: Sequence[str] | None) -> dict[str, str]:
+    """``--hold JOINT=VALUE`` items -> ``{joint: value text}``."""
+    return parse_pairs(items, "--hold", "tool_mount_joint=0deg")
+
+
+def held_robot(ctx: typer.Context, robot: Any, hold: Sequence[str] | None) -> Any:
+    """``robot`` with the joints of ``--hold`` and of the setup's ``hold:`` held."""
+    from kincal.workflow.config import hold_robot, parse_setup
+
+    setup = current_setup(ctx)
+    if setup is not None and setup.hold:
+        robot = hold_robot(robot, setup)
+    given = parse_hold(hold)
+    if given:
+        robot = hold_robot(robot, parse_setup({"hold": given}, "."))
+    return robot
+
+
+def as_sources(*groups: Sequence[Any] | None, units: str | None = None,
+               ignore: Sequence[str] | None = None, instrument: str | None = None,
+               options: Sequence[str] | None = None) -> list[list[Any]]:
+    """Measurement sources, one list per group (``--data``, ``--validate``), from the
+    command line (paths) or the setup file (sources).
+
+    Paths take ``--units`` / ``--ignore`` (each entry for the files it matches, in any
+    group; an entry matching none is an error), ``--instrument`` and ``--option``;
+    sources from a setup file carry their own, and take ``--instrument`` / ``--option``
+    when given on the command line.
+    """
+    import dataclasses
+
+    from kincal.workflow.sources import DataSource, instrument_tags, sources_from_options
+
+    opts = parse_option_items(options)
+    lists = [list(g or []) for g in groups]
+    paths = [f for g in lists for f in g if not isinstance(f, DataSource)]
+    converted = iter(sources_from_options(paths, units, ignore, instrument, opts)
+                     if paths else [])
+    tags = instrument_tags(opts)
+    out = []
+    for g in lists:
+        group = []
+        for f in g:
+            if not isinstance(f, DataSource):
+                group.append(next(converted))
+            elif instrument or tags:
+                group.append(dataclasses.replace(f, instrument=instrument or f.instrument,
+                                                 tags={**f.tags, **tags}))
+            else:
+                group.append(f)
+        out.append(group)
+    return out
+
+
+def parse_option_items(items: Sequence[str] | None) -> dict[str, str]:
+    """``--option KEY=VALUE`` items (also ``;`` separated) -> ``{key: value}``."""
+    return parse_pairs(items, "--option", "length=50mm", sep=";")
+
+
+# --------------------------------------------------------------------------- kincal init
+def _yaml_scalar(value: Any) -> str:
+    import yaml
+
+    return yaml.safe_dump(value, default_flow_style=True, width=10**6).strip().removesuffix(
+        "\n...").strip()
+
+
+def _relative(path: str, base: Path) -> str:
+    import os
+
+    try:
+        return os.path.relpath(Path(path).resolve(), base.resolve())
+    except ValueError:
+        return str(Path(path).resolve())
+
+
+def _guess_units(path: str, robot: Any) -> tuple[dict[str, str], list[str]]:
+    """Units for bare measurement columns, guessed from their magnitudes (for people to
+    check), and notes on what was guessed."""
+    import numpy as np
+
+    from kincal.measure.files import LOOKS_MEASURED, read_header, split_unit
+
+    _, names, line = read_header(path)
+    joints = set(getattr(robot, "joint_names", ()))
+    bare = [n for n in names if split_unit(n)[1] is None and n not in joints
+            and LOOKS_MEASURED.fullmatch(n)]
+    if not bare:
+        return {}, []
+    text = Path(path).read_text(encoding="utf-8-sig").splitlines()
+    rows = [r for r in text[line:] if r.strip() and not r.lstrip().startswith("#")][:200]
+    import csv
+
+    cols = {n: i for i, n in enumerate(names)}
+    units: dict[str, str] = {}
+    notes = []
+    families: dict[str, list[str]] = {}
+    for n in bare:
+        fam = n.rstrip("0123456789") + ("?" if n[-1:].isdigit() else "")
+        families.setdefault(fam, []).append(n)
+    for fam, members in families.items():
+        vals = []
+        for r in csv.reader(rows):
+            for n in members:
+                try:
+                    vals.append(abs(float(r[cols[n]])))
+                except (ValueError, IndexError):
+                    pass
+        if not vals:
+            continue
+        big = float(np.percentile(vals, 95))
+        if fam.startswith(("x", "y", "z")):
+            unit = "m" if big < 5 else "mm"
+        elif fam.startswith(("r", "roll", "pitch", "yaw")):
+            unit = "rad" if big <= math.pi + 1e-6 else "deg"
+        else:
+            continue
+        units[fam] = unit
+        notes.append(f"{fam}: {unit} (CHECK: guessed from the values, 95% below {big:.4g})")
+    return units, notes
+
+
+def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequence[str],
+               base_link: str | None, tip_link: str | None, base: Path) -> str:
+    """The text of a commented setup file for ``robot`` and these files."""
+    from kincal.measure.files import read_header
+    from kincal.workflow.config import CALIBRATION_KEYS
+
+    lines = ["# kincal setup file: kincal calibrate --config THIS_FILE",
+             "# Paths are relative to this file. Options given on the command line override",
+             "# the values here. Written by `kincal init`; check every line marked CHECK.",
+             ""]
+    is_file = Path(robot).exists()
+    lines.append(f"robot: {_yaml_scalar(_relative(robot, base) if is_file else robot)}"
+                 "    # built-in name, YAML or URDF robot file")
+    if base_link:
+        lines.append(f"base_link: {_yaml_scalar(base_link)}")
+    if tip_link:
+        lines.append(f"tip_link: {_yaml_scalar(tip_link)}")
+    joints = list(getattr(robot_obj, "joint_names", ()))
+    lines.append(f"# hold: {{{joints[-1] if joints else 'JOINT'}: 0deg}}    # joints that "
+                 "never move, at this value")
+    for key, files in (("data", data), ("validate", validate)):
+        if not files:
+            continue
+        lines += ["", f"{key}:" + ("    # training files, each with its own reading "
+                                   "options" if key == "data" else
+                                   "    # held-out files: errors before/after")]
+        for f in files:
+            lines.append(f"  - file: {_yaml_scalar(_relative(f, base))}")
+            if Path(f).is_dir():
+                lines += ["    format: mukca        # a folder of per-socket files (radians)",
+                          "    instrument: two-socket",
+                          "    options: {length: 50mm, probe: tool}    # CHECK: the "
+                          "socket distance and the probe"]
+                continue
+            tags, names, _ = read_header(f)
+            units, notes = _guess_units(f, robot_obj)
+            if units:
+                lines.append(f"    units: {_yaml_scalar(units)}")
+                lines += [f"    # {n}" for n in notes]
+            if not tags:
+                lines.append("    # name: mocap          # the instrument's name (its "
+                             "parameters are NAME.x ...)")
+            else:
+                lines.append(f"    # tag line: {'; '.join(f'{k}={v}' for k, v in tags.items())}")
+            lines.append(f"    # columns: {', '.join(names)}")
+            if key == "validate":
+                lines.append("    frames: training     # training (same session) | register "
+                             "(the instrument moved)")
+    lines += ["", "calibration:              # every `kincal calibrate` option, by its long "
+              "name"]
+    for k, spec in CALIBRATION_KEYS.items():
+        example = {"free": "[role:offset]", "fix": "[]", "prior": "{'*.origin.*': 1mm}",
+                   "joint_model": "[hysteresis]", "stages": "[offsets, all]",
+                   "procedure": "lm", "method": "lm", "loss": "linear", "loss_scale": "3",
+                   "max_iter": "100", "cross_validate": "10",
+                   "validation_frames": "auto", "condition_growth": "1.5", "cycles": "1",
+                   "tolerance": "0.1um", "truth": "truth.yaml", "all": "false",
+                   "force": "false"}.get(k, "...")
+        lines.append(f"  # {k}: {example}    # {spec.help}")
+    lines += ["", "outputs:", "  output: calibrated.yaml", "  json: result.json",
+              "  report: report.html"]
+    if getattr(robot_obj, "meta", {}).get("convention") == "urdf":
+        lines.append("  urdf: calibrated.urdf")
+    return "\n".join(lines) + "\n"
+
+
+@app.command("init")
+def init_cmd(
+    robot: Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or "
+                                         "a path to a YAML robot file or a URDF file.")],
+    data: Annotated[list[str], typer.Option("--data", "-d", help="Training measurement file "
+                                            "(repeatable); a folder of per-socket files is "
+                                            "read as MUKCa data.")],
+    validate: Annotated[list[str] | None, typer.Option("--validate", help="Held-out "
+                                                       "measurement file (repeatable).")
+                        ] = None,
+    output: Annotated[str, typer.Option("-o", "--output", help="Setup file to write.")
+                      ] = "setup.yaml",
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing setup file.")
+                     ] = False,
+    base_link: BaseLink = None, tip_link: TipLink = None,
+) -> None:
+    """Write a commented setup file for ROBOT and these data files (`kincal calibrate
+    --config` reads it): the units of bare columns, the columns found, every calibration
+    option with an example."""
+    import yaml
+
+    from kincal.io import atomic_write_text, check_outputs
+    from kincal.workflow.config import parse_setup
+    from kincal.workflow.robots import load_any_robot
+    from kincal.workflow.sources import read_sources
+
+    files = list(data) + list(validate or [])
+    check_outputs({"-o": output}, {"--data": list(data), "--validate": list(validate or [])})
+    if Path(output).exists() and not force:
+        raise KincalError(f"option -o: {output!r} exists; use --force to replace it")
+    r = load_any_robot(robot, base_link=base_link, tip_link=tip_link)
+    for f in files:
+        if not Path(f).exists():
+            raise KincalError("no such measurement file", source=f)
+    base = Path(output).resolve().parent
+    text = setup_text(robot, r, list(data), list(validate or []), base_link, tip_link, base)
+    parsed = yaml.safe_load(text)
+    setup = parse_setup(parsed, base, source=output)
+    problems = []
+    for src in setup.data + setup.validate:
+        try:
+            read_sources([src], r)
+        except KincalError as exc:
+            problems.append(str(exc))
+    if problems:
+        text += "\n# Reading the files with these settings failed (fix, then run kincal " \
+                "calibrate --config):\n" + "".join(f"#   {p}\n" for p in problems)
+    atomic_write_text(output, text)
+    console.print(f"wrote {output}: robot {getattr(r, 'name', robot)}, {len(data)} data and "
+                  f"{len(validate or [])} validation file(s)"
+                  + (f"; [yellow]{len(problems)} file(s) do not read yet[/yellow] (see the end "
+                     "of the file)" if problems else "")
+                  + f"\nnext: kincal calibrate --config {output}")
