@@ -231,14 +231,15 @@ def test_a_held_joint_is_a_constant_of_the_chain():
 def test_hold_from_the_setup_file_and_held_columns_are_checked(sim, capsys, tmp_path):
     """A file whose q6 column is constant calibrates with q6 held; one where it moves
     is refused naming the line."""
-    text = (sim / "train.csv").read_text().splitlines()
-    head = [i for i, ln in enumerate(text) if ln.startswith("q1")][0]
-    col = text[head].split(",").index("q6_deg")
-    rows = [ln.split(",") for ln in text[head + 1:]]
-    for r in rows:
-        r[col] = "12.5"
+    code = run_plain("export", "puma560", "-o", tmp_path / "fixed6.yaml")
+    assert code == 0
+    doc = yaml.safe_load((tmp_path / "fixed6.yaml").read_text())
+    doc["joints"][5]["limits"] = [math.radians(12.5)] * 2          # q6 never moves
+    (tmp_path / "fixed6.yaml").write_text(yaml.safe_dump(doc))
     still = tmp_path / "still.csv"
-    still.write_text("\n".join(text[:head + 1] + [",".join(r) for r in rows]) + "\n")
+    assert run_plain("simulate", tmp_path / "fixed6.yaml", "-o", still, "-n", "40",
+                     "--length-unit", "mm", "--angle-unit", "deg") == 0
+    capsys.readouterr()
     write(tmp_path / "h.yaml", f"robot: puma560\nhold: {{q6: 12.5deg}}\ndata: [{still}]\n")
     code, out, err = run(capsys, "calibrate", "--config", tmp_path / "h.yaml", "--json", "-")
     assert code == 0, err

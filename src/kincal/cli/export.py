@@ -25,8 +25,11 @@ from kincal.errors import KincalError
 @app.command("export")
 def export_cmd(
     robot: RobotArg,
-    output: Annotated[str, typer.Argument(help="File to write: .yaml / .yml (kincal robot "
-                                          "file) or .urdf.", metavar="OUT.(yaml|urdf)")],
+    output_arg: Annotated[str | None, typer.Argument(hidden=True, metavar="[OUT]",
+                                                     show_default=False)] = None,
+    output_opt: Annotated[str | None, typer.Option(
+        "-o", "--output", metavar="OUT.(yaml|urdf)", help="File to write: .yaml / .yml "
+        "(kincal robot file) or .urdf.")] = None,
     as_ets: Annotated[bool, typer.Option("--as-ets", help="YAML: write a DH robot as an "
                                          "explicit elementary-transform chain (convention: "
                                          "ets) instead of its DH table.")] = False,
@@ -35,7 +38,13 @@ def export_cmd(
     base_link: BaseLink = None, tip_link: TipLink = None,
 ) -> None:
     """Write ROBOT (built-in name, YAML or URDF with --base-link/--tip-link) as a YAML robot
-    file or a URDF with the same forward kinematics (SI units)."""
+    file or a URDF with the same forward kinematics (SI units): kincal export ROBOT -o
+    OUT.urdf."""
+    if output_arg is not None and output_opt is not None:
+        raise KincalError("give the file to write once: -o OUT")
+    output = output_opt or output_arg
+    if output is None:
+        raise KincalError("`kincal export` needs -o OUT.yaml or -o OUT.urdf")
     suffix = Path(output).suffix.lower()
     if suffix not in (".yaml", ".yml", ".urdf"):
         raise KincalError(f"cannot tell the format of {output!r}: name it .yaml, .yml or "

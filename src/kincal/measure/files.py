@@ -47,6 +47,7 @@ units they are asked to (default SI) through a temporary file and a rename.
 from __future__ import annotations
 
 import csv
+import math
 import os
 import re
 from collections.abc import Iterator, Mapping, Sequence
@@ -263,6 +264,43 @@ def parse_tags(first_line: str) -> dict[str, str]:
             k, v = part.split("=", 1)
             tags[k.strip()] = v.strip()
     return tags
+
+
+def tag_quantities(tags: Mapping[str, str], src: str) -> dict[str, tuple[float, str]]:
+    """Numeric tags with a unit suffix in SI: ``{"length_mm": "300"} -> {"length": (0.3,
+    "length")}`` (other tags are skipped); a value that is not a finite number is an
+    error naming line 1."""
+    out: dict[str, tuple[float, str]] = {}
+    for key, text in tags.items():
+        base, unit = split_unit(key)
+        if unit is None:
+            continue
+        try:
+            v = float(text)
+        except ValueError:
+            raise MeasurementFileError(f"line 1: {key}={text!r} is not a number",
+                                       source=src) from None
+        if not math.isfinite(v):
+            raise MeasurementFileError(f"line 1: {key} is not finite", source=src)
+        out[base] = (v * UNITS[unit][1], UNITS[unit][0])
+    return out
+
+
+def tag_quantity(values: Mapping[str, tuple[float, str]], key: str, dim: str, src: str,
+                 default: float | None = None) -> float:
+    """The SI value of tag ``key`` from :func:`tag_quantities`, checking its dimension;
+    ``default`` when absent (None: an error asking for it)."""
+    if key not in values:
+        if default is None:
+            raise MeasurementFileError(f"line 1: missing tag {key}_<unit> (e.g. {key}_"
+                                       f"{'mm' if dim == 'length' else 'deg'}=...)",
+                                       source=src)
+        return default
+    v, d = values[key]
+    if d != dim:
+        raise MeasurementFileError(f"line 1: tag {key} needs a{'n' if dim[0] in 'aeiou' else ''}"
+                                   f" {dim} unit", source=src)
+    return v
 
 
 def read_header(path: str | os.PathLike[str]) -> tuple[dict[str, str], list[str], int]:

@@ -29,7 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
-from kincal.measure.files import Field, MeasurementTable, read_table, write_table
+from kincal.measure.files import (
+    Field,
+    MeasurementTable,
+    read_table,
+    tag_quantities,
+    tag_quantity,
+    write_table,
+)
 from kincal.measure.registry import Instrument, register
 from kincal.measure.simulate import random_configurations
 from kincal.spatial import exp_so3, homogeneous, matrix_to_rpy, rpy_to_matrix
@@ -198,6 +205,17 @@ def write_pose(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str]
                           "roll-pitch-yaw: R = Rz(rz) Ry(ry) Rx(rx)"])
 
 
+def _tag_sigma(t: MeasurementTable, key: str) -> float:
+    """The file's stated standard deviation for rows without a sigma column: tag
+    ``sigma_<unit>`` (``sigma_mm=0.5``; ``sigma_rot_<angle unit>`` for orientations),
+    else :data:`DEFAULT_SIGMA`."""
+    dim = "angle" if key == "sigma_rot" else "length"
+    value = tag_quantity(tag_quantities(t.tags, t.path), key, dim, t.path, DEFAULT_SIGMA)
+    if not value > 0:
+        raise t.error(f"tag {key}: a standard deviation must be positive", 1)
+    return value
+
+
 def _sigma_scalar(s: Array | None, default: float) -> Array | float:
     if s is None:
         return default
@@ -257,7 +275,7 @@ def read_position(path: str | Path, robot: Any, units: Mapping[str, str] | None 
     t = read_table(path, robot, POSITION_FIELDS, units, ignore)
     y, sigma = marker_positions(t)
     K = 1 if y.ndim == 2 else y.shape[1]
-    block = PositionMeasurement(t.q, y, sigma=_sigma_scalar(sigma, DEFAULT_SIGMA),
+    block = PositionMeasurement(t.q, y, sigma=_sigma_scalar(sigma, _tag_sigma(t, "sigma")),
                                 name=name or t.tags.get("name") or "tracker", markers=K)
     block.table = t  # type: ignore[attr-defined]
     return [block]
@@ -284,9 +302,9 @@ def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = No
     for b in ("sigma", "sigma_rot"):
         _check_positive(t, b)
     block = PoseMeasurement(t.q, P, sigma_position=_sigma_scalar(t.values.get("sigma"),
-                                                                 DEFAULT_SIGMA),
+                                                                 _tag_sigma(t, "sigma")),
                             sigma_orientation=_sigma_scalar(t.values.get("sigma_rot"),
-                                                            DEFAULT_SIGMA),
+                                                            _tag_sigma(t, "sigma_rot")),
                             name=name or t.tags.get("name") or "tracker")
     block.table = t  # type: ignore[attr-defined]
     return [block]

@@ -78,8 +78,8 @@ def _calibration_keys() -> dict[str, Key]:
     return {
         "free": Key("list", "parameters to estimate: names, * patterns, role:offset"),
         "fix": Key("list", "parameters held at their nominal values"),
-        "prior": Key("prior", "Gaussian priors: PATTERN=SIGMA with units, e.g. "
-                              "{'*.origin.*': 1mm}"),
+        "prior": Key("prior", "Gaussian priors: {pattern: sigma or [length, angle]}, "
+                              "e.g. {'*.origin.*': [1mm, 0.1deg]}"),
         "joint_model": Key("list", "non-geometric joint terms: hysteresis, compliance"),
         "stages": Key("list", f"solver stages ({', '.join(STAGES)})"),
         "procedure": Key("choice", "one-stage least squares or the cross-bar patent's",
@@ -516,9 +516,12 @@ def _calibration(r: _Reader, value: Any, path: KeyPath) -> dict[str, Any]:
         elif key.kind == "prior":
             if isinstance(v, Mapping):
                 parts = []
-                for pat, sigma in r.mapping(v, p).items():
-                    r.quantity(sigma, p + (pat,), "length|angle", bare_zero=False)
-                    parts.append(f"{pat}={r.text(sigma, p + (pat,))}")
+                for pat, sigmas in r.mapping(v, p).items():
+                    many = isinstance(sigmas, list)
+                    for i, sigma in enumerate(sigmas if many else [sigmas]):
+                        q = p + (pat, i) if many else p + (pat,)
+                        r.quantity(sigma, q, "length|angle", bare_zero=False)
+                        parts.append(f"{pat}={r.text(sigma, q)}")
                 out[k] = ",".join(parts)
             else:
                 out[k] = r.text(v, p)

@@ -58,7 +58,12 @@ from kincal.measure.artifacts.geometry import (
 )
 from kincal.measure.artifacts.model import ArtifactMeasurement
 from kincal.measure.artifacts.probe import Probe
-from kincal.measure.files import joint_columns, read_table, split_unit
+from kincal.measure.files import (
+    joint_columns,
+    read_table,
+    tag_quantities,
+    tag_quantity,
+)
 from kincal.units import UNITS
 
 Array = NDArray[np.float64]
@@ -68,38 +73,6 @@ DEFAULT_POINT_STD = 1e-5
 
 
 # --------------------------------------------------------------------------- tags
-def _tag_values(tags: Mapping[str, str], src: str) -> dict[str, tuple[float, str]]:
-    """Numeric tags with a unit suffix: ``{"length": (0.3, "length")}`` in SI."""
-    out: dict[str, tuple[float, str]] = {}
-    for key, text in tags.items():
-        base, unit = split_unit(key)
-        if unit is None:
-            continue
-        try:
-            v = float(text)
-        except ValueError:
-            raise MeasurementFileError(f"line 1: {key}={text!r} is not a number",
-                                       source=src) from None
-        if not np.isfinite(v):
-            raise MeasurementFileError(f"line 1: {key} is not finite", source=src)
-        out[base] = (v * UNITS[unit][1], UNITS[unit][0])
-    return out
-
-
-def _get(values: Mapping[str, tuple[float, str]], key: str, dim: str, src: str,
-         default: float | None = None) -> float:
-    if key not in values:
-        if default is None:
-            raise MeasurementFileError(f"line 1: missing tag {key}_<unit> (e.g. {key}_"
-                                       f"{'mm' if dim == 'length' else 'deg'}=...)",
-                                       source=src)
-        return default
-    v, d = values[key]
-    if d != dim:
-        raise MeasurementFileError(f"line 1: tag {key} needs a {dim} unit", source=src)
-    return v
-
-
 def _bool(tags: Mapping[str, str], key: str, src: str) -> bool:
     v = tags.get(key, "false").strip().lower()
     if v not in ("true", "false", "yes", "no", "1", "0"):
@@ -113,11 +86,11 @@ def geometry_from_tags(tags: Mapping[str, str], path: str | Path) -> ArtifactGeo
     if "geometry" in tags:
         return read_geometry(Path(path).parent / tags["geometry"])
     kind = tags.get("instrument", "")
-    vals = _tag_values(tags, src)
+    vals = tag_quantities(tags, src)
     try:
-        return ArtifactGeometry.builtin(kind, _get(vals, "length", "length", src),
-                                        _get(vals, "length_std", "length", src, 0.0),
-                                        _get(vals, "angle_std", "angle", src, 0.0))
+        return ArtifactGeometry.builtin(kind, tag_quantity(vals, "length", "length", src),
+                                        tag_quantity(vals, "length_std", "length", src, 0.0),
+                                        tag_quantity(vals, "angle_std", "angle", src, 0.0))
     except MeasurementFileError:
         raise
     except KincalError as exc:
@@ -128,7 +101,7 @@ def probe_from_tags(tags: Mapping[str, str], path: str | Path) -> Probe:
     """The probe described by a file's tags (default: the robot's tool origin)."""
     src = str(path)
     mode = tags.get("probe", "tool")
-    vals = _tag_values(tags, src)
+    vals = tag_quantities(tags, src)
     est = _bool(tags, "estimate_probe", src)
     try:
         if mode == "tool":
@@ -137,9 +110,10 @@ def probe_from_tags(tags: Mapping[str, str], path: str | Path) -> Probe:
                                            "probe=length or probe=vector", source=src)
             return Probe.tool()
         if mode == "length":
-            return Probe.length(_get(vals, "probe_length", "length", src), est)
+            return Probe.length(tag_quantity(vals, "probe_length", "length", src), est)
         if mode == "vector":
-            return Probe.vector([_get(vals, f"probe_{c}", "length", src) for c in "xyz"], est)
+            return Probe.vector([tag_quantity(vals, f"probe_{c}", "length", src)
+                                 for c in "xyz"], est)
     except MeasurementFileError:
         raise
     except KincalError as exc:
@@ -205,9 +179,9 @@ def _block(q: Array, placement: Sequence[str], point: Sequence[str], tags: Mappi
     """The block of an artifact file from its rows and tags (probe, noise, socket mode)."""
     src = str(path)
     prb = probe or probe_from_tags(tags, path)
-    vals = _tag_values(tags, src)
-    joint_std = _get(vals, "joint_std", "angle", src, 0.0)
-    point_std = _get(vals, "point_std", "length", src,
+    vals = tag_quantities(tags, src)
+    joint_std = tag_quantity(vals, "joint_std", "angle", src, 0.0)
+    point_std = tag_quantity(vals, "point_std", "length", src,
                      DEFAULT_POINT_STD if joint_std == 0 else 0.0)
     mode = sockets or tags.get("sockets", "eliminate")
     try:
