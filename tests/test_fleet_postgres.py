@@ -8,6 +8,9 @@ against the server's URL: calibrate, re-run (skips), drift, history, export.
 
 from __future__ import annotations
 
+import shutil
+import tempfile
+
 import pytest
 from cli_helpers import run
 
@@ -22,15 +25,25 @@ from kincal.fleet.store import HistoryStore  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def postgres_url(tmp_path_factory):
-    data = tmp_path_factory.mktemp("pgdata")
-    try:
-        server = pgserver.get_server(str(data), cleanup_mode="stop")
-    except Exception as exc:                   # noqa: BLE001 - any start failure skips
-        pytest.skip(f"the PostgreSQL server of pgserver did not start here: {exc}")
+def postgres_url():
+    """A fresh server on a data folder of its own (as root, pgserver runs the server as a
+    'pgserver' system user and opens the folders above the data folder to it, so the
+    data folder is not put inside pytest's private temporary folder)."""
+    data = tempfile.mkdtemp(prefix="kincal-pg-")
+    server, errors = None, []
+    for _ in range(3):      # pgserver gives pg_ctl 10 s; a loaded machine may need a retry,
+        try:                # which finds the server that was still starting
+            server = pgserver.get_server(data, cleanup_mode="stop")
+            break
+        except Exception as exc:               # noqa: BLE001 - reported in the skip
+            errors.append(f"{type(exc).__name__}: {exc}")
+    if server is None:
+        shutil.rmtree(data, ignore_errors=True)
+        pytest.skip(f"the PostgreSQL server of pgserver did not start here: {errors}")
     uri = server.get_uri()
     yield uri.replace("postgresql://", "postgresql+psycopg://", 1)
     server.cleanup()
+    shutil.rmtree(data, ignore_errors=True)
 
 
 def _flat(text: str) -> str:
