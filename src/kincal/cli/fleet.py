@@ -297,8 +297,8 @@ def drift_cmd(
     if shown:
         out.print(t)
     for d in flagged:
-        for c in d.moved:
-            out.print(f"[red]{escape(d.serial)}[/red]: {escape(c.text())}")
+        for note in d.notes():
+            out.print(f"[red]{escape(d.serial)}[/red]: {escape(note)}")
     if not drifts:
         out.print("no robot has two calibrated sessions yet: nothing to compare")
     else:

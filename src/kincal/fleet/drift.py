@@ -55,12 +55,13 @@ class ParameterChange:
     def z(self) -> float:
         return self.change / self.sigma if self.sigma > 0 else math.inf * np.sign(self.change)
 
-    def text(self) -> str:
-        """``d[3] +0.4200 mm, 11.0σ: joint 3 hit something?``"""
+    def text(self, why: bool = True) -> str:
+        """``d[3] +0.4200 mm, 11.0σ: joint 3 hit something?`` (without the guess when
+        ``why`` is False)."""
         f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(self.unit,
                                                                         (1.0, self.unit))
-        return (f"{self.name} {self.change * f:+.4g} {u}, {abs(self.z):.1f}σ: "
-                f"{hint(self.name, self.role)}")
+        text = f"{self.name} {self.change * f:+.4g} {u}, {abs(self.z):.1f}σ"
+        return f"{text}: {hint(self.name, self.role)}" if why else text
 
 
 def _joint(name: str) -> str:
@@ -116,6 +117,18 @@ class Drift:
     def z_max(self) -> float:
         return max((abs(c.z) for c in self.changes), default=0.0)
 
+    def notes(self) -> list[str]:
+        """Sentences for people: each parameter beyond ``z_crit`` with what it suggests;
+        for a robot flagged by the chi-square test alone, the largest changes."""
+        if not self.flagged:
+            return []
+        beyond = [c for c in self.moved if abs(c.z) > self.z_crit]
+        if beyond:
+            return [c.text() for c in beyond]
+        return [f"several parameters changed together (chi-square p = {self.p_value:.2g}; "
+                f"none beyond {self.z_crit:.1f}σ alone); largest: "
+                + ", ".join(c.text(why=False) for c in self.moved)]
+
     def to_dict(self) -> dict[str, Any]:
         return {"serial": self.serial, "previous": {"id": self.previous[0],
                                                     "date": self.previous[1]},
@@ -124,7 +137,7 @@ class Drift:
                 "p_value": self.p_value, "z_max": self.z_max, "z_crit": self.z_crit,
                 "rms_latest_m": self.rms_latest_m,
                 "rms_previous_model_m": self.rms_previous_model_m,
-                "moved": [c.text() for c in self.moved],
+                "moved": [c.name for c in self.moved], "notes": self.notes(),
                 "changes": [{"name": c.name, "unit": c.unit, "role": c.role,
                              "before": c.before, "after": c.after, "change": c.change,
                              "sigma": c.sigma, "z": c.z} for c in self.changes]}

@@ -114,7 +114,8 @@ def fleet_page(summaries: Sequence[Mapping[str, Any]], drifts: Sequence[Any],
     name = title or ", ".join(fleets) or "fleet"
     dates = sorted({s["date"] for s in summaries})
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{esc(name)}: kincal "
-             f"fleet</title><style>{_CSS}</style></head><body>",
+             f"fleet</title><style>{_CSS}td.l:first-child{{white-space:nowrap}}</style>"
+             "</head><body>",
              f"<h1>{esc(name)}: calibration history</h1>",
              f"<p>{len(serials)} robots, {len(summaries)} calibration records"
              + (f", sessions {esc(dates[0])} to {esc(dates[-1])}" if dates else "")
@@ -134,7 +135,7 @@ def fleet_page(summaries: Sequence[Mapping[str, Any]], drifts: Sequence[Any],
                 f"→ {esc(d.latest[1])}</td><td>{d.z_max:.1f}</td>"
                 f"<td>{d.chi2:.1f} / {d.dof}</td><td>{d.p_value:.2g}</td>"
                 f"<td>{_mm(d.rms_latest_m)}</td><td>{_mm(d.rms_previous_model_m)}</td>"
-                f"<td class='l'>{'<br>'.join(esc(c.text()) for c in d.moved)}</td></tr>")
+                f"<td class='l'>{'<br>'.join(esc(n) for n in d.notes())}</td></tr>")
         parts.append("</table>")
     if failed:
         parts.append("<h2>Failed sessions</h2><table><tr><th class='l'>robot</th>"
@@ -155,9 +156,13 @@ def fleet_page(summaries: Sequence[Mapping[str, Any]], drifts: Sequence[Any],
         parts.append("<h2>Accuracy per robot (latest calibration)</h2>")
         parts.append(_img(accuracy_plot(order, series, {d.serial for d in flagged}),
                           "position RMS per robot"))
+        present = [k for k, label in (("rms_train_m", "training"),
+                                      ("rms_validation_m", "held-out"), ("rms_cv_m", "CV"))
+                   if any(latest[s].get(k) is not None for s in order)]
+        heads = {"rms_train_m": "training", "rms_validation_m": "held-out", "rms_cv_m": "CV"}
         parts.append("<table><tr><th class='l'>robot</th><th class='l'>latest session</th>"
-                     "<th>training [mm]</th><th>held-out [mm]</th><th>CV [mm]</th>"
-                     "<th>previous model [mm]</th><th>max |z|</th><th class='l'>drift</th>"
+                     + "".join(f"<th>{heads[k]} [mm]</th>" for k in present)
+                     + "<th>previous model [mm]</th><th>max |z|</th><th class='l'>drift</th>"
                      "</tr>")
         for s, p in zip(order, prev, strict=True):
             rec, d = latest[s], by_serial.get(s)
@@ -165,9 +170,8 @@ def fleet_page(summaries: Sequence[Mapping[str, Any]], drifts: Sequence[Any],
                     "no" if d is not None else "<span class='small'>one session</span>")
             parts.append(
                 f"<tr><td class='l'>{esc(s)}</td><td class='l'>{esc(rec['date'])}</td>"
-                f"<td>{_mm(rec.get('rms_train_m'))}</td>"
-                f"<td>{_mm(rec.get('rms_validation_m'))}</td><td>{_mm(rec.get('rms_cv_m'))}</td>"
-                f"<td>{_mm(p)}</td><td>{'-' if d is None else f'{d.z_max:.1f}'}</td>"
+                + "".join(f"<td>{_mm(rec.get(k))}</td>" for k in present)
+                + f"<td>{_mm(p)}</td><td>{'-' if d is None else f'{d.z_max:.1f}'}</td>"
                 f"<td class='l'>{mark}</td></tr>")
         parts.append("</table>")
     shown = [d for d in flagged if d.serial in histories][:_MAX_HISTORY_ROBOTS]
