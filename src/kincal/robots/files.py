@@ -151,6 +151,8 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
     tol = _tolerances(r, data)
     if tol:
         meta["tolerances"] = tol
+    if isinstance(data.get("controller"), Mapping):    # read by kincal.robots.controller
+        meta["controller"] = dict(data["controller"])
     return meta
 
 
@@ -442,6 +444,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
     doc["units"] = {"length": "m", "angle": "rad"}
     if robot.meta.get("tolerances"):
         doc["tolerances"] = dict(robot.meta["tolerances"])
+    if isinstance(robot.meta.get("controller"), Mapping):
+        doc["controller"] = dict(robot.meta["controller"])
     ju = joint_units_of(robot)
     if ju is not None:
         doc["joint_units"] = ju

@@ -1,0 +1,266 @@
+"""Filtering robot-program targets through a calibrated model.
+
+A controller that knows only the nominal model ``f_nom`` moves to a Cartesian target
+``T`` by solving ``f_nom(q) = T`` on the configuration the program asks for.  The
+real robot is ``f_cal``.  For every Cartesian target (the robot's flange pose in its
+base frame, ``F = U T_target Tool^-1`` with the target's user and tool frames):
+
+1. ``q_nom``: the nominal solution on the asked configuration (closed form, all
+   branches, then :meth:`~kincal.compensation.configuration.Configurator.select`), or,
+   where the program gives no configuration (or the robot has no closed form), the
+   nominal numerical IK seeded by ``seeds`` (the branch of the nominal solution);
+2. ``q = f_cal^-1(F)`` seeded with ``q_nom`` (:func:`kincal.compensation.compensate.compensate`);
+3. the filtered target ``F' = f_nom(q)``: the controller's IK on the same configuration
+   gives back ``q``, and the real robot reaches ``f_cal(q) = F``.
+
+Joint targets (axis values taught on the real robot) stay as they are; as
+offline-programmed ones (computed with the nominal model) they become
+``q' = f_cal^-1(f_nom(q))`` on the same branch.
+
+Warnings per target: unreachable (left unchanged), branch change (the calibrated
+solution has another configuration than asked: the controller would not reproduce
+it), near a singularity (shoulder, elbow or wrist margin below
+:data:`SINGULARITY_MARGINS`), joint limit (within :data:`LIMIT_MARGIN` of one),
+outside the calibrated region (when an accuracy model says so).  Units: m, rad.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.compensation.compensate import _check_compatible, compensate
+from kincal.compensation.configuration import Configuration, Configurator
+from kincal.motion.ik import solve_ik
+from kincal.motion.ik_closed_form import NotThisFamily
+from kincal.motion.ik_wrist import check_wrist_family, ik_spherical_wrist
+from kincal.robots.chain import Robot
+from kincal.robots.controller import ControllerMap, controller_map
+from kincal.spatial import log_so3
+
+Array = NDArray[np.float64]
+
+#: Singularity margins: wrist centre within 20 mm of axis 1, elbow within 2 deg of
+#: stretched or folded (|Y| / r3 = sine of that angle), wrist within 2 deg of aligned.
+SINGULARITY_MARGINS = (0.020, math.sin(math.radians(2.0)), math.sin(math.radians(2.0)))
+#: A joint within this distance of a limit [rad] is flagged.
+LIMIT_MARGIN = math.radians(2.0)
+
+#: The accuracy model's answer at joint values (N, n): predicted position std [m] and
+#: whether each configuration lies inside the region the calibration data covered.
+AccuracyModel = Callable[[Array], tuple[Array, NDArray[np.bool_]]]
+
+
+@dataclass
+class TargetRequest:
+    """One program target to filter.
+
+    Attributes:
+        kind: ``"pose"`` (``flange`` set) or ``"joints"`` (``joints`` set).
+        flange: (4, 4) the flange pose the target asks for, in the robot base frame [m].
+        joints: (n,) model joint values [rad].
+        config: the configuration the program asks for, or None.
+        seed: (n,) model joints the controller would start from (the previous joint
+            target), or None.
+        tool: (4, 4) the tool frame (flange to TCP), to measure shifts at the TCP.
+    """
+
+    kind: str
+    flange: Array | None = None
+    joints: Array | None = None
+    config: Configuration | None = None
+    seed: Array | None = None
+    tool: Array = field(default_factory=lambda: np.eye(4))
+
+
+@dataclass
+class FilterResult:
+    """Per target: the filtered flange pose or joints, the shift and the warnings.
+
+    Attributes:
+        changed: (N,) the target is rewritten.
+        ok: (N,) the target could be filtered (False: left unchanged, ``reason`` says why).
+        flange: (N, 4, 4) filtered flange poses [m] (pose targets; identity otherwise).
+        joints: (N, n) filtered model joints [rad] (joint targets; the calibrated solution
+            for pose targets).
+        q_nominal: (N, n) the nominal controller's solution on the asked branch [rad].
+        shift_position: (N,) ``|p'_tcp - p_tcp|`` [m].
+        shift_rotation: (N,) rotation angle between the filtered and the original TCP [rad].
+        predicted_std: (N,) predicted position std of the calibrated model there [m], or NaN.
+        reason: why a target was not filtered (``""`` when ok).
+        warnings: per target, short warning names.
+    """
+
+    changed: NDArray[np.bool_]
+    ok: NDArray[np.bool_]
+    flange: Array
+    joints: Array
+    q_nominal: Array
+    shift_position: Array
+    shift_rotation: Array
+    predicted_std: Array
+    reason: list[str]
+    warnings: list[list[str]]
+
+
+def _closed_form(robot: Robot) -> bool:
+    try:
+        check_wrist_family(robot)
+    except NotThisFamily:
+        return False
+    return True
+
+
+def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
+                      confs: Sequence[Configuration | None], seeds: Array
+                      ) -> tuple[Array, NDArray[np.bool_], list[str]]:
+    """The nominal controller's joints for flange poses F (N, 4, 4): ``(q, ok, reason)``."""
+    N = len(F)
+    q = np.zeros((N, nominal.n))
+    ok = np.zeros(N, bool)
+    reason = [""] * N
+    asked = np.array([c is not None for c in confs], bool)
+    if _closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc") and asked.any():
+        idx = np.flatnonzero(asked)
+        sol = ik_spherical_wrist(nominal, F[idx])
+        conf = Configurator.of(nominal, cmap)
+        qs, found = conf.select(sol.q, sol.reachable, [confs[i] for i in idx])
+        q[idx], ok[idx] = qs, found
+        for i, f, anyr in zip(idx, found, sol.reachable.any(axis=1), strict=True):
+            if not f:
+                reason[i] = (f"unreachable: no joint solution with configuration "
+                             f"{confs[i].text} inside the joint limits" if anyr else  # type: ignore[union-attr]
+                             "unreachable: outside the robot's workspace")
+    rest = np.flatnonzero(~asked)
+    if rest.size:
+        sol = solve_ik(nominal, F[rest], q0=seeds[rest], mask="pose", tol_position=1e-10,
+                       tol_orientation=1e-10)
+        q[rest], ok[rest] = sol.q, sol.success
+        for k, i in enumerate(rest):
+            if not sol.success[k]:
+                reason[i] = f"the nominal controller cannot reach it ({sol.reason[k]})"
+    return q, ok, reason
+
+
+def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetRequest],
+                   offline_joints: bool = False, accuracy: AccuracyModel | None = None,
+                   cmap: ControllerMap | None = None) -> FilterResult:
+    """Filter program targets through the calibrated model (module docstring).
+
+    Args:
+        calibrated: the real robot as identified.
+        nominal: the controller's model (its ``controller`` section says the vendor).
+        requests: the targets, in program order.
+        offline_joints: correct joint targets too (they were computed with the nominal
+            model); by default they stay (taught on the real robot).
+        accuracy: optional accuracy model of the calibration (predicted std, inside flag).
+        cmap: the controller map; default the nominal robot's.
+    """
+    _check_compatible(calibrated, nominal)
+    cmap = cmap or controller_map(nominal)
+    N, n = len(requests), nominal.n
+    flange_in = np.tile(np.eye(4), (N, 1, 1))
+    joints_in = np.zeros((N, n))
+    pose = np.array([r.kind == "pose" for r in requests], bool)
+    for i, r in enumerate(requests):
+        if r.kind == "pose" and r.flange is not None:
+            flange_in[i] = r.flange
+        elif r.joints is not None:
+            joints_in[i] = r.joints
+    if offline_joints:
+        jt = np.flatnonzero(~pose)
+        flange_in[jt] = nominal.fk(joints_in[jt])
+    work = np.flatnonzero(pose | offline_joints)
+    seeds = np.array([r.seed if r.seed is not None else
+                      (r.joints if r.kind == "joints" and r.joints is not None else
+                       np.clip(np.zeros(n), nominal.joint_limits[:, 0], nominal.joint_limits[:, 1]))
+                      for r in requests]).reshape(N, n)
+    confs: list[Configuration | None] = [r.config if r.kind == "pose" else None for r in requests]
+    q_nom = joints_in.copy()
+    ok = np.ones(N, bool)
+    reason = [""] * N
+    if work.size:
+        w_confs = [confs[i] for i in work]
+        seeds_w = seeds[work].copy()
+        jt_mask = ~pose[work]
+        seeds_w[jt_mask] = joints_in[work][jt_mask]
+        qn, okn, rn = nominal_solutions(nominal, cmap, flange_in[work], w_confs, seeds_w)
+        q_nom[work], ok[work] = qn, okn
+        for k, i in enumerate(work):
+            reason[i] = rn[k]
+    q_cal = q_nom.copy()
+    solve = work[ok[work]]
+    if solve.size:
+        comp = compensate(calibrated, flange_in[solve], nominal=nominal, q0=q_nom[solve])
+        q_cal[solve] = comp.q
+        for k, i in enumerate(solve):
+            if not comp.success[k]:
+                ok[i] = False
+                reason[i] = f"unreachable by the calibrated robot ({comp.reason[k]})"
+    flange_out = flange_in.copy()
+    good = work[ok[work]]
+    flange_out[good] = nominal.fk(q_cal[good])
+    warnings: list[list[str]] = [[] for _ in range(N)]
+    conf_obj = Configurator.of(nominal, cmap) if (
+        _closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc")) else None
+    if good.size and conf_obj is not None:
+        same = np.ones(good.size, bool)
+        q_good = q_cal[good]
+        for k, i in enumerate(good):
+            want = confs[i]
+            if want is None:
+                want = _signs_conf(conf_obj, q_nom[i])
+            same[k] = conf_obj.has(q_good[k:k + 1], want)[0]
+        for k in np.flatnonzero(~same):
+            warnings[good[k]].append("branch change")
+        m = conf_obj.margins(q_good)
+        L = check_wrist_family(nominal)
+        r3 = math.hypot(L[2].a, L[3].d)
+        near = (m[:, 0] < SINGULARITY_MARGINS[0]) | (m[:, 1] / r3 < SINGULARITY_MARGINS[1]) \
+            | (m[:, 2] < SINGULARITY_MARGINS[2])
+        for k in np.flatnonzero(near):
+            warnings[good[k]].append("near a singularity")
+    elif good.size:
+        jump = np.max(np.abs(q_cal[good] - q_nom[good]), axis=1)
+        for k in np.flatnonzero(jump > 0.5):
+            warnings[good[k]].append("branch change")
+    lim = calibrated.joint_limits
+    if good.size:
+        close = np.any((q_cal[good] - lim[:, 0] < LIMIT_MARGIN)
+                       | (lim[:, 1] - q_cal[good] < LIMIT_MARGIN), axis=1)
+        for k in np.flatnonzero(close):
+            warnings[good[k]].append("joint limit")
+    for i in np.flatnonzero(~ok):
+        warnings[i].append("unreachable" if "reach" in reason[i] else "not filtered")
+    joints_out = joints_in.copy()
+    joints_out[pose] = q_cal[pose]
+    jt = np.flatnonzero(~pose)
+    if offline_joints:
+        joints_out[jt[ok[jt]]] = q_cal[jt[ok[jt]]]
+        flange_out[jt] = nominal.fk(joints_out[jt])
+    tools = np.array([r.tool for r in requests]).reshape(N, 4, 4)
+    tcp_in, tcp_out = flange_in @ tools, flange_out @ tools
+    shift_p = np.linalg.norm(tcp_out[:, :3, 3] - tcp_in[:, :3, 3], axis=1)
+    shift_r = np.linalg.norm(log_so3(tcp_out[:, :3, :3] @ np.swapaxes(tcp_in[:, :3, :3], 1, 2)),
+                             axis=1)
+    if not offline_joints:
+        shift_p[jt] = 0.0
+        shift_r[jt] = 0.0
+    changed = ok & (pose | offline_joints) & ((shift_p > 1e-9) | (shift_r > 1e-9))
+    std = np.full(N, np.nan)
+    if accuracy is not None and good.size:
+        s, inside = accuracy(q_cal[good])
+        std[good] = s
+        for k in np.flatnonzero(~np.asarray(inside, bool)):
+            warnings[good[k]].append("outside the calibrated region")
+    return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
+                        reason, warnings)
+
+
+def _signs_conf(conf: Configurator, q: Array) -> Configuration:
+    s = conf.signs(q[None])[0]
+    return Configuration(int(s[0]), int(s[1]), int(s[2]))

@@ -1,0 +1,211 @@
+"""Filter a whole program: read it, filter its targets, write the numbers back.
+
+:func:`filter_program` is what ``kincal filter`` runs.  Per dialect it needs the
+target's pose in its user frame, its user (base) and tool frames, the conversion of
+axis values to model joints (:class:`~kincal.robots.controller.ControllerMap`), and
+back.  The result holds the new text of every file and one :class:`TargetReport` per
+target.  Units: the program's own (mm / deg, m / rad for URScript) in the files; SI
+inside.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from kincal.compensation.filter import AccuracyModel, FilterResult, TargetRequest, filter_targets
+from kincal.compensation.programs.base import (
+    Array,
+    Frames,
+    ProgramTarget,
+    Slot,
+    render,
+)
+from kincal.errors import KincalError
+from kincal.robots.chain import Robot
+from kincal.robots.controller import ControllerMap, controller_map
+from kincal.spatial import inverse
+
+DIALECTS = ("krl", "rapid", "urscript", "fanuc-ls")
+_SUFFIX = {".src": "krl", ".dat": "krl", ".mod": "rapid", ".modx": "rapid", ".prg": "rapid",
+           ".script": "urscript", ".urscript": "urscript", ".ls": "fanuc-ls"}
+_VENDOR = {"krl": "kuka", "rapid": "abb", "urscript": "ur", "fanuc-ls": "fanuc"}
+
+
+def dialect_of(path: str, dialect: str = "auto") -> str:
+    """The dialect named, or the one the file's suffix says."""
+    if dialect != "auto":
+        if dialect not in DIALECTS:
+            raise KincalError(f"option --dialect: unknown dialect {dialect!r}; use auto, "
+                              f"{', '.join(DIALECTS)}")
+        return dialect
+    d = _SUFFIX.get(Path(path).suffix.lower())
+    if d is None:
+        raise KincalError(f"cannot tell the program language from the suffix "
+                          f"{Path(path).suffix!r}; give --dialect {'|'.join(DIALECTS)}",
+                          source=path)
+    return d
+
+
+@dataclass
+class TargetReport:
+    """One row of the per-target table."""
+
+    name: str
+    file: str
+    line: int
+    kind: str
+    status: str              # filtered | unchanged | not filtered | unused | kept
+    shift_mm: float
+    shift_deg: float
+    predicted_std_mm: float
+    warnings: list[str]
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "file": self.file, "line": self.line, "kind": self.kind,
+                "status": self.status, "shift_mm": self.shift_mm, "shift_deg": self.shift_deg,
+                "predicted_std_mm": None if math.isnan(self.predicted_std_mm)
+                else self.predicted_std_mm, "warnings": self.warnings, "reason": self.reason}
+
+
+@dataclass
+class FilteredProgram:
+    """New file texts (input path -> text) and the per-target reports."""
+
+    dialect: str
+    texts: dict[str, str]
+    originals: dict[str, str]
+    reports: list[TargetReport]
+    result: FilterResult | None
+
+    @property
+    def failed(self) -> list[TargetReport]:
+        return [r for r in self.reports if r.status == "not filtered"]
+
+
+@dataclass
+class DialectOps:
+    """What the driver needs from a dialect."""
+
+    read: Callable[[str], Any]                         # -> object with .texts, .targets
+    pose_of: Callable[[ProgramTarget], Array]          # user-frame pose [m]
+    pose_values: Callable[[ProgramTarget, Array], dict[str, float]]
+    joint_keys: tuple[str, ...]
+    frames: Callable[[Any, ProgramTarget, Frames], tuple[Array, Array]]   # (user, tool)
+    digits: Callable[[str], int]                       # min decimals per slot key
+    pad: bool = False
+
+
+def _ops(dialect: str) -> DialectOps:
+    if dialect == "krl":
+        from kincal.compensation.programs import krl
+
+        def frames(prog: Any, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
+            origin = f"{t.name} ({Path(t.file).name}:{t.line})"
+            return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
+
+        return DialectOps(krl.read_krl, krl.pose_of, krl.pose_values,
+                          ("a1", "a2", "a3", "a4", "a5", "a6"), frames, lambda k: 4)
+    if dialect == "rapid":
+        from kincal.compensation.programs import rapid
+
+        return DialectOps(rapid.read_rapid, rapid.pose_of, rapid.pose_values,
+                          rapid.JOINT_KEYS, rapid.frames, rapid.digits)
+    if dialect == "urscript":
+        from kincal.compensation.programs import urscript
+
+        return DialectOps(urscript.read_urscript, urscript.pose_of, urscript.pose_values,
+                          urscript.JOINT_KEYS, urscript.frames, lambda k: 7)
+    from kincal.compensation.programs import fanuc
+
+    def frames_f(prog: Any, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
+        origin = f"{t.name} ({Path(t.file).name}:{t.line})"
+        return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
+
+    return DialectOps(fanuc.read_ls, fanuc.pose_of, fanuc.pose_values, fanuc.JOINT_KEYS,
+                      frames_f, lambda k: 3, pad=True)
+
+
+def read_program(path: str, dialect: str = "auto") -> tuple[str, Any]:
+    """``(dialect, program)``: the program read by its dialect's reader (bad content is a
+    one-line :class:`~kincal.compensation.programs.base.ProgramError`)."""
+    d = dialect_of(path, dialect)
+    return d, _ops(d).read(path)
+
+
+def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = "auto",
+                   frames: Frames | None = None, offline_joints: bool = False,
+                   accuracy: AccuracyModel | None = None) -> FilteredProgram:
+    """Filter every target of the program at ``path`` (module docstring)."""
+    d = dialect_of(path, dialect)
+    ops = _ops(d)
+    prog = ops.read(path)
+    frames = frames or Frames({}, {})
+    cmap = controller_map(nominal, _VENDOR[d])
+    if cmap.vendor and cmap.vendor != _VENDOR[d]:
+        raise KincalError(f"robot {nominal.name!r} has a {cmap.vendor} controller, but the "
+                          f"program is {d}")
+    active = [t for t in prog.targets if not t.note and t.used]
+    requests: list[TargetRequest] = []
+    tools: list[tuple[Array, Array]] = []
+    last_joints: Array | None = None
+    for t in prog.targets:
+        if t.kind == "joints" and not t.note:
+            last_joints = cmap.to_model(t.values(ops.joint_keys))
+        if t not in active:
+            continue
+        if t.kind == "joints":
+            q = cmap.to_model(t.values(ops.joint_keys))
+            requests.append(TargetRequest("joints", joints=q, seed=q))
+            tools.append((np.eye(4), np.eye(4)))
+            continue
+        user, tool = ops.frames(prog, t, frames)
+        F = user @ ops.pose_of(t) @ inverse(tool)
+        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=last_joints,
+                                      tool=tool))
+        tools.append((user, tool))
+    result = filter_targets(calibrated, nominal, requests, offline_joints, accuracy, cmap) \
+        if requests else None
+    edits: dict[str, dict[int, tuple[Slot, float, int]]] = {f: {} for f in prog.texts}
+    reports: list[TargetReport] = []
+    k = 0
+    for t in prog.targets:
+        if t not in active:
+            status = "unused" if not t.used else "not filtered"
+            if t.note and t.note.startswith(("relative", "used by a relative")):
+                status = "kept"
+            reports.append(TargetReport(t.name, t.file, t.line, t.kind, status, 0.0, 0.0,
+                                        math.nan, [], t.note or "not used by any motion"))
+            continue
+        assert result is not None
+        i = k
+        k += 1
+        ok = bool(result.ok[i])
+        status = "filtered" if result.changed[i] else ("not filtered" if not ok else "unchanged")
+        if t.kind == "joints" and not offline_joints:
+            status = "kept"
+        reports.append(TargetReport(t.name, t.file, t.line, t.kind, status,
+                                    float(result.shift_position[i] * 1e3),
+                                    float(math.degrees(result.shift_rotation[i])),
+                                    float(result.predicted_std[i] * 1e3), result.warnings[i],
+                                    result.reason[i]))
+        if not result.changed[i]:
+            continue
+        if t.kind == "pose":
+            user, tool = tools[i]
+            T_user = inverse(user) @ result.flange[i] @ tool
+            new = ops.pose_values(t, T_user)
+        else:
+            axes = cmap.to_axes(result.joints[i])
+            new = dict(zip(ops.joint_keys, axes, strict=True))
+        for key, value in new.items():
+            slot = t.slots[key]
+            edits[t.file][slot.start] = (slot, float(value), ops.digits(key))
+    texts = {f: render(text, edits[f], pad=ops.pad) for f, text in prog.texts.items()}
+    return FilteredProgram(d, texts, dict(prog.texts), reports, result)
