@@ -163,7 +163,9 @@ class Configurator:
         has = ~np.isnan(lo)[:, None, :]
         lo_b = np.broadcast_to(lo[:, None, :], ax.shape)
         width = 2 * math.pi
-        shifted = np.where(has, np.nan_to_num(lo_b) + np.mod(ax - np.nan_to_num(lo_b), width), ax)
+        tol = 1e-9                            # a value on a boundary belongs to either side
+        lo0 = np.nan_to_num(lo_b)
+        shifted = np.where(has, lo0 - tol + np.mod(ax - lo0 + tol, width), ax)
         if self.cmap.vendor == "fanuc":       # FANUC turns are (lo, hi]: lo itself is hi - 2 pi
             shifted = np.where(has & np.isclose(shifted, lo_b, atol=1e-12), shifted + width,
                                shifted)

@@ -103,7 +103,7 @@ def position(text: str, offset: int) -> tuple[int, int]:
 
 def fail(path: str, text: str, offset: int, message: str) -> ProgramError:
     line, col = position(text, offset)
-    return ProgramError(f"line {line}, column {col}: {message}", source=f"{path}")
+    return ProgramError(message, source=f"{path}:{line}:{col}")
 
 
 def number_slot(path: str, text: str, start: int, end: int, what: str) -> Slot:
