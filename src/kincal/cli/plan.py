@@ -18,6 +18,7 @@ import datetime as _dt
 import html
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Any
 
 import numpy as np
@@ -139,6 +140,20 @@ def build_plan(robot: Any, *, instrument: str = "position", poses: int = 30,
                             f"({len(q_eval)} configurations)", "seed": str(seed)}
     return Plan(problem, design, pred, [d.indices.as_dict() for d in rnd], rms, preds[med],
                 rnd[med].indices.singular_values, inputs, dropped)
+
+
+def _seconds(text: str, option: str) -> float:
+    """A duration with its unit (``2s``, ``500ms``) in seconds."""
+    t = text.strip()
+    for unit, f in (("ms", 1e-3), ("s", 1.0)):
+        if t.endswith(unit):
+            try:
+                v = float(t[: -len(unit)])
+            except ValueError:
+                break
+            if v >= 0:
+                return v * f
+    raise KincalError(f"option {option}: {text!r} is not a duration with its unit (2s, 500ms)")
 
 
 # --------------------------------------------------------------------------- output
@@ -315,6 +330,13 @@ def plan(
     no_exchange: Annotated[bool, typer.Option("--no-exchange", help="Greedy selection only "
                                               "(no DETMAX / exchange).")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    program: Annotated[str | None, typer.Option("--program", help="Write the poses as a "
+                                                "joint-move program to run on the robot: krl, "
+                                                "rapid, urscript or fanuc-ls. -o is then the "
+                                                "program; the pose CSV goes beside it "
+                                                "(.csv).")] = None,
+    dwell: Annotated[str, typer.Option("--dwell", help="With --program: standstill at each "
+                                       "pose for the measurement, e.g. 2s.")] = "2s",
     report: Annotated[str | None, typer.Option("--report", help="Write an HTML report here.")
                       ] = None,
     json_out: Annotated[str | None, typer.Option("--json", help="Also write the plan as JSON "
@@ -378,8 +400,23 @@ def plan(
                 f"({d.method}); poses={d.poses}; seed={seed}",
                 f"predicted RMS position error after calibration: {pred.rms * 1e3:.4g} mm "
                 f"(noise {noise_mm:g} mm); O1={d.indices.O1:.4g} kappa={d.indices.kappa:.4g}"]
-    write_poses(output, r, d.q, angle_unit=angle_unit, length_unit=length_unit,
+    poses_csv = output
+    prog_text = None
+    if program:
+        from kincal.compensation.programs.writers import joint_program
+
+        prog_text = joint_program(program, r, d.q, name=Path(output).stem,
+                                  dwell=_seconds(dwell, "--dwell"))
+        poses_csv = str(Path(output).with_suffix(".csv"))
+        if Path(poses_csv).resolve() == Path(output).resolve():
+            raise KincalError(f"option -o: a program cannot be named {output!r} (.csv is the "
+                              "pose file)")
+    write_poses(poses_csv, r, d.q, angle_unit=angle_unit, length_unit=length_unit,
                 comments=comments)
+    if prog_text is not None:
+        from kincal.io import atomic_write_bytes
+
+        atomic_write_bytes(output, prog_text.encode("latin-1"))
     if html_text is not None:
         atomic_write_text(report, html_text)
     n_all = len(p.problem.problem.names)
@@ -393,7 +430,9 @@ def plan(
     out.print(_param_table(p))
     cols = ", ".join(f"{j.name}_{angle_unit if j.kind == 'revolute' else length_unit}"
                      for j in r.joints)
-    out.print(f"wrote {d.poses} poses -> {escape(output)} (columns {cols})"
+    if prog_text is not None:
+        out.print(f"wrote the {program} program -> {escape(output)}")
+    out.print(f"wrote {d.poses} poses -> {escape(poses_csv)} (columns {cols})"
               + (f"; report -> {escape(report)}" if report else ""))
     if json_out:
         write_json(json_out, {

@@ -93,6 +93,9 @@ class FilterResult:
         predicted_std: (N,) predicted position std of the calibrated model there [m], or NaN.
         reason: why a target was not filtered (``""`` when ok).
         warnings: per target, short warning names.
+        signs: (N, 3) shoulder, elbow, wrist signs of the calibrated solution (0 where the
+            robot has no configuration rules): what the rewritten target's configuration
+            says, together with the axis values in ``joints``.
     """
 
     changed: NDArray[np.bool_]
@@ -105,6 +108,42 @@ class FilterResult:
     predicted_std: Array
     reason: list[str]
     warnings: list[list[str]]
+    signs: Array
+
+
+def refine(robot: Robot, F: Array, q0: Array, tol: float = 1e-11, max_iter: int = 20
+           ) -> tuple[Array, NDArray[np.bool_]]:
+    """Newton's method for ``f(q) = F`` from a nearby ``q0`` (N, n), batched.
+
+    ``q <- q + J(q)^-1 e(q)`` with ``e = [p_F - p(q); log(R_F R(q)^T)]`` and ``J`` the
+    geometric Jacobian (base frame): quadratic convergence from the nominal solution,
+    which is millimetres away.  Returns ``(q, converged)``: converged when ``|e_p| <= tol``
+    [m] and ``|e_o| <= tol`` [rad]; a singular or diverging row is not converged.
+    """
+    from kincal.spatial import pose_error
+
+    q = np.array(q0, dtype=float)
+    done = np.zeros(len(q), bool)
+    for _ in range(max_iter):
+        todo = np.flatnonzero(~done)
+        if todo.size == 0:
+            break
+        T = robot.fk(q[todo])
+        e = pose_error(F[todo], T)
+        small = (np.linalg.norm(e[:, :3], axis=1) <= tol) & (np.linalg.norm(e[:, 3:], axis=1)
+                                                               <= tol)
+        done[todo[small]] = True
+        move = todo[~small]
+        if move.size == 0:
+            break
+        J = robot.jacobian(q[move])
+        try:
+            dq = np.linalg.solve(J, e[~small][:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            break
+        q[move] += np.clip(dq, -0.2, 0.2)
+    ok = done & np.all(np.isfinite(q), axis=1) & (np.max(np.abs(q - q0), axis=1) < 0.5)
+    return q, ok
 
 
 def _closed_form(robot: Robot) -> bool:
@@ -195,28 +234,49 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
     q_cal = q_nom.copy()
     solve = work[ok[work]]
     if solve.size:
-        comp = compensate(calibrated, flange_in[solve], nominal=nominal, q0=q_nom[solve])
-        q_cal[solve] = comp.q
-        for k, i in enumerate(solve):
-            if not comp.success[k]:
-                ok[i] = False
-                reason[i] = f"unreachable by the calibrated robot ({comp.reason[k]})"
+        q_new, conv = refine(calibrated, flange_in[solve], q_nom[solve])
+        q_cal[solve] = q_new
+        lost = np.flatnonzero(~conv)
+        if lost.size:                      # far from the nominal solution: the general IK
+            comp = compensate(calibrated, flange_in[solve[lost]], nominal=nominal,
+                              q0=q_nom[solve[lost]])
+            q_cal[solve[lost]] = comp.q
+            for k, i in enumerate(solve[lost]):
+                if not comp.success[k]:
+                    ok[i] = False
+                    reason[i] = f"unreachable by the calibrated robot ({comp.reason[k]})"
+        lim = calibrated.joint_limits
+        outside = np.any((q_cal[solve] < lim[:, 0] - 1e-9) | (q_cal[solve] > lim[:, 1] + 1e-9),
+                         axis=1)
+        for i in solve[outside & ok[solve]]:
+            ok[i] = False
+            reason[i] = "joint limits: the calibrated robot would need a joint beyond its limit"
     flange_out = flange_in.copy()
     good = work[ok[work]]
     flange_out[good] = nominal.fk(q_cal[good])
     warnings: list[list[str]] = [[] for _ in range(N)]
     conf_obj = Configurator.of(nominal, cmap) if (
         _closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc")) else None
+    signs = np.zeros((N, 3))
     if good.size and conf_obj is not None:
-        same = np.ones(good.size, bool)
         q_good = q_cal[good]
-        for k, i in enumerate(good):
-            want = confs[i]
-            if want is None:
-                want = _signs_conf(conf_obj, q_nom[i])
-            same[k] = conf_obj.has(q_good[k:k + 1], want)[0]
+        signs[good] = conf_obj.signs(q_good)
+        want = np.array([[c.shoulder, c.elbow, c.wrist] if c is not None else [0, 0, 0]
+                         for c in (confs[i] for i in good)], float).reshape(-1, 3)
+        free = ~want.any(axis=1)
+        want[free] = conf_obj.signs(q_nom[good][free])
+        same = np.all((want == 0) | (signs[good] == want), axis=1)
         for k in np.flatnonzero(~same):
-            warnings[good[k]].append("branch change")
+            i = good[k]
+            if confs[i] is not None:       # the controller would not reproduce it
+                ok[i] = False
+                reason[i] = (f"the calibrated robot cannot reach it on configuration "
+                             f"{confs[i].text} (its nearest solution is on another branch: "  # type: ignore[union-attr]
+                             "near a singularity or the workspace boundary)")
+            else:
+                warnings[i].append("branch change")
+        good = good[same | np.array([confs[i] is None for i in good], bool)]
+        flange_out[work[~ok[work]]] = flange_in[work[~ok[work]]]
         m = conf_obj.margins(q_good)
         L = check_wrist_family(nominal)
         r3 = math.hypot(L[2].a, L[3].d)
@@ -258,9 +318,4 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
         for k in np.flatnonzero(~np.asarray(inside, bool)):
             warnings[good[k]].append("outside the calibrated region")
     return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
-                        reason, warnings)
-
-
-def _signs_conf(conf: Configurator, q: Array) -> Configuration:
-    s = conf.signs(q[None])[0]
-    return Configuration(int(s[0]), int(s[1]), int(s[2]))
+                        reason, warnings, signs)

@@ -66,6 +66,7 @@ class TargetReport:
     predicted_std_mm: float
     warnings: list[str]
     reason: str
+    index: int | None = None     # row of the FilterResult (None: not filtered at all)
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "file": self.file, "line": self.line, "kind": self.kind,
@@ -99,6 +100,7 @@ class DialectOps:
     joint_keys: tuple[str, ...]
     frames: Callable[[Any, ProgramTarget, Frames], tuple[Array, Array]]   # (user, tool)
     digits: Callable[[str], int]                       # min decimals per slot key
+    config_values: Callable[[ProgramTarget, Array, Array], dict[str, float]]
     pad: bool = False
 
 
@@ -111,17 +113,19 @@ def _ops(dialect: str) -> DialectOps:
             return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
 
         return DialectOps(krl.read_krl, krl.pose_of, krl.pose_values,
-                          ("a1", "a2", "a3", "a4", "a5", "a6"), frames, lambda k: 4)
+                          ("a1", "a2", "a3", "a4", "a5", "a6"), frames, krl.digits,
+                          krl.config_values)
     if dialect == "rapid":
         from kincal.compensation.programs import rapid
 
         return DialectOps(rapid.read_rapid, rapid.pose_of, rapid.pose_values,
-                          rapid.JOINT_KEYS, rapid.frames, rapid.digits)
+                          rapid.JOINT_KEYS, rapid.frames, rapid.digits, rapid.config_values)
     if dialect == "urscript":
         from kincal.compensation.programs import urscript
 
         return DialectOps(urscript.read_urscript, urscript.pose_of, urscript.pose_values,
-                          urscript.JOINT_KEYS, urscript.frames, lambda k: 7)
+                          urscript.JOINT_KEYS, urscript.frames, lambda k: 7,
+                          urscript.config_values)
     from kincal.compensation.programs import fanuc
 
     def frames_f(prog: Any, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
@@ -129,7 +133,8 @@ def _ops(dialect: str) -> DialectOps:
         return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
 
     return DialectOps(fanuc.read_ls, fanuc.pose_of, fanuc.pose_values, fanuc.JOINT_KEYS,
-                      frames_f, lambda k: 3, pad=True)
+                      frames_f, lambda k: 0 if k.startswith("turn") else 3,
+                      fanuc.config_values, pad=True)
 
 
 def read_program(path: str, dialect: str = "auto") -> tuple[str, Any]:
@@ -194,13 +199,15 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
                                     float(result.shift_position[i] * 1e3),
                                     float(math.degrees(result.shift_rotation[i])),
                                     float(result.predicted_std[i] * 1e3), result.warnings[i],
-                                    result.reason[i]))
+                                    result.reason[i], i))
         if not result.changed[i]:
             continue
         if t.kind == "pose":
             user, tool = tools[i]
             T_user = inverse(user) @ result.flange[i] @ tool
             new = ops.pose_values(t, T_user)
+            axes_now = cmap.to_axes(result.joints[i])
+            new.update(ops.config_values(t, axes_now, result.signs[i]))
         else:
             axes = cmap.to_axes(result.joints[i])
             new = dict(zip(ops.joint_keys, axes, strict=True))

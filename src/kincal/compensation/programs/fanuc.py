@@ -105,6 +105,11 @@ def read_ls(path: str) -> LsProgram:
                     raise fail(path, text, seg[0] + cf.start(1),
                                f"{name}: CONFIG must be 'F U T, t1, t4, t6', got {cf.group(1)!r}")
                 conf = fanuc_configuration(parts[0], turns)  # type: ignore[arg-type]
+                base = seg[0] + cf.start(1)
+                for key, nm in zip(("turn1", "turn4", "turn6"),
+                                   list(re.finditer(r"[+-]?\d+", cf.group(1)))[-3:], strict=True):
+                    slots[key] = number_slot(path, text, base + nm.start(), base + nm.end(),
+                                             f"{name} CONFIG")
             first = min(s.start for s in slots.values())
             line, col = position(text, first)
             t = ProgramTarget(name, path, line, col, "pose", slots, conf, ut.group(1),
@@ -139,3 +144,11 @@ def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
     near = [a + 360.0 * np.round((o - a) / 360.0) for a, o in zip((w, p, r), old, strict=True)]
     return {"x": T[0, 3] * 1e3, "y": T[1, 3] * 1e3, "z": T[2, 3] * 1e3,
             "w": near[0], "p": near[1], "r": near[2]}
+
+
+def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:
+    """Turn numbers of J1, J4, J6 (deg): turn t covers (-180 + 360 t, 180 + 360 t]."""
+    if "turn1" not in t.slots:
+        return {}
+    return {key: float(np.ceil((axes[k] - 180.0) / 360.0))
+            for key, k in (("turn1", 0), ("turn4", 3), ("turn6", 5))}

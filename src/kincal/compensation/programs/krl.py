@@ -127,13 +127,14 @@ def _target(path: str, text: str, name: str, agg: Aggregate, kind_hint: str) -> 
             t.note = "partial axis aggregate (missing axes keep the current value)"
         return t
     slots = {k.lower(): agg.numbers[k] for k in POSE_KEYS if k in agg.numbers}
+    slots.update({k.lower(): agg.numbers[k] for k in ("S", "T") if k in agg.numbers})
     conf = None
     if "S" in agg.numbers or "T" in agg.numbers:
         s = int(agg.numbers["S"].value) if "S" in agg.numbers else None
         tt = int(agg.numbers["T"].value) if "T" in agg.numbers else None
         conf = kuka_configuration(s, tt)
     t = ProgramTarget(name, path, line, col, "pose", slots, conf)
-    if len(slots) < 6:
+    if len(set(slots) & set("xyzabc")) < 6:
         t.note = "partial aggregate (missing components keep the current value)"
     return t
 
@@ -271,3 +272,20 @@ def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
     old = t.values(("a", "b", "c"))
     return {"x": T[0, 3] * 1e3, "y": T[1, 3] * 1e3, "z": T[2, 3] * 1e3,
             "a": _near(yaw, old[0]), "b": _near(pitch, old[1]), "c": _near(roll, old[2])}
+
+
+def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:
+    """S and T of the filtered joints (axes in deg; signs shoulder, elbow, wrist), for the
+    ones the target writes.  S keeps its bits above 2."""
+    out: dict[str, float] = {}
+    if "t" in t.slots:
+        out["t"] = float(sum(int(axes[k] < 0) << k for k in range(6)))
+    if "s" in t.slots and np.all(signs != 0):
+        low = int(signs[0] < 0) + 2 * int(signs[1] > 0) + 4 * int(signs[2] < 0)
+        out["s"] = float((int(t.slots["s"].value) & ~7) | low)
+    return out
+
+
+def digits(key: str) -> int:
+    """Minimum decimals: 4 for mm and deg, none for S and T."""
+    return 0 if key in ("s", "t") else 4

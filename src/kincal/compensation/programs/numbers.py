@@ -29,6 +29,7 @@ class NumberStyle:
         exp: ``""``, ``"e"`` or ``"E"``.
         exp_plus: ``e+02`` rather than ``e02``.
         exp_digits: minimum digits of the exponent.
+        int_digits: digits before the point (of the mantissa, with an exponent).
     """
 
     plus: bool = False
@@ -38,6 +39,7 @@ class NumberStyle:
     exp: str = ""
     exp_plus: bool = False
     exp_digits: int = 1
+    int_digits: int = 1
 
 
 def style_of(text: str) -> NumberStyle:
@@ -50,17 +52,22 @@ def style_of(text: str) -> NumberStyle:
     point = "." in mant
     decimals = len(mant.split(".", 1)[1]) if point else 0
     lead_zero = not mant.startswith(".")
+    int_digits = len(mant.split(".", 1)[0].lstrip("0")) or 1
     if not ex:
-        return NumberStyle(plus, lead_zero, decimals, point)
+        return NumberStyle(plus, lead_zero, decimals, point, int_digits=int_digits)
     letter = "E" if "E" in body else "e"
     digits = ex.lstrip("+-")
-    return NumberStyle(plus, lead_zero, decimals, point, letter, ex.startswith("+"), len(digits))
+    return NumberStyle(plus, lead_zero, decimals, point, letter, ex.startswith("+"), len(digits),
+                       int_digits)
 
 
 def format_number(value: float, style: NumberStyle, min_decimals: int = 0) -> str:
     """``value`` written in ``style`` with at least ``min_decimals`` decimals."""
     d = max(style.decimals, min_decimals)
     if style.exp:
+        # significant digits: at least the original's, and enough for min_decimals absolute
+        e10 = math.floor(math.log10(abs(value))) if value else 0
+        d = max(style.decimals + style.int_digits - 1, e10 + min_decimals, 0)
         text = f"{value:.{d}e}"
         mant, ex = text.split("e")
         e = int(ex)

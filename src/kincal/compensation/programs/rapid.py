@@ -170,7 +170,8 @@ def _robtarget(path: str, text: str, name: str, node: Any, at: int) -> ProgramTa
     p = _numbers(path, text, node[0], 3, at, "robtarget position")
     q = _numbers(path, text, node[1], 4, at, "robtarget orientation")
     cf = _numbers(path, text, node[2], 4, at, "robtarget confdata")
-    slots = dict(zip(("x", "y", "z", "q1", "q2", "q3", "q4"), p + q, strict=True))
+    slots = dict(zip(("x", "y", "z", "q1", "q2", "q3", "q4", "cf1", "cf4", "cf6", "cfx"),
+                     p + q + cf, strict=True))
     line, col = position(text, p[0].start)
     conf = abb_configuration(*(int(round(s.value)) for s in cf))
     return ProgramTarget(name, path, line, col, "pose", slots, conf)
@@ -322,5 +323,13 @@ def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
 
 
 def digits(key: str) -> int:
-    """Minimum decimals: 4 for mm and deg, 9 for quaternion components."""
-    return 9 if key.startswith("q") else 4
+    """Minimum decimals: 4 for mm and deg, 9 for quaternion components, none for confdata."""
+    return 0 if key.startswith("cf") else 9 if key.startswith("q") else 4
+
+
+def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:
+    """confdata of the filtered joints: quadrants of axes 1, 4, 6 (deg) and cfx."""
+    out = {f"cf{k + 1}": float(np.floor(axes[k] / 90.0)) for k in (0, 3, 5)}
+    if np.all(signs != 0):
+        out["cfx"] = float(4 * int(signs[0] < 0) + 2 * int(signs[1] < 0) + int(signs[2] < 0))
+    return out

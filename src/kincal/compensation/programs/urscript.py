@@ -186,3 +186,8 @@ def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
         if np.linalg.norm(alt - old) < np.linalg.norm(r - old):
             r = alt
     return {"x": T[0, 3], "y": T[1, 3], "z": T[2, 3], "rx": r[0], "ry": r[1], "rz": r[2]}
+
+
+def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:
+    """URScript states no configuration."""
+    return {}
