@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cli_helpers import run
 from kincal.compensation.configuration import Configurator, kuka_configuration
 from kincal.compensation.programs import fanuc, krl, rapid, urscript
 from kincal.compensation.programs.base import read_frames
@@ -141,11 +141,13 @@ def test_filtered_targets_equal_kincal_compensate_filtered(case, tmp_path, calib
     names = list(nom.joint_names)
     with open(tmp_path / "t.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"] + [f"{n}_rad" for n in names])
+        w.writerow(["x_m", "y_m", "z_m", "rx_rad", "ry_rad", "rz_rad"]
+                   + [f"{n}_rad" for n in names])
         from kincal.spatial import matrix_to_rpy
 
         for (_, F), q in zip(targets, q_seed, strict=True):
-            w.writerow([repr(float(v)) for v in F[:3, 3]] + [repr(float(v)) for v in matrix_to_rpy(F[:3, :3])]
+            w.writerow([repr(float(v)) for v in F[:3, 3]]
+                       + [repr(float(v)) for v in matrix_to_rpy(F[:3, :3])]
                        + [repr(float(v)) for v in q])
     code, _, err = run(capsys, "compensate", cal_path, "--targets", tmp_path / "t.csv",
                        "--nominal", robot, "-o", tmp_path / "j.csv",
@@ -214,8 +216,8 @@ def test_number_formats_round_trip(sign, whole, frac, lead, exp, exp_sign, exp_d
     assert format_number(float(text), style) == text or float(
         format_number(float(text), style)) == float(text)
     new = format_number(value, style, 4)
-    assert style_of(new).exp == style.exp and style_of(new).plus == (style.plus and value >= 0
-                                                                     or style.plus and new[0] == "+")
+    assert style_of(new).exp == style.exp
+    assert style_of(new).plus == (style.plus and new[0] == "+")
     tol = 0.5 * 10 ** -4 if exp else 0.5 * 10 ** -max(style.decimals, 4)
     assert abs(float(new) - value) <= tol * 1.000001
 

@@ -10,9 +10,12 @@ value changed, each in the style of the number it replaces
 
 from __future__ import annotations
 
+import bisect
 import os
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +55,7 @@ class Slot:
         return style_of(self.text)
 
 
-@dataclass
+@dataclass(eq=False)
 class ProgramTarget:
     """A target of a program (a point declaration or an inline target).
 
@@ -94,11 +97,16 @@ def read_program_text(path: str | os.PathLike[str]) -> str:
         raise ProgramError(f"cannot read: {exc.strerror}", source=str(path)) from None
 
 
+@lru_cache(maxsize=8)
+def _line_starts(text: str) -> list[int]:
+    return [0] + [m.end() for m in re.finditer("\n", text)]
+
+
 def position(text: str, offset: int) -> tuple[int, int]:
     """1-based (line, column) of a character offset."""
-    line = text.count("\n", 0, offset) + 1
-    col = offset - (text.rfind("\n", 0, offset) + 1) + 1
-    return line, col
+    starts = _line_starts(text)
+    line = bisect.bisect_right(starts, offset)
+    return line, offset - starts[line - 1] + 1
 
 
 def fail(path: str, text: str, offset: int, message: str) -> ProgramError:

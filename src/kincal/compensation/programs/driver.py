@@ -28,7 +28,7 @@ from kincal.compensation.programs.base import (
 )
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
-from kincal.robots.controller import ControllerMap, controller_map
+from kincal.robots.controller import controller_map
 from kincal.spatial import inverse
 
 DIALECTS = ("krl", "rapid", "urscript", "fanuc-ls")
@@ -156,14 +156,14 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
     if cmap.vendor and cmap.vendor != _VENDOR[d]:
         raise KincalError(f"robot {nominal.name!r} has a {cmap.vendor} controller, but the "
                           f"program is {d}")
-    active = [t for t in prog.targets if not t.note and t.used]
+    active = {id(t) for t in prog.targets if not t.note and t.used}
     requests: list[TargetRequest] = []
     tools: list[tuple[Array, Array]] = []
     last_joints: Array | None = None
     for t in prog.targets:
         if t.kind == "joints" and not t.note:
             last_joints = cmap.to_model(t.values(ops.joint_keys))
-        if t not in active:
+        if id(t) not in active:
             continue
         if t.kind == "joints":
             q = cmap.to_model(t.values(ops.joint_keys))
@@ -181,7 +181,7 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
     reports: list[TargetReport] = []
     k = 0
     for t in prog.targets:
-        if t not in active:
+        if id(t) not in active:
             status = "unused" if not t.used else "not filtered"
             if t.note and t.note.startswith(("relative", "used by a relative")):
                 status = "kept"

@@ -257,11 +257,11 @@ def read_rapid(path: str) -> RapidProgram:
         n_targets = 2 if instr in ("movec", "movecdo", "movecsync", "triggc") else 1
         wobj = "wobj0"
         tool = None
-        for off, a in args:
+        for _, a in args:
             w = re.search(r"\\WObj\s*:=\s*([A-Za-z]\w*)", a, re.IGNORECASE)
             if w:
                 wobj = w.group(1).lower()
-        for off, a in args[n_targets:]:
+        for _, a in args[n_targets:]:
             head = re.match(r"\s*([A-Za-z]\w*)", a)
             if head and head.group(1).lower() in tools:
                 tool = head.group(1).lower()

@@ -154,8 +154,10 @@ def read_urscript(path: str) -> UrProgram:
         seen[at] = t
         targets.append(t)
     unique: list[ProgramTarget] = []
+    ids: set[int] = set()
     for t in targets:
-        if all(t is not u for u in unique):
+        if id(t) not in ids:
+            ids.add(id(t))
             unique.append(t)
     return UrProgram({path: text}, unique)
 

@@ -100,7 +100,7 @@ def joint_program(dialect: str, robot: Robot, q: Array, name: str = "calib_poses
         vals = [f"J{j + 1}={v:10.3f} deg" for j, v in enumerate(a)]
         pos += [f"P[{i}]{{", "   GP1:", "\tUF : 0, UT : 0,\t",
                 "\t" + ",\t".join(vals[:3]) + ",", "\t" + ",\t".join(vals[3:]), "};"]
-    lines = [f"/PROG  {nm}", "/ATTR", "OWNER\t\t= MNEDITOR;", f'COMMENT\t\t= "kincal poses";',
+    lines = [f"/PROG  {nm}", "/ATTR", "OWNER\t\t= MNEDITOR;", 'COMMENT\t\t= "kincal poses";',
              f"LINE_COUNT\t= {len(mn)};", "PROTECT\t\t= READ_WRITE;",
              "DEFAULT_GROUP\t= 1,*,*,*,*;", "/MN", *mn, "/POS", *pos, "/END"]
     return "\r\n".join(lines) + "\r\n"
