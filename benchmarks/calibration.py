@@ -328,7 +328,10 @@ def child(n: int) -> None:
     res = calibrate(robot, [block], method="lm")
     seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    rms_mm = float(np.sqrt(np.mean(res.errors()[block.name]["position_m"] ** 2))) * 1e3
+    # position error RMS from the whitened residuals (no (N, 3) array after the fit):
+    # |e_i| = sigma |r_i|, so RMS = sigma sqrt(3 r.r / M)
+    r = res.residuals
+    rms_mm = NOISE_MM * float(np.sqrt(3.0 * (r @ r) / r.size))
     print(json.dumps({"n": n, "seconds": seconds, "cpu_seconds": cpu, "peak_mb": peak,
                       "iterations": res.iterations, "params": len(res.estimated),
                       "rms_mm": rms_mm}))

@@ -103,7 +103,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from kincal.errors import IdentifiabilityError, KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze
@@ -409,19 +408,24 @@ class CalibrationResult:
 
 
 # --------------------------------------------------------------------------- robust weights
-def _robust_weights(r: Array, ids: Array, dims: Array, loss: str, loss_scale: float,
-                    n_fixed: int = 0) -> Array:
+def _robust_weights(r: Array, ids: Array | None, dims: Array | None, loss: str,
+                    loss_scale: float, n_fixed: int = 0) -> Array:
     """Per-residual IRLS weights from per-measurement RMS whitened residuals.
 
     The last ``n_fixed`` residuals (prior rows) always weigh 1 and do not enter the
-    robust scale.
+    robust scale.  For ``loss="linear"`` every weight is 1 and the result is a read-only
+    view (``ids``, ``dims`` are not needed and may be None).
     """
-    if loss == "linear":
-        return np.ones_like(r)
+    if loss == "linear":                  # all ones: a read-only view, no (M,) array
+        return np.broadcast_to(np.float64(1.0), np.shape(r))
+    assert ids is not None and dims is not None
     if n_fixed:
         w = np.ones_like(r)
         w[:-n_fixed] = _robust_weights(r[:-n_fixed], ids, dims, loss, loss_scale)
         return w
+    # imported here: scipy.stats costs ~40 MB of memory, and only robust losses need it
+    from scipy import stats
+
     sq = np.bincount(ids, weights=r * r, minlength=len(dims))
     e = np.sqrt(sq / dims)
     # Gaussian reference: median of sqrt(chi2_d / d)
@@ -592,6 +596,15 @@ def _drop_from_report(report: IdentifiabilityReport, check: IdentifiabilityRepor
         weak={k: v for k, v in report.weak.items() if k not in gone})
 
 
+def _half_weighted_ss(r: Array, w: Array) -> float:
+    """``1/2 sum w r^2`` without an (M,) temporary when the weights are uniform."""
+    if not r.size:
+        return 0.0
+    if w.ndim and w.strides[0] == 0:
+        return 0.5 * float(w[0]) * float(r @ r)
+    return 0.5 * float((w * r) @ r)
+
+
 def _scaled_step(dx: Array, x: Array) -> float:
     return float(np.max(np.abs(dx) / (1.0 + np.abs(x)))) if dx.size else 0.0
 
@@ -608,7 +621,7 @@ class _StageEnd(NamedTuple):
 
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
                loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
-               ids: Array, dims: Array, history: list[IterationRecord],
+               ids: Array | None, dims: Array | None, history: list[IterationRecord],
                progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0,
                start: CompressedSystem | None = None) -> _StageEnd:
     """Iterate one stage to convergence from ``theta`` over the columns ``est``.
@@ -621,18 +634,32 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     at that ``theta``.
     """
     C = start
-    r = prob.residuals(theta) if C is None else C.r
+    r: Array | None = prob.residuals(theta) if C is None or C.r is None else C.r
     w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
+    # With weights that do not depend on the residuals (loss "linear"), the triangle at a
+    # trial point is the next linearisation if the step is taken: it is built with the
+    # trial's residuals in the same pass over the data (no forward kinematics evaluated
+    # twice at the same theta).  The current residuals are dropped while a step is tried
+    # (one residual vector in memory) and evaluated again only on the rare exits that
+    # end the stage at the current point.
+    speculate = loss == "linear"
+
+    def current() -> Array:
+        nonlocal r
+        if r is None:
+            r = prob.residuals(theta)
+        return r
 
     def done(converged: bool, iterations: int, message: str) -> _StageEnd:
-        return _StageEnd(theta, converged, iterations, message, r)
+        return _StageEnd(theta, converged, iterations, message, current())
 
-    def cost_of(res: Array, wt: Array) -> float:
-        return 0.5 * float(np.sum(wt * res * res))
+    cost_of = _half_weighted_ss
 
     def record(it: int, step: float, lam: float) -> None:
-        rec = IterationRecord(label, it, theta.copy(), cost_of(r, w),
-                              float(np.sqrt(np.mean(r * r))) if r.size else 0.0, step, lam)
+        res = current()
+        rec = IterationRecord(label, it, theta.copy(), cost_of(res, w),
+                              float(np.sqrt(res @ res / res.size)) if res.size else 0.0,
+                              step, lam)
         history.append(rec)
         if progress is not None:
             progress(rec)
@@ -642,6 +669,8 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         return done(True, 0, f"stage {label!r}: nothing to estimate")
     lam, nu = -1.0, 2.0
     Dmax = np.zeros(len(est))
+    C_new: CompressedSystem | None = None
+    r_new: Array | None = None
     for it in range(1, max_iter + 1):
         if C is None:
             C = prob.compressed(theta, w, est)
@@ -652,22 +681,24 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         Ds = np.where(Dmax > 0, Dmax, 1.0)
         U, S, Vt = np.linalg.svd(C.R / Ds)
         g = U.T @ C.z
-        cost = cost_of(r, w)
+        cost = cost_of(current(), w)
         if not np.isfinite(cost):
             return done(False, it - 1, f"stage {label!r}: the residuals are not finite")
+        C = r = C_new = r_new = None                        # see `speculate` above
         if method == "gauss-newton":
             keep = S > S[0] * 1e-12
             z = -Vt[keep].T @ (g[keep] / S[keep])
             dx = z / Ds
             new = theta.copy()
             new[est] += dx
-            r_new = prob.residuals(new)
+            C_new = prob.compressed(new, w, est) if speculate else None
+            r_new = prob.residuals(new) if C_new is None else C_new.r
             c_new = cost_of(r_new, w)
             if not np.isfinite(c_new):
                 return done(False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
                                             "(non-finite residuals); try method='lm'"))
             step = _scaled_step(dx, theta[est])
-            theta, r, C = new, r_new, None
+            theta, r, C = new, r_new, C_new
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
             if step <= tol_step:
@@ -685,6 +716,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         # After a very successful step, first try the undamped Gauss-Newton step: in a
         # long curved valley (a weakly determined direction) it saves many iterations.
         try_gn = good
+        first = True
         for _ in range(60):
             lam_k = 0.0 if try_gn else lam
             f = np.where(keep, S / np.where(keep, S2 + lam_k, 1.0), 0.0)
@@ -693,7 +725,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                                                                 g) ** 2))
             new = theta.copy()
             new[est] += dx
-            r_new = prob.residuals(new)
+            # the first trial of an iteration is usually taken: build its triangle now
+            C_new = prob.compressed(new, w, est) if speculate and first else None
+            first = False
+            r_new = prob.residuals(new) if C_new is None else C_new.r
             c_new = cost_of(r_new, w)
             rho = (cost - c_new) / pred if pred > 0 else (0.0 if c_new > cost else 1.0)
             # A failed trial step within tol_step: every further (more damped) one is
@@ -734,7 +769,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             return done(True, it, (f"stage {label!r}: no descent step longer than "
                                    "tol_step (at a minimum)"))
         step = _scaled_step(dx, theta[est])
-        theta, r, C = new, r_new, None
+        theta, r, C = new, r_new, C_new          # C_new: the triangle there, if built
         w_old = w
         w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
@@ -812,9 +847,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     fixed_idx = set(match_names(names, fixed)) if fixed else set()
     cand = [i for i in cand if i not in fixed_idx]
     specs: list[str | Sequence[str]] = list(stages) if stages else ["all"]
-    ids = prob.measurement_ids()
-    dims = np.bincount(ids).astype(float)
-    M = len(ids)
+    M = prob.num_residuals()
+    # measurement ids and sizes only for a robust loss (weights per measurement)
+    ids = prob.measurement_ids() if loss != "linear" else None
+    dims = np.bincount(ids).astype(float) if ids is not None else None
     history: list[IterationRecord] = []
     theta = theta0.copy()
     stage_info: list[tuple[str, list[str]]] = []
@@ -839,7 +875,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     def ended(stage: _StageEnd, columns: Iterable[int]) -> CompressedSystem:
         """The measurements' triangle (robust weights, no prior rows) where ``stage``
         ended, over ``columns``."""
-        return prob.compressed(stage.theta, weights_of(stage.r[:M]), sorted(set(columns)))
+        return prob.compressed(stage.theta, weights_of(stage.r[:M]), sorted(set(columns)),
+                               keep_residuals=False)
 
     all_cand = [[i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
                 for spec in specs]
@@ -854,7 +891,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         # the weighted measurements at the stage's start, compressed to a triangle
         if end_c is None:
             w0 = None if loss == "linear" else weights_of(prob.residuals(start))
-            at_start = prob.compressed(start, w0, stage_cand)
+            at_start = prob.compressed(start, w0, stage_cand, keep_residuals=False)
         else:
             at_start = _columns(end_c, stage_cand)
         report = analyze(at_start.R, [names[i] for i in stage_cand],
@@ -907,7 +944,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     if trust_sigma:
         sigma0 = 1.0
     elif dof > 0:
-        sigma0 = float(np.sqrt(np.sum(w * r * r) / dof))
+        sigma0 = float(np.sqrt(2.0 * _half_weighted_ss(r, w) / dof))
     else:
         sigma0 = 1.0
         messages.append("no redundancy (measurements <= parameters): sigma0 set to 1")
@@ -930,10 +967,11 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             cov = sigma0**2 * inverse_normal_matrix(Jw)
         std[est] = standard_errors(cov)
         corr = correlation(cov)
-    wm = np.ones(len(dims))
-    wm[ids] = w[:M]
     outliers = []
     if loss != "linear":
+        assert ids is not None and dims is not None
+        wm = np.ones(len(dims))
+        wm[ids] = w[:M]
         bnames = prob.block_names
         bi, rows = prob.owners()
         first = np.unique(ids, return_index=True)[1]

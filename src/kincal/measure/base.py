@@ -319,8 +319,9 @@ class StackedProblem:
     def residuals(self, theta: Array) -> Array:
         """Stacked whitened residuals r(theta): (M,)."""
         robot, extras = self.split(theta)
-        return np.concatenate([b.evaluate(robot, e, jacobian=False)[0]
-                               for b, e in zip(self.blocks, extras, strict=True)])
+        parts = [b.evaluate(robot, e, jacobian=False)[0]
+                 for b, e in zip(self.blocks, extras, strict=True)]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def num_residuals(self) -> int:
         """Total number of stacked residuals ``M``."""
@@ -358,8 +359,8 @@ class StackedProblem:
         return r, J
 
     def compressed(self, theta: Array, weights: ArrayLike | None = None,
-                   columns: Sequence[int] | None = None, rows: int = CHUNK_ROWS
-                   ) -> CompressedSystem:
+                   columns: Sequence[int] | None = None, rows: int = CHUNK_ROWS,
+                   keep_residuals: bool = True) -> CompressedSystem:
         """The weighted least-squares problem at ``theta`` compressed to a triangle.
 
         With ``W = diag(weights)`` (default 1) and ``J`` the columns ``columns`` of
@@ -377,6 +378,10 @@ class StackedProblem:
         has the singular values, right singular vectors and column norms of ``W^1/2 J``
         (``analyze(R, ...)`` gives the same report as ``analyze(W^1/2 J, ...)``).
 
+        Uniform weights (a zero-stride array such as ``np.broadcast_to(1.0, M)``) cost
+        nothing.  ``keep_residuals=False`` returns ``r = None`` (memory independent of
+        ``M``; the cost is summed piece by piece).
+
         Returns:
             A :class:`CompressedSystem` (``R``, ``z``, ``rho``, ``r``, ``cost``).
         """
@@ -387,13 +392,17 @@ class StackedProblem:
         w = None if weights is None else np.asarray(weights, dtype=float).reshape(-1)
         if w is not None and w.size != M:
             raise ValueError(f"{w.size} weights for {M} residuals")
+        w0 = 1.0                                    # uniform weights: a factor, not a vector
+        if w is not None and M and w.strides[0] == 0:
+            w0, w = float(w[0]), None
         # where each block's robot / own columns go among the selected ones
         P = self.num_robot
         where = np.full(len(self.names), -1, dtype=np.intp)
         where[cols] = np.arange(p)
         rob_src = np.flatnonzero(where[:P] >= 0)
         rob_dst = where[rob_src]
-        r = np.empty(M)
+        r = np.empty(M) if keep_residuals else None
+        rw2 = 0.0
         # [W^1/2 J | W^1/2 r]^T piece by piece into B (p + 1, n) (row-major, i.e. the
         # piece in LAPACK's column-major order), folded into the triangle by dtpqrt
         T = np.zeros((p + 1, p + 1), order="F")
@@ -417,7 +426,9 @@ class StackedProblem:
                     continue
                 idx = slice(offset + sl.start, offset + sl.stop) if order is None \
                     else offset + sl.start + order
-                r[idx] = rc
+                if r is not None:
+                    r[idx] = rc
+                rw2 += float(rc @ rc) if w is None else float((w[idx] * rc) @ rc)
                 if buf.size < (p + 1) * n:
                     buf = np.empty((p + 1) * n)
                 B = buf[: (p + 1) * n].reshape(p + 1, n)
@@ -430,10 +441,11 @@ class StackedProblem:
                 B[p] = rc
                 if w is not None:
                     B *= np.sqrt(w[idx])
+                elif w0 != 1.0:
+                    B *= np.sqrt(w0)
                 T = _fold(T, B, nb)
             offset += m
-        rw2 = r * r if w is None else w * r * r
-        return CompressedSystem._from_triangle(T, r, 0.5 * float(np.sum(rw2)), cols)
+        return CompressedSystem._from_triangle(T, r, 0.5 * w0 * rw2, cols)
 
     def normal_equations(self, theta: Array, weights: ArrayLike | None = None,
                          columns: Sequence[int] | None = None) -> tuple[Array, Array, float]:
@@ -459,7 +471,7 @@ class CompressedSystem:
         z: (p,) ``Q^T W^1/2 r``: ``R^T z = J^T W r``.
         rho: ``||W^1/2 r||`` outside the range of ``W^1/2 J`` (the residual norm of the
             linearised least-squares solution; ``rho^2 + ||z||^2 = r^T W r``).
-        r: (M,) the unweighted whitened residuals at ``theta``.
+        r: (M,) the unweighted whitened residuals at ``theta`` (None when not kept).
         cost: ``1/2 r^T W r``.
         columns: the indices of ``theta`` the columns of ``R`` stand for.
     """
@@ -467,7 +479,7 @@ class CompressedSystem:
     R: Array
     z: Array
     rho: float
-    r: Array
+    r: Array | None
     cost: float
     columns: NDArray[np.intp]
 
@@ -479,7 +491,7 @@ class CompressedSystem:
         return T
 
     @staticmethod
-    def _from_triangle(T: Array, r: Array, cost: float, columns: NDArray[np.intp]
+    def _from_triangle(T: Array, r: Array | None, cost: float, columns: NDArray[np.intp]
                        ) -> CompressedSystem:
         p = T.shape[1] - 1
         F = np.zeros((p + 1, p + 1))
@@ -507,7 +519,7 @@ class CompressedSystem:
         wx = np.ones(rx.size) if weights is None else np.asarray(weights, float).reshape(-1)
         A = np.concatenate([Jx, rx[:, None]], axis=1) * np.sqrt(wx)[:, None]
         T = np.linalg.qr(np.concatenate([self._triangle(), A]), mode="r")
-        return self._from_triangle(T, np.concatenate([self.r, rx]),
+        return self._from_triangle(T, None if self.r is None else np.concatenate([self.r, rx]),
                                    self.cost + 0.5 * float(np.sum(wx * rx * rx)), self.columns)
 
     def residual_free(self) -> Array:
@@ -612,6 +624,41 @@ def _fold(T: Array, B: Array, nb: int) -> Array:
     if info != 0:                                   # pragma: no cover - LAPACK argument check
         raise RuntimeError(f"dtpqrt failed (info {info})")
     return out
+
+
+class Triangle:
+    """The triangle ``R`` of ``A = Q R`` for rows ``A`` (n, p) that arrive piece by piece.
+
+    ``add(rows)`` folds more rows in (:func:`_fold`); memory ``O(p^2)`` whatever the
+    number of rows, and ``R^T R = A^T A`` at every moment.  With the last columns of
+    ``A`` right-hand sides ``[A_x | B]``, :meth:`solve` gives the minimum-norm least-
+    squares solution of ``A_x X = B`` as :func:`lstsq` does.
+    """
+
+    def __init__(self, p: int) -> None:
+        self.p = int(p)
+        self.R = np.zeros((self.p, self.p), order="F")
+        self.rows = 0
+
+    def add(self, rows: ArrayLike) -> None:
+        """Fold the rows ``rows`` (n, p) into the triangle."""
+        A = np.asfortranarray(rows, dtype=float)
+        if A.ndim != 2 or A.shape[1] != self.p:
+            raise ValueError(f"rows of {self.p} columns expected, got shape {A.shape}")
+        if A.shape[0] == 0:
+            return
+        if A is rows:
+            A = A.copy(order="F")                      # dtpqrt overwrites its input
+        self.R = _fold(self.R, A.T, min(8, self.p))
+        self.rows += A.shape[0]
+
+    def solve(self, nx: int, rcond: float = 1e-10) -> Array:
+        """``X`` (nx, p - nx): the minimum-norm least-squares solution of ``A_x X = B``
+        for ``A = [A_x | B]``; singular values of ``A_x`` below ``rcond`` times the
+        largest are treated as zero."""
+        Ur, S, Vt = np.linalg.svd(self.R[:nx, :nx])
+        keep = S > rcond * (S[0] if S.size else 0.0)
+        return Vt[keep].T @ ((Ur[:, keep].T @ self.R[:nx, nx:]) / S[keep][:, None])
 
 
 def r_factor(A: ArrayLike) -> Array:

@@ -55,10 +55,10 @@ from kincal.measure.base import (
     CHUNK_ROWS,
     MeasurementModel,
     ParamSpec,
+    Triangle,
     frame_matrix,
     frame_rotation_axes,
     frame_values,
-    lstsq,
 )
 from kincal.robots.chain import Robot
 from kincal.spatial import log_so3, skew
@@ -111,6 +111,10 @@ def inverse_left_jacobian_so3(phi: Array) -> Array:
 
 def _sigma(sigma: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
     s = np.asarray(sigma, dtype=float)
+    if s.ndim == 0:                         # one value for all: a read-only view, no copy
+        if not (np.isfinite(s) and s > 0):
+            raise KincalError(f"{what} must be positive and finite")
+        return np.broadcast_to(s, shape)
     try:
         s = np.broadcast_to(s.reshape(s.shape + (1,) * (len(shape) - s.ndim)), shape).copy()
     except ValueError:
@@ -335,9 +339,11 @@ class PositionMeasurement(MeasurementModel):
     def evaluate(self, robot: Robot, extra: Array, jacobian: bool = True
                  ) -> tuple[Array, Array | None, Array | None]:
         extra = np.asarray(extra, dtype=float)
-        if not jacobian:
+        if not jacobian:                      # in place: one (N, K, 3) array
             y = self.predict(robot, extra)
-            return ((y - self._y) / self.sigma[:, :, None]).reshape(-1), None, None
+            y -= self._y
+            y /= self.sigma[:, :, None]
+            return y.reshape(-1), None, None
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 6 + 3 * self.K))
         ws, frames = _Scratch(), self._frames(extra)
@@ -426,37 +432,79 @@ class PositionMeasurement(MeasurementModel):
 
         If the tool orientations do not vary enough to separate ``m`` from ``t``
         the minimum-norm solution is taken (markers near the tool origin).
+
+        One pass over the configurations, in pieces, gathers everything (memory
+        independent of N): the QR triangle of step 1's system; that of step 2's
+        matrix ``[I, -R_e]`` with its right-hand sides ``p_e`` and ``y_b e_a``, since
+        ``p_e - R y = p_e - sum_ab R_ab y_b e_a`` is linear in ``R``; and the weighted
+        moments the Kabsch cross-covariance needs (``sum w y``, ``sum w p_e``,
+        ``sum w R_e``, ``sum w y p_e^T``, ``sum w y_a R_e``), since the registered
+        points ``p_e + R_e m`` are linear in ``m``.  The iterations then cost nothing.
         """
-        T = robot.fk(self.q)
-        Re, pe = T[:, :3, :3], T[:, :3, 3]
         N, K = self.N, self.K
-        y = self._y
-        # (N, K, 3, 12 + 3K) system in [vec_col(A); t; m_1 .. m_K]
-        Mx = np.zeros((N, K, 3, 12 + 3 * K))
         eye = np.eye(3)
-        for j in range(3):
-            Mx[:, :, :, 3 * j: 3 * j + 3] = y[:, :, j, None, None] * eye
-        Mx[:, :, :, 9:12] = eye
-        for k in range(K):
-            Mx[:, k, :, 12 + 3 * k: 15 + 3 * k] = -Re
-        rhs = np.broadcast_to(pe[:, None, :], (N, K, 3))
-        sol = lstsq(Mx.reshape(-1, 12 + 3 * K), rhs.reshape(-1))
+        p1, p2 = 12 + 3 * K, 3 + 3 * K
+        first, second = Triangle(p1 + 1), Triangle(p2 + 10)
+        w_all = 1.0 / self.sigma ** 2                              # (N, K)
+        y0, pe0 = self._y[0, 0].copy(), None
+        S_w = np.zeros(K)
+        S_y, S_pe = np.zeros((K, 3)), np.zeros((K, 3))
+        S_R = np.zeros((K, 3, 3))
+        S_ype, S_yR = np.zeros((K, 3, 3)), np.zeros((K, 3, 3, 3))
+        for cs in _configuration_slices(N, 3 * K, CHUNK_ROWS):
+            T = robot.fk(self.q[cs])
+            Re, pe = T[:, :3, :3], T[:, :3, 3]
+            y = self._y[cs]
+            n = len(pe)
+            # step 1: [vec_col(A); t; m_1 .. m_K | p_e]
+            Mx = np.zeros((n, K, 3, p1 + 1))
+            for j in range(3):
+                Mx[:, :, :, 3 * j: 3 * j + 3] = y[:, :, j, None, None] * eye
+            Mx[:, :, :, 9:12] = eye
+            for k in range(K):
+                Mx[:, k, :, 12 + 3 * k: 15 + 3 * k] = -Re
+            Mx[:, :, :, p1] = pe[:, None, :]
+            first.add(Mx.reshape(-1, p1 + 1))
+            # step 2: [I, -R_e | p_e, y_b e_a (a, b = 0..2)]
+            A = np.zeros((n, K, 3, p2 + 10))
+            A[:, :, :, :3] = eye
+            for k in range(K):
+                A[:, k, :, 3 + 3 * k: 6 + 3 * k] = -Re
+            A[:, :, :, p2] = pe[:, None, :]
+            for a in range(3):
+                A[:, :, a, p2 + 1 + 3 * a: p2 + 4 + 3 * a] = y[:, :, :]
+            second.add(A.reshape(-1, p2 + 10))
+            # Kabsch moments (shifted by one point for accuracy)
+            if pe0 is None:
+                pe0 = pe[0].copy()
+            w = w_all[cs]                                          # (n, K)
+            ys, ps = y - y0, pe - pe0
+            S_w += w.sum(0)
+            S_y += np.einsum("nk,nka->ka", w, ys)
+            S_pe += w.T @ ps
+            S_R += np.einsum("nk,nbc->kbc", w, Re)
+            S_ype += np.einsum("nk,nka,nb->kab", w, ys, ps)
+            S_yR += np.einsum("nk,nka,nbc->kabc", w, ys, Re)
+        sol = first.solve(p1)[:, 0]
         R = project_so3(sol[:9].reshape(3, 3, order="F"))
         m = sol[12:].reshape(K, 3)
         t = sol[9:12]
-        # linear solve for t, m with R fixed: t - R_e m_k = p_e - R y (same A every time)
-        A = np.zeros((N, K, 3, 3 + 3 * K))
-        A[:, :, :, :3] = eye
-        for k in range(K):
-            A[:, k, :, 3 + 3 * k: 6 + 3 * k] = -Re
-        A = A.reshape(-1, 3 + 3 * K)
+        # z-vectors of step 2's right-hand sides: p_e and y_b e_a
+        X = second.solve(p2)                                       # (p2, 10)
+        X_pe, X_y = X[:, 0], X[:, 1:].reshape(p2, 3, 3)            # X_y[:, a, b]
+        W = S_w.sum()
+        assert pe0 is not None
         for _ in range(iterations):
-            b = pe[:, None, :] - y @ R.T
-            sol = lstsq(A, b.reshape(-1))
+            sol = X_pe - np.einsum("pab,ab->p", X_y, R)
             m = sol[3:].reshape(K, 3)
-            world = pe[:, None, :] + np.einsum("nij,kj->nki", Re, m)
-            R_new, t = kabsch(y.reshape(-1, 3), world.reshape(-1, 3),
-                              1.0 / self.sigma.reshape(-1) ** 2)
+            # weighted cross-covariance of y and p_e + R_e m_k (normalised weights)
+            cs_y = S_y.sum(0) / W
+            cs_w = (S_pe.sum(0) + np.einsum("kbc,kc->b", S_R, m)) / W
+            Hc = (S_ype.sum(0) + np.einsum("kabc,kc->ab", S_yR, m)) / W - np.outer(cs_y, cs_w)
+            U, _, Vt = np.linalg.svd(Hc)
+            D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+            R_new = Vt.T @ D @ U.T
+            t = (cs_w + pe0) - R_new @ (cs_y + y0)
             change = np.linalg.norm(R_new - R)
             R = R_new
             if change < 1e-13:
@@ -643,26 +691,36 @@ class PoseMeasurement(MeasurementModel):
         ``[(I kron R_e,i), -(R_obs,i^T kron I)] [vec R_t; vec R_I] = 0``; the right
         singular vector of the smallest singular value, scaled to ``det R_t = 1`` and
         projected onto SO(3).  Translations: ``R_e,i t_t - t_I = R_I p_obs,i - p_e,i``
-        by linear least squares.
+        by linear least squares.  Both systems are reduced to their QR triangles in one
+        pass over the configurations, in pieces (the translations' right-hand side is
+        linear in ``R_I``: its ten columns ``-p_e``, ``p_obs,b e_a`` are carried along).
         """
-        T = robot.fk(self.q)
-        Re, pe = T[:, :3, :3], T[:, :3, 3]
-        Ro, po = self.poses[:, :3, :3], self.poses[:, :3, 3]
         eye = np.eye(3)
-        M = np.concatenate([np.kron(eye[None], Re),
-                            -np.kron(np.swapaxes(Ro, 1, 2), eye[None])], axis=2).reshape(-1, 18)
-        _, _, Vt = np.linalg.svd(np.linalg.qr(M, mode="r"))
+        rot, tra = Triangle(18), Triangle(6 + 10)
+        for cs in _configuration_slices(self.N, 6, CHUNK_ROWS):
+            T = robot.fk(self.q[cs])
+            Re, pe = T[:, :3, :3], T[:, :3, 3]
+            Ro, po = self.poses[cs, :3, :3], self.poses[cs, :3, 3]
+            rot.add(np.concatenate([np.kron(eye[None], Re),
+                                    -np.kron(np.swapaxes(Ro, 1, 2), eye[None])],
+                                   axis=2).reshape(-1, 18))
+            # R_e t_t - t_I = R_I p_obs - p_e: right-hand sides -p_e and p_obs,b e_a
+            B = np.zeros((len(Re), 3, 16))
+            B[:, :, :3] = Re
+            B[:, :, 3:6] = -eye
+            B[:, :, 6] = -pe
+            for a in range(3):
+                B[:, a, 7 + 3 * a: 10 + 3 * a] = po
+            tra.add(B.reshape(-1, 16))
+        _, _, Vt = np.linalg.svd(rot.R)
         v = Vt[-1]
         X = v[:9].reshape(3, 3, order="F")
         Y = v[9:].reshape(3, 3, order="F")
         det = np.linalg.det(X)
         c = np.sign(det) * abs(det) ** (-1.0 / 3.0) if abs(det) > 1e-300 else 1.0
         Rt, RI = project_so3(c * X), project_so3(c * Y)
-        B = np.zeros((len(Re), 3, 6))
-        B[:, :, :3] = Re
-        B[:, :, 3:] = -eye
-        rhs = po @ RI.T - pe
-        sol = lstsq(B.reshape(-1, 6), rhs.reshape(-1))
+        Z = tra.solve(6)                                            # (6, 10)
+        sol = Z[:, 0] + Z[:, 1:] @ RI.reshape(9)
         TI, Tt = np.eye(4), np.eye(4)
         TI[:3, :3], TI[:3, 3] = RI, sol[3:]
         Tt[:3, :3], Tt[:3, 3] = Rt, sol[:3]

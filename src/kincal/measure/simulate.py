@@ -30,6 +30,10 @@ __all__ = ["random_configurations", "perturb_robot", "simulate_positions", "simu
            "instrument_values"]
 
 
+#: Configurations simulated per piece (a performance setting; results do not depend on it).
+_PIECE = 1 << 14
+
+
 def random_configurations(robot: Robot, n: int, rng: np.random.Generator,
                           margin: float = 0.05) -> Array:
     """``n`` configurations drawn uniformly within the joint limits: (n, robot.n).
@@ -50,7 +54,10 @@ def random_configurations(robot: Robot, n: int, rng: np.random.Generator,
     span = lim[:, 1] - lim[:, 0]
     lo = lim[:, 0] + margin * span
     hi = lim[:, 1] - margin * span
-    return lo + (hi - lo) * rng.random((int(n), robot.n))
+    out = rng.random((int(n), robot.n))         # lo + (hi - lo) u, in place
+    out *= hi - lo
+    out += lo
+    return out
 
 
 def perturb_robot(robot: Robot, rng: np.random.Generator, length_std: float = 1e-3,
@@ -132,10 +139,16 @@ def simulate_positions(true_robot: Robot, q: ArrayLike, rng: np.random.Generator
     m = np.zeros((1, 3)) if markers is None else np.asarray(markers, dtype=float)
     single = m.ndim == 1
     m = m.reshape(-1, 3)
-    TI = _instrument(instrument)
-    T = np.linalg.inv(TI) @ true_robot.fk(q)
-    y = np.einsum("nij,kj->nki", T[:, :3, :3], m) + T[:, None, :3, 3]
-    y = y + noise_std * rng.standard_normal(y.shape)
+    left = np.linalg.inv(_instrument(instrument))
+    K = m.shape[0]
+    y = np.empty((len(q), K, 3))
+    # in pieces of configurations (memory independent of N); the noise is drawn piece
+    # by piece along the first axis, the same numbers as one draw of y's shape
+    for start in range(0, len(q), _PIECE):
+        cs = slice(start, min(len(q), start + _PIECE))
+        Y, _, _ = true_robot.point_jacobian(q[cs], m, left, ())
+        y[cs] = Y.transpose(2, 0, 1)
+        y[cs] += noise_std * rng.standard_normal((cs.stop - cs.start, K, 3))
     s = sigma if sigma is not None else (noise_std if noise_std > 0 else 1e-5)
     if single or m.shape[0] == 1:
         return PositionMeasurement(q, y[:, 0], s, name)
