@@ -4,8 +4,10 @@ Run it in the benchmark environment (the peers are never dependencies of kincal)
 
     python -m venv /work/benchvenv
     /work/benchvenv/bin/pip install -e '/work/main[bench]'
-    /work/benchvenv/bin/python benchmarks/ik.py               # 10 000 targets, every solver
-    /work/benchvenv/bin/python benchmarks/ik.py --ikine-n 500 # fewer for the slow ikine_LM
+    /work/benchvenv/bin/python benchmarks/ik.py   # 10 000 targets; RTB on 2 000 and 200
+
+Every solver runs once per round, in turn, for at least five rounds; the table quotes
+the medians (never best-of) and throughputs per target.
 
 The task: N = 10 000 PUMA 560 poses, FK of configurations drawn uniformly inside the
 joint limits (so every target is reachable inside the limits), solved to the same strict
@@ -32,7 +34,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import time
 
@@ -45,6 +46,9 @@ try:
     from kincal.robots.files import load_robot
 except ImportError:  # pragma: no cover - a message instead of a traceback
     sys.exit("kincal is not installed in this environment: pip install -e /path/to/kincal")
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from timing import interleaved, load_average, machine  # noqa: E402
 
 TOL = 1e-9
 RTB_TOL = 0.5 * TOL**2          # E = 0.5 (|e_p|^2 + |e_o|^2) <= 5e-19 => both <= 1e-9
@@ -133,8 +137,11 @@ def table(rows, ref):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10_000, help="targets (default 10 000)")
-    ap.add_argument("--ikine-n", type=int, default=None,
-                    help="targets for the slow Python ikine_LM (default: all)")
+    ap.add_argument("--rtb-n", type=int, default=2_000,
+                    help="targets for RTB's one-call-per-target ik_LM (default 2 000)")
+    ap.add_argument("--ikine-n", type=int, default=200,
+                    help="targets for the slow Python ikine_LM (default 200)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (>= 5)")
     ap.add_argument("--seed", type=int, default=20240601)
     ap.add_argument("--json", default=None, help="write the results as JSON here")
     args = ap.parse_args()
@@ -144,10 +151,10 @@ def main() -> None:
     lim = robot.joint_limits
     T = robot.fk(rng.uniform(lim[:, 0], lim[:, 1], size=(args.n, robot.n)))
     print(f"# IK benchmark: {args.n} PUMA 560 targets, tolerance {TOL:g} m / {TOL:g} rad")
-    print(f"python {platform.python_version()}, numpy {np.__version__}, "
-          f"{os.cpu_count()} CPUs, {platform.machine()}")
+    print(machine())
 
-    rows = [run_kincal(robot, T)]
+    fns = {"kincal": lambda: run_kincal(robot, T),
+           "closed": lambda: run_closed_form(robot, T)}
     try:
         import roboticstoolbox as rtb
     except Exception as exc:                # a message instead of a traceback
@@ -160,18 +167,22 @@ def main() -> None:
         if diff > 1e-12:
             sys.exit(f"RTB and kincal PUMA models differ by {diff:g}")
         print(f"RTB {rtb.__version__}: models agree to {diff:.1e} m")
-        rows.append(run_rtb("ik_LM", rr, robot, T, args.n))
-        rows.append(run_kincal(robot, T))   # again, after the peer: a busy machine hits both
-        rows.append(run_rtb("ikine_LM", rr, robot, T, args.ikine_n or args.n))
-    rows.append(run_closed_form(robot, T))
-    best_kincal = min((r for r in rows if r["solver"].startswith("kincal solve_ik")),
-                      key=lambda r: r["wall_s"])
-    rows = [best_kincal] + [r for r in rows if not r["solver"].startswith("kincal solve_ik")]
-    ref = best_kincal["n"] / best_kincal["wall_s"]
+        fns["ik_LM"] = lambda: run_rtb("ik_LM", rr, robot, T, min(args.rtb_n, args.n))
+        fns["ikine_LM"] = lambda: run_rtb("ikine_LM", rr, robot, T, min(args.ikine_n, args.n))
+    # every solver once per round, the order rotated, medians (timing.interleaved)
+    t = interleaved(fns, rounds=args.rounds, warmup=False)
+    rows = []
+    for k in fns:
+        row = dict(t.results[k])
+        row["wall_s"], row["cpu_s"] = t.median(k), t.median(k, cpu=True)
+        rows.append(row)
+    ref = rows[0]["n"] / rows[0]["wall_s"]
     print()
     print(table(rows, ref))
-    print("\n'kincal / this' = kincal solve_ik throughput / this solver's throughput (wall "
-          "clock); kincal row: best of two runs, before and after RTB ik_LM.")
+    print(f"\n'kincal / this' = kincal solve_ik throughput / this solver's throughput (wall "
+          f"clock, targets per second); times are medians of {args.rounds} interleaved rounds "
+          f"(the RTB solvers on the first --rtb-n / --ikine-n targets). Load after: "
+          f"{load_average()}")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"tolerance": TOL, "n": args.n, "rows": rows}, f, indent=2)

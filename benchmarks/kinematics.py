@@ -5,7 +5,7 @@ Run it in the benchmark environment (the peers are never dependencies of kincal)
     python -m venv /work/benchvenv
     /work/benchvenv/bin/pip install -e '/work/main[bench]'
     /work/benchvenv/bin/python benchmarks/kinematics.py            # N = 1k, 10k, 100k
-    /work/benchvenv/bin/python benchmarks/kinematics.py --quick    # looped peers on 10k max
+    /work/benchvenv/bin/python benchmarks/kinematics.py --loop-cap 0  # looped peers on all N
 
 What is timed, for the same PUMA 560 (all three models are checked to agree first):
 
@@ -18,8 +18,9 @@ What is timed, for the same PUMA 560 (all three models are checked to agree firs
 * pybotics: ``Robot.fk(q)`` and ``Robot.jacobian_world(q)``, one configuration per call
   (no batched API), looped in Python.
 
-Times are the best of several runs, kincal and peer interleaved, so that a busy machine
-penalises both alike; the slow Python-looped peers run once.  ``ratio`` is
+Times are medians of at least five interleaved rounds (every contender once per round, the
+order rotated: a busy moment slows all alike; :mod:`timing`), never best-of; the slow
+Python-looped peers are timed on at most ``--loop-cap`` configurations (extrapolated).  ``ratio`` is
 kincal throughput / peer throughput.  Targets (issue 2): kincal FK >= 3x RTB
 ``ETS.eval`` and Jacobian >= 10x RTB ``ETS.jacob0`` at N = 100 000.
 """
@@ -28,13 +29,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from timing import interleaved, machine  # noqa: E402
 
 try:
     from kincal.robots.dh import dh_links, frame_values, standard_to_modified
@@ -119,29 +121,12 @@ class Row:
         return self.seconds[1] / self.timed_on
 
 
-def _timed(f: Callable[[], object]) -> tuple[float, float]:
-    w, c = time.perf_counter(), time.process_time()
-    f()
-    return time.perf_counter() - w, time.process_time() - c
-
-
-def best_of(fns: dict[str, Callable[[], object]], budget: float, max_rounds: int = 15
+def medians(fns: dict[str, Callable[[], object]], rounds: int
             ) -> dict[str, tuple[float, float]]:
-    """Best wall and CPU time of each function, run in interleaved rounds until ``budget``
-    seconds have passed (at least 3 rounds)."""
-    best = {k: (np.inf, np.inf) for k in fns}
-    start = time.perf_counter()
-    for r in range(max_rounds):
-        for k, f in fns.items():
-            w, c = _timed(f)
-            best[k] = (min(best[k][0], w), min(best[k][1], c))
-        if r >= 2 and time.perf_counter() - start > budget:
-            break
-    return best
-
-
-def once(f: Callable[[], object]) -> tuple[float, float]:
-    return _timed(f)
+    """Median wall and CPU time of each function over ``rounds`` interleaved rounds
+    (:func:`timing.interleaved`: the order rotated each round; never best-of)."""
+    t = interleaved(fns, rounds=rounds)
+    return {k: (t.median(k), t.median(k, cpu=True)) for k in fns}
 
 
 def loop(fn: Callable[[np.ndarray], object], Q: np.ndarray) -> Callable[[], list]:
@@ -153,9 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=list(SIZES),
                     help="batch sizes N (default: 1000 10000 100000)")
-    ap.add_argument("--quick", action="store_true",
-                    help="time Python-looped peers on at most 10 000 configurations "
-                         "(their time per batch is then extrapolated, marked *)")
+    ap.add_argument("--loop-cap", type=int, default=10_000,
+                    help="time Python-looped peers on at most this many configurations "
+                         "(their time per batch is then extrapolated, marked *; 0 = all)")
+    ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (>= 5)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
 
@@ -191,29 +177,32 @@ def main(argv: list[str] | None = None) -> int:
                                                      for i, q in enumerate(Qc))))
 
     rows: list[Row] = []
-    loop_cap = 10_000 if args.quick else None
+    loop_cap = args.loop_cap or None
     for N in args.sizes:
         Q = rng.uniform(lim[:, 0], lim[:, 1], (N, robot.n))
-        budget = 1.0 if N >= 100_000 else 0.5
-        fast = {"kincal fk": lambda Q=Q: robot.fk(Q), "kincal J": lambda Q=Q: robot.jacobian(Q)}
+        M = min(N, loop_cap) if loop_cap else N
+        Qm = Q[:M]
+        # every contender in the same interleaved rounds, so that the ratios compare
+        # times taken under the same load
+        fns = {"kincal fk": lambda Q=Q: robot.fk(Q), "kincal J": lambda Q=Q: robot.jacobian(Q)}
         if rtb:
-            fast["rtb eval"] = lambda Q=Q: ets.eval(Q)
-        t = best_of(fast, budget)
+            fns["rtb eval"] = lambda Q=Q: ets.eval(Q)
+            fns["rtb fkine"] = lambda Qm=Qm: rtb_robot.fkine(Qm)
+            fns["rtb jacob0"] = loop(ets.jacob0, Qm)
+        if pyb:
+            fns["pyb fk"] = loop(prob.fk, Qm)
+            fns["pyb J"] = loop(prob.jacobian_world, Qm)
+        t = medians(fns, args.rounds)
         rows.append(Row("FK", N, "kincal", "Robot.fk(Q)", True, t["kincal fk"], N))
         rows.append(Row("Jacobian", N, "kincal", "Robot.jacobian(Q)", True, t["kincal J"], N))
         if rtb:
             rows.append(Row("FK", N, "RTB", "ETS.eval(Q)", True, t["rtb eval"], N))
-        M = min(N, loop_cap) if loop_cap else N
-        Qm = Q[:M]
-        if rtb:
-            rows.append(Row("FK", N, "RTB", "DHRobot.fkine(Q)", False,
-                            once(lambda Qm=Qm: rtb_robot.fkine(Qm)), M))
-            rows.append(Row("Jacobian", N, "RTB", "ETS.jacob0(q)", False,
-                            once(loop(ets.jacob0, Qm)), M))
+            rows.append(Row("FK", N, "RTB", "DHRobot.fkine(Q)", False, t["rtb fkine"], M))
+            rows.append(Row("Jacobian", N, "RTB", "ETS.jacob0(q)", False, t["rtb jacob0"], M))
         if pyb:
-            rows.append(Row("FK", N, "pybotics", "Robot.fk(q)", False, once(loop(prob.fk, Qm)), M))
+            rows.append(Row("FK", N, "pybotics", "Robot.fk(q)", False, t["pyb fk"], M))
             rows.append(Row("Jacobian", N, "pybotics", "Robot.jacobian_world(q)", False,
-                            once(loop(prob.jacobian_world, Qm)), M))
+                            t["pyb J"], M))
 
     report(rows, agree, rtb is not None, pyb is not None)
     return 0
@@ -225,13 +214,11 @@ def report(rows: list[Row], agree: list[tuple[str, float]], have_rtb: bool,
     from rich.table import Table
 
     console = Console(width=170)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     rtb_v = _version("roboticstoolbox-python") if have_rtb else "-"
     pyb_v = _version("pybotics") if have_pyb else "-"
-    console.print(f"[bold]PUMA 560 kinematics throughput[/bold]: python "
-                  f"{platform.python_version()}, numpy {np.__version__}, kincal "
+    console.print(f"[bold]PUMA 560 kinematics throughput[/bold]: kincal "
                   f"{_version('kincal')}, roboticstoolbox-python {rtb_v}, pybotics {pyb_v}; "
-                  f"{os.cpu_count()} CPUs, load average {load:.2f}")
+                  f"{machine()}")
     if agree:
         t = Table(title="Same computation? max |kincal - peer| over 1000 random configurations "
                   "(DHRobot.fkine: 200)")
@@ -241,7 +228,7 @@ def report(rows: list[Row], agree: list[tuple[str, float]], have_rtb: bool,
             t.add_row(name, f"{d:.2e}")
         console.print(t)
 
-    t = Table(title="Time per batch (best of interleaved runs), throughput, kincal/peer "
+    t = Table(title="Time per batch (median of interleaved rounds), throughput, kincal/peer "
               "ratio (= peer time / kincal time)")
     cols = ("op", "N", "library", "call", "batched", "wall per batch", "configs/s",
             "kincal/peer", "CPU per batch", "kincal/peer CPU")
@@ -261,7 +248,8 @@ def report(rows: list[Row], agree: list[tuple[str, float]], have_rtb: bool,
                   f"{r.cpu_per_config * r.n * 1e3:,.2f} ms{star}", cpu_ratio)
     console.print(t)
     if any(r.timed_on < r.n for r in rows):
-        console.print("* looped peer timed on the first 10 000 configurations, time scaled to N")
+        cap = min(r.timed_on for r in rows)
+        console.print(f"* looped peer timed on the first {cap:,} configurations, time scaled to N")
     console.print("Wall time is what a user waits; CPU time (process time) leaves out the time "
                   "the process was descheduled, which matters on a busy machine.")
 
