@@ -19,7 +19,7 @@ from kincal.errors import KincalError
 #: Command modules in the order their commands appear in ``kincal --help``: the robot
 #: and kinematics commands a new user tries first, then the calibration flow.
 COMMAND_MODULES = ("kinematics", "motion", "simulate", "calibration", "compensate", "demo",
-                   "plan", "export", "fivebar", "filter", "fleet")
+                   "plan", "export", "fivebar", "filter", "importers", "fleet")
 for _module in COMMAND_MODULES:
     importlib.import_module(f"kincal.cli.{_module}")
 

@@ -90,6 +90,7 @@ from kincal.errors import KincalError, RobotFileError
 from kincal.io import atomic_write_text
 from kincal.robots.chain import ChainBuilder, Robot, elementary_matrix
 from kincal.robots.gravity import PointMass
+from kincal.robots.urdf_text import mask_comments, set_origin
 from kincal.spatial import exp_so3, matrix_to_rpy, rotx, roty, rotz
 
 Array = NDArray[np.float64]
@@ -796,25 +797,6 @@ def write_urdf(robot: Robot, path: str | os.PathLike[str], name: str | None = No
     return base, tip
 
 
-def _prolog(text: str) -> str:
-    """Everything before the root element (XML declaration, comments, DOCTYPE)."""
-    i, n = 0, len(text)
-    while i < n:
-        if text[i].isspace():
-            i += 1
-            continue
-        for opening, closing in (("<?", "?>"), ("<!--", "-->"), ("<!", ">")):
-            if text.startswith(opening, i):
-                end = text.find(closing, i)
-                if end < 0:
-                    return text[:i]
-                i = end + len(closing)
-                break
-        else:
-            break
-    return text[:i]
-
-
 def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: Robot,
                           path: str | os.PathLike[str], base_name: str = "calibrated_base",
                           tool_name: str = "calibrated_tool") -> tuple[str, str]:
@@ -827,7 +809,10 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
     (``Rx(rx) Ry(ry) Rz(rz)``, those the joint has), times the folded encoder offset
     ``c``: ``Rot(u, c)`` for a revolute joint, ``Trans(c u)`` for a prismatic one,
     ``u`` the axis ``c`` acts on (so the joint readings ``q`` are unchanged).
-    Everything else in the file (other branches, inertias, meshes, comments) is kept.
+    The file is edited as text (:mod:`kincal.robots.urdf_text`): only the changed numbers of
+    the chain's ``<origin>`` attributes differ, so the calibrated URDF reviews as a
+    minimal diff in version control; everything else (formatting, comments, attribute
+    order, other branches, inertias, meshes) is kept byte for byte.
 
     A non-zero calibrated base frame is written as a new root link ``base_name``
     with a fixed joint to ``base_link`` (which must then be the URDF's root); a
@@ -856,7 +841,10 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
         raise RobotFileError(f"robot {robot.name!r} does not match the chain {base} -> {tip} "
                              "of this file (different nominal origins or axes)", source=source)
     v = robot.params()
-    elems = {e.get("name"): e for e in root if e.tag == "joint"}
+    try:        # the bytes as they are (CRLF, BOM): the output differs only where it must
+        out_text = Path(original_urdf).read_bytes().decode("utf-8")
+    except (OSError, UnicodeDecodeError):
+        out_text = text
     for j in chain:
         pre = f"{j.name}.origin."
         T = np.eye(4)
@@ -874,29 +862,23 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
             else:
                 F[:3, :3] = exp_so3(np.asarray(u, dtype=float) * c)
             T = T @ F
-        je = elems[j.name]
-        origin = je.find("origin")
-        if origin is None:
-            origin = ET.Element("origin")
-            origin.tail = je.text
-            je.insert(0, origin)
-        origin.attrib.update(_origin_attrs(T))
+        xyz, rpy = T[:3, 3], rpy_of(T[:3, :3])
+        if np.allclose(xyz, j.xyz, rtol=0, atol=0) and np.allclose(rpy, j.rpy, rtol=0, atol=0):
+            continue                        # untouched: not a byte of it changes
+        out_text = set_origin(out_text, j.name, xyz, rpy, _fmt)
     links = set(model.links)
     joint_names = set(model.joints)
     out_base, out_tip = base, tip
-    indent = (root.text or "\n  ")
-    added: list[ET.Element] = []
+    added: list[str] = []
 
     def frame_joint(prefix: str, parent: str, child: str, xyzrpy: Array) -> None:
         T = np.eye(4)
         for kind, val in zip(("Tx", "Ty", "Tz", "Rz", "Ry", "Rx"), xyzrpy, strict=True):
             T = T @ elementary_matrix(kind, val)
-        je = ET.Element("joint", {"name": _unique(f"{prefix}_joint", joint_names),
-                                  "type": "fixed"})
-        for sub in (ET.Element("origin", _origin_attrs(T)),
-                    ET.Element("parent", {"link": parent}), ET.Element("child", {"link": child})):
-            je.append(sub)
-        added.append(je)
+        a = _origin_attrs(T)
+        added.append(f'  <joint name="{_unique(f"{prefix}_joint", joint_names)}" type="fixed">\n'
+                     f'    <origin xyz="{a["xyz"]}" rpy="{a["rpy"]}"/>\n'
+                     f'    <parent link="{parent}"/>\n    <child link="{child}"/>\n  </joint>')
 
     base_vals = np.array([v[f"base.{k}"] for k in ("x", "y", "z", "rz", "ry", "rx")])
     tool_vals = np.array([v[f"tool.{k}"] for k in ("x", "y", "z", "rz", "ry", "rx")])
@@ -905,18 +887,17 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
             raise RobotFileError(f"cannot write the calibrated base frame: base link {base!r} "
                                  f"has parent joint {model.parent_joint[base]!r}", source=source)
         out_base = _unique(base_name, links)
-        added.append(ET.Element("link", {"name": out_base}))
+        added.append(f'  <link name="{out_base}"/>  <!-- calibrated by kincal: base frame -->')
         frame_joint(out_base, out_base, base, base_vals)
     if np.any(tool_vals != 0.0):
         out_tip = _unique(tool_name, links)
-        added.append(ET.Element("link", {"name": out_tip}))
+        added.append(f'  <link name="{out_tip}"/>  <!-- calibrated by kincal: tool frame -->')
         frame_joint(out_tip, tip, out_tip, tool_vals)
-    note = ET.Comment(f" calibrated by kincal: <origin> of the joints from {base} to {tip} "
-                      "rewritten, encoder offsets folded in ")
-    for k, e in enumerate([note, *added]):
-        ET.indent(e, space="  ", level=1)
-        e.tail = indent
-        root.insert(k, e)
-    body = ET.tostring(root, encoding="unicode")
-    atomic_write_text(path, _prolog(text) + body + "\n")
+    if added:
+        masked = mask_comments(out_text)
+        close = masked.rfind("</robot>")
+        newline = "\r\n" if "\r\n" in out_text else "\n"
+        block = newline.join("\n".join(added).split("\n")) + newline
+        out_text = out_text[:close] + block + out_text[close:]
+    atomic_write_text(path, out_text)
     return out_base, out_tip
