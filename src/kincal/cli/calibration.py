@@ -314,6 +314,10 @@ def validate_cmd(
                                                 "(e.g. the nominal one) the same way, for a "
                                                 "before/after table.")] = None,
     joint_model: JointModelOpt = None,
+    iso9283: Annotated[bool, typer.Option("--iso9283", help="Also the ISO 9283 figures per "
+                                          "position: pose accuracy AP, repeatability RP, "
+                                          "distance accuracy AD (P2-P4). Rows at the same "
+                                          "joint values are one position.")] = False,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
 ) -> None:
@@ -358,9 +362,62 @@ def validate_cmd(
                           *(scaled(m.get(f"{s}_{key}"), f) for s in ("rms", "mean", "max")))
         out.print(t)
     out.print(f"[dim]protocol: {escape(comps[0].note)}[/dim]")
+    iso_doc = _iso9283(out, r, before, blocks, extras) if iso9283 else None
     if json_out:
         overall = error_metrics(merge_errors([c.after for c in comps]))
         doc: dict[str, Any] = {"robot": r.name, "overall": overall, "files": files}
+        if iso_doc is not None:
+            doc["iso9283"] = iso_doc
         if before is not None:
             doc["overall_before"] = error_metrics(merge_errors([c.before for c in comps]))
         write_json(json_out, doc)
+
+
+def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dict[str, Any]:
+    """Print and return the ISO 9283 figures of every position block, before and after."""
+    import math
+
+    from kincal.identify.iso9283 import block_figures, group_positions
+    from kincal.identify.validation import validate
+    from kincal.measure.models import PositionMeasurement
+    from kincal.workflow.flow import block_values, reregister
+
+    doc: dict[str, Any] = {}
+    for b in blocks:
+        if not isinstance(b, PositionMeasurement):
+            continue
+        labels = group_positions(b.q)
+
+        def figures(rob: Any, b: Any = b, labels: list[str] = labels) -> Any:
+            e = (block_values(validate(rob, [b], extras=dict(extras))["extras"][b.name], b)
+                 if extras else reregister(rob, b, None, None))
+            return block_figures(rob, b, e, labels)
+
+        after, dist_a = figures(robot)
+        bef, dist_b = figures(before) if before is not None else (None, None)
+        name = Path(getattr(b, "source_path", b.name)).name
+        t = Table(title=f"ISO 9283 on {escape(name)} ({escape(robot.name)}"
+                        + (f", before: {escape(before.name)})" if before is not None else ")"))
+        cols = ["position", "cycles"] + (["AP before [mm]"] if bef else []) + \
+            ["AP [mm]", "RP [mm]"]
+        for c in cols:
+            t.add_column(escape(c), justify="left" if c == "position" else "right")
+        for k, f in enumerate(after):
+            row = [f.name, str(f.n)] + ([f"{bef[k].AP * 1e3:.4f}"] if bef else []) + \
+                [f"{f.AP * 1e3:.4f}", f"{f.RP * 1e3:.4f}"]
+            t.add_row(*row)
+        out.print(t)
+        entry: dict[str, Any] = {"after": [f.to_dict() for f in after]}
+        if bef:
+            entry["before"] = [f.to_dict() for f in bef]
+        for label, dist in (("before", dist_b), ("after", dist_a)):
+            if dist is not None:
+                entry[f"distance_P2_P4_{label}"] = dist
+                if label == "after" or dist_a is None:
+                    ad = dist.get("AD_m", math.nan) * 1e3
+                    out.print(f"distance P2-P4 ({label}): AD {ad:.4f} mm, "
+                              f"RD {dist['RD_m'] * 1e3:.4f} mm")
+        doc[name] = entry
+    if not doc:
+        raise KincalError("--iso9283 needs position measurements (x, y, z columns)")
+    return doc
