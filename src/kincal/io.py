@@ -24,8 +24,6 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from kincal.errors import KincalError
 
 _UMASK_LOCK = threading.Lock()
@@ -145,6 +143,8 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
 
 
 def _jsonable(obj: Any) -> Any:
+    import numpy as np
+
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
@@ -161,8 +161,12 @@ def json_text(data: Any) -> str:
 
 def _finite(obj: Any) -> Any:
     """NaN / inf -> None, so that the JSON is standard (``NaN`` is not JSON)."""
+    import math
+
+    import numpy as np
+
     if isinstance(obj, float):
-        return obj if np.isfinite(obj) else None
+        return obj if math.isfinite(obj) else None
     if isinstance(obj, np.ndarray) and obj.dtype.kind == "f":
         return [_finite(v) for v in obj.tolist()]
     if isinstance(obj, np.floating):

@@ -11,23 +11,59 @@ Layer rule: the top layer; it may import every other layer, and nothing imports 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
+
+import typer
 
 from kincal.cli.app import app
 from kincal.errors import KincalError
 
 #: Command modules in the order their commands appear in ``kincal --help``: the robot
 #: and kinematics commands a new user tries first, then the calibration flow.
-COMMAND_MODULES = ("kinematics", "motion", "simulate", "calibration", "compensate", "demo",
-                   "plan", "export", "fivebar", "filter", "importers", "fleet")
+COMMAND_MODULES = ("kinematics", "motion", "simulate", "calibration", "setupfile",
+                   "compensate", "demo", "plan", "export", "fivebar", "filter", "importers",
+                   "fleet")
 for _module in COMMAND_MODULES:
     importlib.import_module(f"kincal.cli.{_module}")
 
 
+def _one_command(argv: list[str]) -> typer.Typer:
+    """The application holding only the command ``argv`` names (fast start: typer builds
+    the options of that command only); the whole application for anything else."""
+    name = argv[0] if argv and not argv[0].startswith("-") else None
+    for info in app.registered_commands:
+        if info.callback is None:
+            continue
+        if (info.name or info.callback.__name__.lower().replace("_", "-")) == name:
+            single = typer.Typer(**{k: getattr(app.info, k) for k in ("name", "help")},
+                                 no_args_is_help=True, add_completion=False,
+                                 pretty_exceptions_enable=False, rich_markup_mode=None)
+            single.registered_callback = app.registered_callback
+            single.registered_commands = [info]
+            return single
+    return app
+
+
 def main() -> None:
-    """Entry point of the ``kincal`` console script."""
+    """Entry point of the ``kincal`` console script: one line on stderr and exit code 2
+    for bad input (1 for a result that failed its checks), never a traceback."""
     try:
-        app()
+        _one_command(sys.argv[1:])(prog_name="kincal")
     except KincalError as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except OSError as exc:                      # the system refused: a file, a folder, a disk
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"error: {where}{exc.strerror or exc}", file=sys.stderr)
+        sys.exit(2)
+    except Exception as exc:                    # a bug: one line, the traceback on request
+        if os.environ.get("KINCAL_DEBUG"):
+            raise
+        print(f"error: internal error in kincal ({type(exc).__name__}: "
+              f"{str(exc).splitlines()[0] if str(exc) else 'no message'}); please report it "
+              "with the command line (KINCAL_DEBUG=1 shows the traceback)", file=sys.stderr)
+        sys.exit(3)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import typer
 
 app = typer.Typer(
@@ -13,3 +15,20 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
+
+
+def _version(value: bool) -> None:
+    if value:
+        from kincal._version import __version__
+
+        print(f"kincal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def kincal(
+    version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                          help="Print the version and exit.")] = False,
+) -> None:
+    """Kinematic calibration of robot manipulators: robots, kinematics, measurements,
+    identification, compensation. `kincal COMMAND --help` for each command."""

@@ -59,19 +59,6 @@ from kincal.cli.setupfile import (
 )
 from kincal.errors import CheckFailedError, KincalError
 from kincal.io import check_outputs
-from kincal.measure.joints.terms import parse_joint_model, with_joint_model
-from kincal.workflow.flow import (
-    check_flow_options,
-    check_options_used,
-    extras_from_result,
-    parse_selection,
-    parse_stages,
-    run_flow,
-    truth_values,
-    validate_blocks,
-    write_outputs,
-)
-from kincal.workflow.session import read_session
 
 
 @app.command()
@@ -87,6 +74,7 @@ def identifiability(
     from kincal.identify.identifiability import analyze
     from kincal.io import write_json
     from kincal.measure.base import stack
+    from kincal.workflow.flow import check_options_used, parse_selection
 
     out = out_console(json_out)
     r = serial(load(robot, base_link, tip_link), "identifiability")
@@ -213,6 +201,15 @@ def calibrate_cmd(
     --procedure patent follows the cross-bar patent: angles (joint offsets, twists), then
     lengths, with an optional condition-number data selection; the JSON and report add its
     record and a comparison with one-stage Levenberg-Marquardt on the same data."""
+    from kincal.workflow.flow import (
+        check_flow_options,
+        parse_stages,
+        run_flow,
+        truth_values,
+        write_outputs,
+    )
+    from kincal.workflow.session import read_session
+
     out = out_console(json_out)
     robot = require_robot(robot, "calibrate")
     if not data:
@@ -327,7 +324,9 @@ def validate_cmd(
     Without --result each file's instrument parameters (frame and marker) are re-registered
     to the robot: they absorb a little of any robot error."""
     from kincal.io import write_json
+    from kincal.measure.joints.terms import parse_joint_model, with_joint_model
     from kincal.report.metrics import error_keys, error_metrics, merge_errors, quantity
+    from kincal.workflow.flow import check_options_used, extras_from_result, validate_blocks
 
     out = out_console(json_out)
     r = serial(load(robot, base_link, tip_link), "validate")

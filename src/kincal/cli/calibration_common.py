@@ -38,8 +38,8 @@ OptionalDataOpt = Annotated[list[str] | None, typer.Option(
     "several instruments / sessions; each file is one block with its own instrument "
     "frame).")]
 OptionalRobotArg = Annotated[str | None, typer.Argument(
-    help="Built-in robot name (see `kincal robots`), or a path to a YAML robot file or a "
-    "URDF file (or robot: in the --config setup file).", show_default=False)]
+    metavar="ROBOT", help="Built-in robot name (see `kincal robots`), or a path to a YAML "
+    "robot file or a URDF file (or robot: in the --config setup file).", show_default=False)]
 UnitsOpt = Annotated[str | None, typer.Option(
     "--units", help="Units of columns whose header has none, e.g. "
     "'x1=m,y1=m,z1=m,arm_1_joint=rad'; keys may use * and ? ('x?=m').")]

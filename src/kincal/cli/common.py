@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import KincalError
-from kincal.workflow.robots import load_any_robot
+
+if TYPE_CHECKING:
+    import numpy as np
 
 #: Options shared by every command that takes a robot or writes JSON.
-RobotArg = Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
-                                         "path to a YAML robot file or a URDF file.")]
+RobotArg = Annotated[str, typer.Argument(metavar="ROBOT", help="Built-in robot name (see "
+                                         "`kincal robots`), or a path to a YAML robot file "
+                                         "or a URDF file.")]
 BaseLink = Annotated[str | None, typer.Option("--base-link", help="URDF only: first link of "
                                               "the chain (default: the URDF root).")]
 TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link of the "
@@ -29,6 +31,8 @@ err_console = Console(stderr=True)
 
 def parse_vector(text: str, option: str, length: int | None = None) -> np.ndarray:
     """Parse ``"1, 2.5, -3"`` into a float array; one-line error naming the option."""
+    import numpy as np
+
     parts = [p for p in text.replace(";", ",").split(",") if p.strip()]
     try:
         v = np.array([float(p) for p in parts])
@@ -53,11 +57,15 @@ def _is_float(s: str) -> bool:
 
 def robot_arg(spec: str, base_link: str | None = None, tip_link: str | None = None) -> Any:
     """Load ROBOT (library name, YAML or URDF path) for a command."""
+    from kincal.workflow.robots import load_any_robot
+
     return load_any_robot(spec, base_link=base_link, tip_link=tip_link)
 
 
 def joint_vector(robot: Any, text: str, deg: bool, option: str = "--q") -> np.ndarray:
     """Joint values from the command line; ``--deg`` converts revolute joints only."""
+    import numpy as np
+
     q = parse_vector(text, option, robot.n)
     if deg:
         rev = np.array([j.kind == "revolute" for j in robot.joints])

@@ -12,9 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.markup import escape
 
@@ -34,6 +33,9 @@ from kincal.cli.calibration_common import (
 )
 from kincal.errors import KincalError, MeasurementFileError
 
+if TYPE_CHECKING:
+    import numpy as np
+
 
 def _target_fields() -> tuple[Any, ...]:
     from kincal.measure.files import Field
@@ -46,6 +48,8 @@ def read_targets(path: str, robot: Any, units: str | None, ignore: Sequence[str]
                  ) -> tuple[np.ndarray, np.ndarray | None, Any]:
     """Targets (N, 4, 4) poses or (N, 3) positions [m], optional joint seeds (N, n)
     [rad / m], and the parsed table (for line numbers in messages)."""
+    import numpy as np
+
     from kincal.measure.files import (
         parse_list_option,
         parse_units_option,
@@ -76,8 +80,8 @@ def read_targets(path: str, robot: Any, units: str | None, ignore: Sequence[str]
 
 @app.command("compensate")
 def compensate_cmd(
-    calibrated: Annotated[str, typer.Argument(help="The calibrated robot file (from `kincal "
-                                              "calibrate -o`).")],
+    calibrated: Annotated[str, typer.Argument(
+        metavar="CALIBRATED", help="The calibrated robot file (from `kincal calibrate -o`).")],
     targets: Annotated[str, typer.Option("--targets", "-t", help="Target CSV: x, y, z (and rx, "
                                          "ry, rz roll-pitch-yaw) with units; optional joint "
                                          "columns seed the IK.")],
@@ -95,6 +99,8 @@ def compensate_cmd(
 ) -> None:
     """Joint commands that put the calibrated (real) robot on the targets, and filtered
     targets for a controller that only knows the nominal model."""
+    import numpy as np
+
     from kincal.compensation.compensate import compensate, require_all
     from kincal.io import atomic_write_text, write_json
     from kincal.measure.files import format_table, joint_columns

@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.markup import escape
 
@@ -34,6 +33,8 @@ def demo(
 ) -> None:
     """A complete calibration in ~10 s: PUMA 560 measured by a simulated laser tracker,
     calibrated, validated on held-out poses; writes the report into ./kincal-demo/."""
+    import numpy as np
+
     from kincal.io import atomic_write_text
     from kincal.measure.registry import get_instrument, simulate_measurements, write_measurements
     from kincal.measure.simulate import perturb_robot

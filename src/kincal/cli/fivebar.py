@@ -9,7 +9,6 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -17,6 +16,9 @@ from rich.table import Table
 
 from kincal.cli.app import app
 from kincal.errors import KincalError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 if TYPE_CHECKING:
     from kincal.parallel.calibration import FiveBarCalibration
@@ -55,6 +57,7 @@ def _write_json(path: str, data: Any) -> None:
 
 
 def _config_json(robot: FiveBar, q: np.ndarray, x: np.ndarray) -> dict[str, Any]:
+    import numpy as np
     sigma, mode = robot.configuration_signs(q, x)
     meas = robot.singularity_measures(q, x)
     j1, j2 = robot.elbows(q)
@@ -111,6 +114,8 @@ def show_fivebar(robot: FiveBar, console: Console) -> None:
 
 def fk_fivebar(robot: FiveBar, q: np.ndarray, json_path: str | None) -> None:
     """Direct kinematics of one reading pair q [rad] (default assembly); print and/or JSON."""
+    import numpy as np
+
     q = np.asarray(q, dtype=float)
     if q.shape != (2,):
         raise KincalError(f"option --q: a five-bar needs 2 readings, got {q.size}")
@@ -131,6 +136,8 @@ def ik_fivebar(
     robot: FiveBar, position: np.ndarray, mode: str | None, json_path: str | None
 ) -> None:
     """Inverse kinematics of J3 = position [m] in a working mode (``all``: the four)."""
+    import numpy as np
+
     x = np.asarray(position, dtype=float)
     if x.shape != (2,):
         raise KincalError(f"option --position: a five-bar needs x,y, got {x.size} values")
@@ -330,6 +337,8 @@ def fivebar_simulate(
     q2_range: Annotated[str | None, typer.Option(help="min,max of beta2 [deg].")] = None,
 ) -> None:
     """Simulate a five-bar measurement file (readings in deg, points in mm) from a true robot."""
+    import numpy as np
+
     from kincal.parallel.data import write_fivebar_csv
     from kincal.parallel.thesis import simulate
 

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, Any
 
-import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
@@ -23,9 +22,6 @@ from kincal.cli.common import (
     robot_arg,
 )
 from kincal.io import write_json
-from kincal.robots.chain import Robot
-from kincal.robots.files import library_names
-from kincal.workflow.robots import load_any_robot
 
 QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: rad for revolute, "
                                    "m for prismatic joints (see --deg).")]
@@ -40,6 +36,9 @@ def _is_fivebar(robot: object) -> bool:
 @app.command()
 def robots() -> None:
     """List the built-in robots (`kincal show NAME` gives the parameters and their source)."""
+    from kincal.robots.files import library_names
+    from kincal.workflow.robots import load_any_robot
+
     t = Table(title="Built-in robots (use the name wherever ROBOT is asked)")
     for c in ("name", "joints", "convention", "description"):
         t.add_column(c, overflow="fold")
@@ -56,7 +55,7 @@ def robots() -> None:
     console.print(t)
 
 
-def _print_robot(r: Robot) -> None:
+def _print_robot(r: Any) -> None:
     """Joint table, parameter table (mm / deg for people) and the source of the numbers."""
     jt = Table(title=f"{r.name}: {r.n} joints ({r.meta.get('convention', '')})")
     for c in ("#", "joint", "type", "lower", "upper"):
@@ -105,6 +104,8 @@ def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
 def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, base_link: BaseLink = None,
        tip_link: TipLink = None, json_out: JsonOut = None) -> None:
     """Forward kinematics: the tool pose T(q) in the base frame (metres)."""
+    import numpy as np
+
     r = robot_arg(robot, base_link, tip_link)
     if _is_fivebar(r):
         from kincal.cli.fivebar import fk_fivebar
@@ -130,6 +131,8 @@ def jacobian(robot: RobotArg, q: QOpt, deg: DegOpt = False,
              base_link: BaseLink = None, tip_link: TipLink = None,
              json_out: JsonOut = None) -> None:
     """Geometric Jacobian: rows vx vy vz [m/s per unit] and wx wy wz [rad/s per unit]."""
+    import numpy as np
+
     r = robot_arg(robot, base_link, tip_link)
     J = r.jacobian(joint_vector(r, q, deg), frame=frame)  # type: ignore[arg-type]
     if json_out != "-":

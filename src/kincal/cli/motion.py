@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
@@ -15,6 +14,9 @@ from kincal.cli.app import app
 from kincal.cli.common import JsonOut, RobotArg, console, joint_vector, parse_vector, robot_arg
 from kincal.errors import KincalError, UnreachableError
 from kincal.io import write_json
+
+if TYPE_CHECKING:
+    import numpy as np
 
 DegOpt = Annotated[bool, typer.Option("--deg", help="Angles on the command line and in the "
                                       "printout are in degrees (lengths stay in metres).")]
@@ -27,6 +29,8 @@ def _fmt_joint(value: float, unit: str, deg: bool) -> str:
 
 
 def _pose_from_option(text: str, deg: bool) -> np.ndarray:
+    import numpy as np
+
     from kincal.spatial import xyzrpy_to_matrix
 
     v = parse_vector(text, "--pose", 6)
@@ -75,6 +79,8 @@ def ik(robot: RobotArg,
     itself (metres, radians), checks the answer by forward kinematics, and exits with
     code 2 and a one-line reason when the target cannot be reached.
     """
+    import numpy as np
+
     r = robot_arg(robot)
     if type(r).__name__ == "FiveBar":
         if position is None:
@@ -200,6 +206,8 @@ def trajectory(robot: RobotArg,
     the slowest joint), or a C2 spline through --via points.  Cartesian: a straight
     line or a circular arc with slerp orientation, joints from batched IK.
     """
+    import numpy as np
+
     from kincal.motion import trajectory as tj
 
     r = robot_arg(robot)
@@ -333,6 +341,8 @@ def clik_command(
 
 
 def _clik_summary(results: list[Any], out: Path) -> dict[str, Any]:
+    import numpy as np
+
     from kincal.motion.clik import SEED003_P_F, SEED003_P_I, SEED003_QF, seed003_robot
 
     robot = seed003_robot()

@@ -19,9 +19,8 @@ import html
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
@@ -29,6 +28,9 @@ from rich.table import Table
 from kincal.cli.app import app
 from kincal.cli.common import console, err_console, parse_vector, robot_arg
 from kincal.errors import KincalError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["plan", "Plan", "build_plan", "render_plan_html"]
 
@@ -86,6 +88,8 @@ def build_plan(robot: Any, *, instrument: str = "position", poses: int = 30,
                min_distance: float = 0.0, margin: float = 0.05, grid: int = 3,
                exchange: bool = True, seed: int = 0, progress: Any = None) -> Plan:
     """Candidates -> design problem -> selection -> prediction, with a random baseline."""
+    import numpy as np
+
     from kincal.identify.design import (
         instrument_candidates,
         random_candidates,
@@ -166,6 +170,8 @@ def _fmt_std(value: float, unit: str) -> str:
 
 
 def _indices_table(plan: Plan) -> Table:
+    import numpy as np
+
     from kincal.identify.observability import INDICES
 
     t = Table(title=f"Observability indices ({plan.problem.scaling} scaling): design vs "
@@ -206,6 +212,8 @@ def _param_table(plan: Plan) -> Table:
 
 def render_plan_html(plan: Plan) -> str:
     """A self-contained HTML page: inputs, indices, prediction, figure, the poses."""
+    import numpy as np
+
     from kincal.identify.observability import INDICES
     from kincal.identify.prediction import prediction_figure
 
@@ -367,6 +375,8 @@ def plan(
 ) -> None:
     """Choose calibration poses by an observability index (O1-O5, kappa) and predict the
     accuracy after calibration before measuring anything."""
+    import numpy as np
+
     from kincal.identify.design import write_poses
     from kincal.io import atomic_write_text, write_json
     from kincal.units import UNITS

@@ -14,7 +14,6 @@ import re
 from collections.abc import Sequence
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
@@ -216,6 +215,8 @@ def simulate(
 
     Artifact instruments (cross-bar, ball-bar, two-socket) seat a probe in the sockets
     of the artifact by IK on the true robot and record noisy joint readings."""
+    import numpy as np
+
     from kincal.io import write_json
     from kincal.measure.registry import (
         accepts,

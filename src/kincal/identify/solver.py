@@ -103,6 +103,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import gammaincinv
 
 from kincal.errors import IdentifiabilityError, KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze
@@ -423,13 +424,11 @@ def _robust_weights(r: Array, ids: Array | None, dims: Array | None, loss: str,
         w = np.ones_like(r)
         w[:-n_fixed] = _robust_weights(r[:-n_fixed], ids, dims, loss, loss_scale)
         return w
-    # imported here: scipy.stats costs ~40 MB of memory, and only robust losses need it
-    from scipy import stats
-
     sq = np.bincount(ids, weights=r * r, minlength=len(dims))
     e = np.sqrt(sq / dims)
-    # Gaussian reference: median of sqrt(chi2_d / d)
-    ref = np.sqrt(stats.chi2.ppf(0.5, dims) / dims)
+    # Gaussian reference: median of sqrt(chi2_d / d); the chi-square median with d degrees
+    # of freedom is 2 P^-1(d/2, 1/2) (P the regularised lower incomplete gamma function)
+    ref = np.sqrt(2.0 * gammaincinv(dims / 2.0, 0.5) / dims)
     s = float(np.median(e / ref))
     if not np.isfinite(s) or s <= 0:
         return np.ones_like(r)

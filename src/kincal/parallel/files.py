@@ -27,7 +27,14 @@ import yaml
 from kincal.errors import RobotFileError
 from kincal.io import atomic_write_text
 from kincal.parallel.fivebar import FiveBar
-from kincal.robots.files import ANGLE_UNITS, LENGTH_UNITS, FieldReader, library_dir, read_units
+from kincal.robots.files import (
+    ANGLE_UNITS,
+    LENGTH_UNITS,
+    FieldReader,
+    library_dir,
+    read_units,
+    yaml_load,
+)
 
 _TOP_KEYS = {
     "kind",
@@ -192,7 +199,7 @@ def read_fivebar(path: str | Path) -> FiveBar:
     """Read and validate a five-bar YAML file."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = yaml_load(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise RobotFileError(f"cannot read: {exc.strerror}", source=str(path)) from None
     except yaml.YAMLError as exc:

@@ -10,11 +10,13 @@ alike.  It lives above both layers because only here may both be imported.
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
-from kincal.parallel.files import load_fivebar
-from kincal.parallel.fivebar import FiveBar
-from kincal.robots.chain import Robot
 from kincal.robots.files import load_robot, robot_kind
+
+if TYPE_CHECKING:
+    from kincal.parallel.fivebar import FiveBar
+    from kincal.robots.chain import Robot
 
 __all__ = ["load_any_robot"]
 
@@ -29,5 +31,7 @@ def load_any_robot(spec: str | os.PathLike[str], base_link: str | None = None,
         base_link, tip_link: for URDF files, the chain's first and last links.
     """
     if robot_kind(spec) == "fivebar":
+        from kincal.parallel.files import load_fivebar  # only for five-bars: fast start
+
         return load_fivebar(spec)
     return load_robot(spec, base_link=base_link, tip_link=tip_link)
