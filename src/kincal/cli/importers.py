@@ -14,7 +14,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.markup import escape
 
@@ -32,6 +31,8 @@ NominalOpt = Annotated[str, typer.Option("--nominal", help="The built-in UR the 
 
 
 def _round_trip_report(out, robot, nominal, text: str) -> float:
+    import numpy as np
+
     from kincal.robots.ur import check_round_trip
 
     q = np.random.default_rng(0).uniform(-np.pi, np.pi, (200, robot.n))
@@ -55,6 +56,8 @@ def import_ur(
 ) -> None:
     """Read a UR controller's calibration (calibration.conf) or a ROS kinematics YAML as a
     kincal robot file."""
+    import numpy as np
+
     from kincal.io import atomic_write_text
     from kincal.robots.files import robot_yaml_text
     from kincal.robots.ur import kinematics_yaml, read_calibration_conf, read_kinematics_yaml
