@@ -185,27 +185,41 @@ def test_moved_instrument_is_flagged_and_reregistered(flow, capsys, tmp_path):
 
 
 def test_calibrate_with_a_prior(flow, capsys, tmp_path):
-    """--prior PATTERN=SIGMA_WITH_UNIT: SI standard deviations in the JSON, a column in
-    the summary, the data's estimated set, and the values applied in their unit."""
+    """The default estimate is MAP with the role tolerances; --prior entries override
+    them (SI standard deviations in the JSON, a column in the table, applied in their
+    unit); the prior does not change the estimated set; --prior none is least squares."""
     j = tmp_path / "map.json"
     code, stdout, err = run(capsys, "calibrate", "puma560", "--data", flow["train"], "--json",
                             j, "--stages", "offsets,all",
-                            "--prior", "a[*]=1mm,d[*]=1000um,alpha[*]=0.1deg")
+                            "--prior", "a[*]=0.5mm,d[*]=2000um,alpha[*]=0.2deg")
     assert code == 0, err
     doc = json.loads(j.read_text())
     by = {p["name"]: p for p in doc["parameters"]}
     est = [n for n, p in by.items() if p["estimated"]]
     for n in est:
-        want = {"a[": 1e-3, "d[": 1e-3, "al": math.radians(0.1)}.get(n[:2])
+        want = {"a[": 5e-4, "d[": 2e-3, "al": math.radians(0.2),
+                "th": math.radians(0.5)}.get(n[:2])       # theta_offset: the default
         assert by[n]["prior_std"] == (pytest.approx(want, rel=1e-12) if want else None), n
     assert by["d[3]"]["prior_std"] is None and not by["d[3]"]["estimated"]
-    assert doc["inputs"]["prior"] == "a[*]=1mm,d[*]=1000um,alpha[*]=0.1deg"
+    assert doc["inputs"]["prior"] == "a[*]=0.5mm,d[*]=2000um,alpha[*]=0.2deg"
+    assert doc["tolerances"]["tolerances"]["a[2]"]["source"] == "--prior"
     # the prior does not change which parameters are estimated
     plain = json.loads(flow["res"].read_text())
     assert est == [p["name"] for p in plain["parameters"] if p["estimated"]]
+    assert plain["inputs"]["prior"].startswith("default tolerances (length 1 mm")
     text = " ".join(stdout.split())
-    assert "MAP estimate: 13 estimated parameter(s) have a Gaussian prior" in text
-    assert "prior (1σ)" in text
+    robot_est = [n for n in est if not n.startswith("tracker.")]
+    assert all(by[n]["prior_std"] for n in robot_est)
+    assert f"MAP estimate: {len(robot_est)} estimated parameter(s) have a Gaussian prior" in text
+    assert "prior (1σ)" in text and "noise scale sigma0 =" in text
+    # least squares: no prior column, and the same estimated set
+    j1 = tmp_path / "ls.json"
+    code, stdout, err = run(capsys, "calibrate", "puma560", "--data", flow["train"], "--json",
+                            j1, "--prior", "none")
+    assert code == 0, err
+    ls = json.loads(j1.read_text())
+    assert all(p["prior_std"] is None for p in ls["parameters"]) and "MAP" not in stdout
+    assert ls["tolerances"]["use_prior"] is False
     # a prior far tighter than the data holds the link lengths at their nominal values
     # (1e-6 um = 1e-12 m), while the least-squares fit moves them by ~0.1 mm or more
     j2 = tmp_path / "tight.json"
@@ -213,7 +227,7 @@ def test_calibrate_with_a_prior(flow, capsys, tmp_path):
                        "--prior", "a[*]=1e-6um")
     assert code == 0, err
     tight = {p["name"]: p for p in json.loads(j2.read_text())["parameters"]}
-    moved = [abs(p["estimate"] - p["nominal"]) for p in plain["parameters"]
+    moved = [abs(p["estimate"] - p["nominal"]) for p in ls["parameters"]
              if p["name"].startswith("a[") and p["estimated"]]
     held = [abs(p["estimate"] - p["nominal"]) for n, p in tight.items()
             if n.startswith("a[") and p["estimated"]]
@@ -363,8 +377,8 @@ def test_simulate_works_for_every_registered_instrument(capsys, tmp_path, instru
 
 
 def test_urdf_robot_real_data_writes_calibrated_urdf(capsys, tmp_path):
-    """TIAGo motion-capture data (real): offsets + registration, FIGAROH's protocol;
-    the calibrated URDF and YAML have the same forward kinematics."""
+    """TIAGo motion-capture data (real): offsets + registration by least squares,
+    FIGAROH's protocol; the calibrated URDF and YAML have the same forward kinematics."""
     d = DATA / "tiago_mocap"
     if not d.is_dir():
         pytest.skip("shared data not available")
@@ -374,7 +388,7 @@ def test_urdf_robot_real_data_writes_calibrated_urdf(capsys, tmp_path):
                             "--validate", d / "validation_2021-11-26.csv",
                             "--units", "x?=m,y?=m,z?=m", "--ignore", "?2,?3,?4",
                             "--free", "role:offset,tracker.*", "--validation-frames",
-                            "training", "-o", out, "--json", j)
+                            "training", "-o", out, "--json", j, "--prior", "none")
     assert code == 0, err
     assert "not read" in stdout and "shipped_row" in stdout
     res = json.loads(j.read_text())

@@ -116,7 +116,7 @@ def test_tiago_from_the_command_line(capsys, tmp_path):
         "--units", "x?=m,y?=m,z?=m,torso_lift_joint=m,arm_?_joint=rad",
         "--ignore", "shipped_row,t_start_robot,t_end_robot,marker_std_mm",
         "--joint-model", "hysteresis,compliance", "-o", tmp_path / "cal.yaml",
-        "--json", tmp_path / "res.json", "--force")
+        "--json", tmp_path / "res.json", "--force", "--prior", "none")
     assert code == 1 and "arm_5_joint.origin.x moved" in err, err
     assert (tmp_path / "cal.yaml").is_file()
     doc = json.loads((tmp_path / "res.json").read_text())
@@ -135,19 +135,29 @@ def test_tiago_from_the_command_line(capsys, tmp_path):
 
 
 @pytest.mark.skipif(not TIAGO.is_dir(), reason=f"real TIAGo data not found at {TIAGO}")
-def test_prior_with_unrealistic_measurement_sigma_warns(capsys, tmp_path):
+def test_prior_is_weighed_with_the_estimated_noise_scale(capsys, tmp_path):
     """The TIAGo files have no sigma column, so the 10 um default applies while the
-    residuals are millimetres: a MAP prior would weigh ~3000x too little; say so."""
+    residuals are millimetres.  The noise scale is estimated before the prior is weighed
+    (sigma0 ~ 100), so the default prior holds the origins (a trusted calibration, exit
+    0) instead of letting them follow the noise by 13 mm and 6 deg, as a prior weighed
+    with the stated 10 um does (``calibrate(..., noise_scale=1)``)."""
     code, out, err = run(
         capsys, "calibrate", TIAGO / "tiago_48_schunk.urdf", "--tip-link", "wrist_ft_tool_link",
         "--data", TIAGO / "train_2021-11-30.csv", "--units",
         "x1=m,y1=m,z1=m,torso_lift_joint=m,arm_?_joint=rad", "--ignore",
         "x2,y2,z2,x3,y3,z3,x4,y4,z4,shipped_row,t_start_robot,t_end_robot,marker_std_mm",
-        "--prior", "*.origin.*=1mm,*.origin.r?=0.1deg")
-    # so weak a prior does not hold the origins: 13 mm, 5.9 deg from nominal
-    assert code == 1 and "arm_7_joint.origin.rx moved" in err, err
+        "--json", tmp_path / "res.json")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "res.json").read_text())
+    assert 60 < doc["sigma0"] < 200 and doc["verdict"]["trusted"]
     text = " ".join(out.split())
-    assert "--prior: the residuals are" in text and "give the files a sigma column" in text
+    assert "estimated before the prior was weighed" in text
+    moved = max(abs(p["estimate"] - p["nominal"]) / p["prior_std"]
+                for p in doc["parameters"] if p["estimated"] and p["prior_std"])
+    assert moved < 5, moved
+    # the parameters the prior holds are named, with what would identify them
+    assert doc["held_by_prior"] and "weak" in out
+    assert all("held by the prior" in w["sentence"] for w in doc["held_by_prior"])
 
 
 def test_cross_validation_compares_models_on_training_alone(capsys, files):

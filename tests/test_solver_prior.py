@@ -16,6 +16,7 @@ computed with numpy alone.
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -129,7 +130,7 @@ def test_robust_loss_does_not_down_weight_the_prior_rows():
     y = A @ beta + SIGMA * rng.uniform(-1.2, 1.2, size=200)  # bounded: no outliers
     s = np.array([1e-3, np.inf, np.inf, np.inf])             # b0: prior 50x too tight
     prior = {"lin.b0": s[0]}
-    res = calibrate(ROBOT, [LinearBlock(A, y)], loss="huber", prior=prior)
+    res = calibrate(ROBOT, [LinearBlock(A, y)], loss="huber", prior=prior, noise_scale=1.0)
     want, _ = ridge(A, y, s)
     assert res.converged, res.message
     assert np.all(res.weights == 1.0) and res.outliers == []
@@ -139,7 +140,8 @@ def test_robust_loss_does_not_down_weight_the_prior_rows():
     # is the weighted ridge with the solver's final measurement weights
     y2 = y.copy()
     y2[7] += 50 * SIGMA
-    res2 = calibrate(ROBOT, [LinearBlock(A, y2)], loss="huber", prior=prior)
+    res2 = calibrate(ROBOT, [LinearBlock(A, y2)], loss="huber", prior=prior,
+                     noise_scale=1.0)
     assert res2.outliers == [("lin", 7)] and res2.weights[7] < 0.25
     assert np.all(np.delete(res2.weights, 7) == 1.0)
     want2, _ = ridge(A, y2, s, weights=res2.weights)
@@ -148,12 +150,13 @@ def test_robust_loss_does_not_down_weight_the_prior_rows():
 
 def test_stages_with_a_prior():
     """Stage 1 estimates b0, b1 with the others held at their initial values (0);
-    stage 2 all: each stage is the ridge of its own parameters."""
+    stage 2 all: each stage is the ridge of its own parameters (noise scale 1: the
+    stated sigmas)."""
     rng = np.random.default_rng(3)
     A, _, y = linear_data(rng)
     s = np.array([0.01, 0.02, 0.5, 0.01, 0.003])
     prior = {"lin.b*": 0.5, "lin.b0": 0.01, "lin.b1": 0.02, "lin.b3": 0.01, "lin.b4": 0.003}
-    res = calibrate(ROBOT, [LinearBlock(A, y)], prior=prior,
+    res = calibrate(ROBOT, [LinearBlock(A, y)], prior=prior, noise_scale=1.0,
                     stages=[["lin.b0", "lin.b1"], "all"])
     assert [st for st, _ in res.stages] == ["lin.b0,lin.b1", "all"]
     assert res.stages[0][1] == names(2) and res.stages[1][1] == names(5)
@@ -212,3 +215,70 @@ def test_a_prior_does_not_make_a_parameter_identifiable():
     assert b.estimated == a.estimated and "d[3]" not in b.estimated
     assert b.params["d[3]"] == ROBOT.params()["d[3]"]
     assert set(b.prior) == {n for n in b.estimated if n[:2] in ("d[", "a[")}
+
+
+def noise_fixed_point(A: np.ndarray, y: np.ndarray, s: np.ndarray, sigma: float
+                      ) -> tuple[float, np.ndarray, np.ndarray, float]:
+    """The module docstring's fixed point, with numpy alone: the ridge with the prior
+    rows scaled by ``k``, ``k^2 = RSS_w / (M - p_eff)``, iterated to convergence.
+    Returns ``(k, beta, posterior covariance, p_eff)``."""
+    J = A / sigma
+    k = 1.0
+    for _ in range(200):
+        N = J.T @ J + np.diag(k**2 / s**2)
+        beta = np.linalg.solve(N, J.T @ (y / sigma))
+        p_eff = float(np.trace(np.linalg.solve(N, J.T @ J)))
+        k_new = math.sqrt(np.sum(((A @ beta - y) / sigma) ** 2) / (len(y) - p_eff))
+        if abs(k_new / k - 1) < 1e-12:
+            break
+        k = k_new
+    N = J.T @ J + np.diag(k**2 / s**2)
+    return k, np.linalg.solve(N, J.T @ (y / sigma)), k**2 * np.linalg.inv(N), p_eff
+
+
+def test_the_noise_scale_is_estimated_before_the_prior_is_weighed():
+    """Real noise 30x the stated sigma (a file without a sigma column): the noise scale
+    is the fixed point sigma0^2 = RSS / (M - p_eff), the MAP is the ridge with the prior
+    rows scaled by it, the covariance the posterior (J^T J / sigma0^2 + P^-2)^-1 ... and
+    stating any other sigma gives the same estimate: the prior's weight no longer
+    depends on a sigma nobody measured."""
+    rng = np.random.default_rng(7)
+    A, _, y = linear_data(rng, m=80, noise=30.0)
+    s = np.array([0.02, 0.05, 0.05, 0.01, 0.003])
+    prior = {f"lin.b{j}": s[j] for j in range(5)}
+    res = calibrate(ROBOT, [LinearBlock(A, y)], prior=prior, tol_step=1e-14)
+    k, want, cov, p_eff = noise_fixed_point(A, y, s, SIGMA)
+    assert res.noise_scale_estimated and k > 20
+    assert res.sigma0 == pytest.approx(k, rel=2e-3)
+    assert res.effective_parameters == pytest.approx(p_eff, rel=1e-2)
+    assert np.allclose(block_part(res), want, rtol=2e-3, atol=1e-6)
+    assert np.allclose(res.covariance, cov, rtol=5e-3)
+    # the stated sigma no longer matters: 100x larger, the same MAP and covariance
+    big = calibrate(ROBOT, [LinearBlock(A, y, sigma=100 * SIGMA)], prior=prior,
+                    tol_step=1e-14)
+    assert np.allclose(block_part(big), block_part(res), rtol=1e-3, atol=1e-7)
+    assert np.allclose(big.covariance, res.covariance, rtol=1e-2)
+    assert big.sigma0 == pytest.approx(res.sigma0 / 100, rel=2e-3)
+    # with the stated sigmas (noise_scale=1) the data weigh ~900x too much: the weak
+    # combination b3 - b4 follows the noise far beyond its prior (0.05 and 0.003)
+    stated = calibrate(ROBOT, [LinearBlock(A, y)], prior=prior, noise_scale=1.0)
+    assert abs(block_part(stated)[-1]) > 3 * abs(block_part(res)[-1])
+
+
+def test_data_only_standard_errors_name_the_parameters_the_prior_holds():
+    """b4 follows b3 to 1e-3: the data alone fix b3 and b4 to ~sigma / 1e-3 each, far
+    beyond their priors, so the prior holds them; b0..b2 are fixed by the data."""
+    rng = np.random.default_rng(8)
+    A, _, y = linear_data(rng, m=60)
+    A[:, 3] = A[:, 4] + 1e-3 * rng.normal(size=60)
+    s = np.full(5, 0.05)
+    res = calibrate(ROBOT, [LinearBlock(A, y)], prior={"lin.*": 0.05}, trust_sigma=True)
+    J = A / SIGMA
+    want = np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    got = res.data_std[[res.names.index(n) for n in names(5)]]
+    assert np.allclose(got, want, rtol=1e-6)
+    assert res.held_by_prior == [n for n, d, t in zip(names(5), want, s, strict=True) if d > t]
+    assert res.held_by_prior == ["lin.b3", "lin.b4"]
+    assert np.isnan(res.data_std[res.names.index("theta_offset[1]")])
+    plain = calibrate(ROBOT, [LinearBlock(A, y)])
+    assert plain.data_std is None and plain.held_by_prior == []

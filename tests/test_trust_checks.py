@@ -157,3 +157,43 @@ def test_robot_file_tolerances_section(tmp_path):
     f.write_text(text.replace("0.2mm", "0.2"))
     with pytest.raises(RobotFileError, match="field 'tolerances.length' needs a unit"):
         load_robot(f)
+
+
+def test_the_default_prior_holds_the_weak_parameters_and_names_the_joint():
+    """The same data with the default prior (tolerances, noise scale estimated): the fit
+    converges, every estimate is plausible, the three parameters of the wrist that the
+    1-deg joint leaves weak are held by the prior, each named with joint q5, and the
+    truth is within three posterior standard errors of each."""
+    from kincal.identify.weak import weak_parameters
+    from kincal.measure.base import stack
+
+    nominal, truth, data = narrow_joint_data()
+    prob, _ = stack(nominal, [data])
+    tol = resolve_tolerances(prob.names, prob.units, prob.roles)
+    res = calibrate(nominal, [data], prior=tol.prior())
+    assert res.converged and judge(res, tol.sigma).trusted
+    assert res.noise_scale_estimated and 0.7 < res.sigma0 < 1.3       # the noise is as stated
+    assert set(res.held_by_prior) == {"theta_offset[4]", "alpha[4]", "alpha[5]"}
+    weak = weak_parameters(res)
+    assert [w.name for w in weak] == res.held_by_prior
+    true = dict(zip(truth.param_names, truth.param_values, strict=True))
+    for w in weak:
+        assert w.joint == "q5" and w.data_std > 10 * w.prior_std
+        assert w.with_joint < w.data_std / 50          # spreading q5 would identify it
+        assert "joint q5 moves over 0.957 deg in the data" in w.sentence()
+        i = res.names.index(w.name)
+        assert abs(res.theta[i] - true[w.name]) < 3 * res.std[i]
+
+
+def test_default_calibration_of_the_narrow_file_names_what_the_prior_holds(narrow_file, capsys,
+                                                                         tmp_path):
+    j = tmp_path / "res.json"
+    code, stdout, err = run(capsys, "calibrate", "puma560", "--data", narrow_file, "--json", j,
+                            "-o", tmp_path / "cal.yaml")
+    assert code == 0, err
+    text = " ".join(stdout.split())
+    assert "Held by the prior (weakly identifiable): 3 parameter(s)" in text
+    assert "q5 over its range" in text and "0.957" in text
+    doc = json.loads(j.read_text())
+    assert doc["verdict"]["trusted"] and len(doc["held_by_prior"]) == 3
+    assert doc["held_by_prior"][0]["joint"] == "q5"

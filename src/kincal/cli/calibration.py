@@ -42,6 +42,7 @@ from kincal.cli.calibration_common import (
     print_ignored,
     print_parameters,
     print_patent,
+    print_weak,
     read_blocks,
     scaled,
     serial,
@@ -58,6 +59,7 @@ from kincal.cli.setupfile import (
     uses_setup,
 )
 from kincal.errors import CheckFailedError, KincalError
+from kincal.identify.tolerances import describe_defaults
 from kincal.io import check_outputs
 
 
@@ -163,11 +165,15 @@ def calibrate_cmd(
         "--max-iter", min=1, help="Iterations: in all (lm, default 100) or per stage and "
         "cycle (patent, default 20).")] = None,
     prior: Annotated[str | None, typer.Option(
-        "--prior", metavar="PATTERN=SIGMA,...", help="Maximum a-posteriori estimate: "
-        "Gaussian priors centred on the nominal values, standard deviations with their "
-        "unit, e.g. '*.origin.*=1mm,*.origin.r?=0.1deg' (a length applies to the matched "
-        "lengths, an angle to the matched angles; later entries win). Does not change "
-        "which parameters are estimated.")] = None,
+        "--prior", metavar="ENTRIES|none", help="The estimate is maximum a-posteriori: "
+        "Gaussian priors centred on the nominal values with the parameters' manufacturing "
+        "tolerances (default: length 1mm, angle 0.1deg, encoder offset 0.5deg; base, tool "
+        "and instrument parameters none; a robot file's 'tolerances:' section overrides). "
+        "Entries override them: roles, names or * patterns with a value and its unit, e.g. "
+        "'length=0.5mm,offset=0.05deg,*.origin.r?=0.2deg', 'd[3]=none', 'scale=3' (the "
+        "prior is 3x the tolerances). 'none': plain least squares. The tolerances also "
+        "bound what is plausible (10x). Does not change which parameters are estimated.")
+    ] = None,
     joint_model: JointModelOpt = None,
     cross_validate: Annotated[int | None, typer.Option(
         "--cross-validate", metavar="K", help="Also run K-fold cross-validation of the same "
@@ -257,7 +263,8 @@ def calibrate_cmd(
               "procedure": procedure, "method": method, "loss": loss,
               "stages": stages or "all", "validation frames": validation_frames,
               "free": free or "automatic (identifiable set)", "fixed": fix or "-",
-              "prior": prior or "-", "joint model": ", ".join(terms) or "geometric only"}
+              "prior": prior or f"default tolerances ({describe_defaults()})",
+              "joint model": ", ".join(terms) or "geometric only"}
     if procedure == "patent":
         inputs.update({"method": "patent (two stages: angles, then lengths)", "stages":
                        "angles, lengths",
@@ -271,9 +278,12 @@ def calibrate_cmd(
     out.print(f"{conv} in {res.iterations} iterations ({flow.seconds:.2f} s), "
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
     if getattr(res, "prior", None):
+        what = escape(prior) if prior else "default tolerances"
+        noise = (f"; noise scale sigma0 = {res.sigma0:.3g} (residual / stated sigma) estimated "
+                 "before the prior was weighed" if res.noise_scale_estimated else "")
         out.print(f"MAP estimate: {len(res.prior)} estimated parameter(s) have a Gaussian "
-                  f"prior centred on their initial (nominal) value ({escape(prior or '')}); column "
-                  "'prior (1σ)'. The prior does not change which parameters are estimated.")
+                  f"prior centred on their nominal value ({what}; column 'prior (1σ)'; "
+                  f"--prior none for least squares){noise}.")
     if terms:
         out.print(escape(f"joint model: {', '.join(terms)} (parameters {{block}}.h[joint] "
                          "[rad, m] and {block}.k[joint] [rad/(N m), m/N] in the table and the "
@@ -283,6 +293,7 @@ def calibrate_cmd(
     if flow.cross_validation is not None:
         print_cross_validation(out, flow.cross_validation)
     print_identifiability(out, res)
+    print_weak(out, flow.weak)
     info: Any = getattr(res, "patent", None)
     if info is not None:
         print_patent(out, info)

@@ -198,7 +198,8 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
     cols = ["parameter", "nominal", "estimate", "change", "std (1σ)"]
     cols += ["prior (1σ)"] * with_prior + ["status"]
     for c in cols:
-        t.add_column(c, justify="left" if c in ("parameter", "status") else "right")
+        t.add_column(c, justify="left" if c in ("parameter", "status") else "right",
+                     overflow="fold")
     for p in d["parameters"]:
         if not everything and not p["estimated"]:
             continue
@@ -226,6 +227,36 @@ def print_identifiability(out: Console, res: Any, limit: int = 8) -> None:
         out.print(f"  - {escape(g)}")
     if len(groups) > limit:
         out.print(f"  ... and {len(groups) - limit} more (see the report / JSON).")
+
+
+def print_weak(out: Console, weak: Sequence[Any]) -> None:
+    """The parameters the prior holds (:func:`kincal.identify.weak.weak_parameters`): a
+    table with the data-only standard error, the tolerance and what would identify them."""
+    if not weak:
+        return
+    t = Table(title=f"Held by the prior (weakly identifiable): {len(weak)} parameter(s) the "
+              "data alone fix worse than their tolerance")
+    for c in ("parameter", "data alone", "prior (1σ)", "what would identify it"):
+        t.add_column(c, justify="right" if c in ("data alone", "prior (1σ)") else "left",
+                     overflow="fold")
+
+    def show(v: float, unit: str) -> str:
+        f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(unit, (1.0, unit))
+        return f"{v * f:.3g} {u}" if math.isfinite(v) else "-"
+
+    for w in weak:
+        if w.joint is not None and w.joint_range is not None:
+            have, full = w.joint_range
+            f, u = (180 / math.pi, "deg") if w.joint_kind == "revolute" else (1e3, "mm")
+            how = (f"{w.joint} over its range (moves {have * f:.3g} of {full * f:.3g} {u}): "
+                   f"{show(w.with_joint or math.nan, w.unit)}")
+        elif w.partner is not None:
+            how = f"poses that separate it from {w.partner} (correlation {w.correlation:+.2f})"
+        else:
+            how = "-"
+        t.add_row(escape(w.name), show(w.data_std, w.unit), show(w.prior_std, w.unit),
+                  escape(how))
+    out.print(t)
 
 
 def print_patent(out: Console, info: Any) -> None:

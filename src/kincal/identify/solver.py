@@ -48,18 +48,37 @@ parameter it names, the pseudo-observation ``(theta_j - c_j) / s_j`` to the resi
 ``c_j`` the parameter's value before calibration (the robot's value, or the block's
 closed-form guess; ``initial`` moves the start, not the centre).  The minimiser is then
 the maximum a-posteriori estimate under independent Gaussian priors
-``theta_j ~ N(c_j, s_j^2)`` and Gaussian measurement noise of the stated sigmas:
+``theta_j ~ N(c_j, s_j^2)`` and Gaussian measurement noise of standard deviation
+``sigma0`` times the stated sigmas:
 
-    theta_hat = argmin 1/2 [ sum_i w_i r_i^2 + sum_j ((theta_j - c_j) / s_j)^2 ].
+    theta_hat = argmin 1/2 [ sum_i w_i r_i^2 + sum_j (sigma0 (theta_j - c_j) / s_j)^2 ].
+
+The noise scale ``sigma0`` is estimated before the prior is weighed (default): the
+stated sigmas are often only nominal (a file without a sigma column gets 10 um while
+motion capture is good to a millimetre), and with the stated ones the data would weigh
+``sigma0^2`` times too much against the prior.  It is the fixed point of
+
+    sigma0^2 = sum_i w_i r_i^2 / (M - p_eff),
+    p_eff = trace((J^T J + sigma0^2 P^-2)^-1 J^T J) = p - sum_j [(J_a^T J_a)^-1]_jj sigma0^2 / s_j^2
+
+(``J_a`` the augmented whitened Jacobian, ``p_eff`` the parameters the data fix: the
+a-posteriori variance factor with the prior's share of the parameters removed): solve
+with ``sigma0 = 1``, estimate ``sigma0``, solve the last stage again with the prior rows
+scaled by it, until ``sigma0`` changes by less than 0.1 %.  ``noise_scale=`` a number
+uses that scale instead; ``trust_sigma=True`` uses 1.
+
+With a prior, the covariance is the posterior one, ``sigma0^2 (J^T J + sigma0^2
+P^-2)^-1``, and ``data_std`` the standard errors of the measurements alone,
+``sigma0 sqrt(diag (J^T J)^-1)``; a parameter whose ``data_std`` exceeds its ``s_j`` is
+*held by the prior* (``held_by_prior``): the data cannot fix it to its tolerance.
 
 Use it with standard deviations that come from outside the data, e.g. manufacturing
 tolerances (1 mm on link lengths, 0.1 deg on origin angles): parameters that the data
 determine well hardly move from their least-squares values, weakly determined
 combinations (which a least-squares fit sets from noise) stay near their nominal
 values.  The prior does not change *which* parameters are estimated: the base set is
-chosen from the measurements alone, as without a prior.  ``cost``, ``sigma0`` and the
-covariance are those of the augmented problem (the prior rows count as observations;
-the covariance is the posterior one); ``residuals`` are the measurements' only.
+chosen from the measurements alone, as without a prior.  ``cost`` is that of the
+augmented problem; ``residuals`` are the measurements' only.
 
 Parameter selection: ``free=None`` (automatic) makes every robot and block
 parameter a candidate; ``free`` lists names or glob patterns (``theta_offset[*]``,
@@ -122,6 +141,9 @@ STAGE_KEYWORDS = ("all", "offsets", "registration")
 OUTLIER_WEIGHT = 0.5
 #: Largest number of times one stage is solved again with a smaller base set.
 MAX_RESELECT = 3
+#: Re-solves of the last stage while the noise scale settles, and its relative tolerance.
+MAX_NOISE_ITER = 20
+NOISE_RTOL = 1e-3
 
 
 # --------------------------------------------------------------------------- names
@@ -249,6 +271,16 @@ class CalibrationResult:
             solve; ``message`` names the parameters dropped at a solution).
         prior: ``{name: prior standard deviation}`` of the estimated parameters that
             had a prior (empty for a plain least-squares fit).
+        data_std: with a prior, the standard error per name the measurements alone
+            would give, ``sigma0 sqrt(diag (J^T J)^-1)`` (inf where they cannot fix it,
+            NaN for names not estimated); None without a prior.
+        held_by_prior: estimated parameters whose ``data_std`` exceeds their prior
+            standard deviation: the prior, not the data, holds them (weakly
+            identifiable).
+        noise_scale_estimated: ``sigma0`` was estimated before the prior was weighed
+            (module docstring, "Prior").
+        effective_parameters: with a prior, ``p_eff = trace((J^T J + sigma0^2 P^-2)^-1
+            J^T J)``, the number of parameters the data actually fix.
     """
 
     robot: Robot
@@ -274,6 +306,10 @@ class CalibrationResult:
     method: str = "lm"
     loss: str = "linear"
     prior: dict[str, float] = field(default_factory=dict)
+    data_std: Array | None = None
+    held_by_prior: list[str] = field(default_factory=list)
+    noise_scale_estimated: bool = False
+    effective_parameters: float | None = None
 
     # ------------------------------------------------------------------ access
     @property
@@ -497,6 +533,47 @@ def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> di
         for i in match_names(names, pattern):
             out[i] = s
     return out
+
+
+def _noise_scale(aug: _WithPrior, r: Array, data: CompressedSystem, theta: Array,
+                 ids: Array, dims: Array, loss: str, loss_scale: float, scale: float
+                 ) -> tuple[float | None, float | None]:
+    """The measurements' noise scale ``sigma0`` at a MAP solution, and ``p_eff``.
+
+    ``sigma0^2 = sum w r^2 / (M - p_eff)`` over the measurement rows,
+    ``p_eff = p - sum_j [(J_a^T J_a)^-1]_jj (scale / s_j)^2`` (``J_a``: ``data`` with the
+    prior rows of ``aug``, whose weights are ``scale / s_j``).  None when there is no
+    redundancy left.
+    """
+    M = len(r) - aug.rows
+    w = _robust_weights(r, ids, dims, loss, loss_scale, aug.rows)[:M]
+    ss = float(np.sum(w * r[:M] ** 2))
+    try:
+        inv = inverse_normal_matrix(aug.extend(data, theta).R)
+    except IdentifiabilityError:
+        return None, None
+    pos = {int(j): k for k, j in enumerate(data.columns)}
+    shrink = sum(inv[pos[int(j)], pos[int(j)]] * aug.inv[k] ** 2
+                 for k, j in enumerate(aug.idx))
+    p_eff = len(data.columns) - float(shrink)
+    if M - p_eff <= 0 or ss <= 0:
+        return None, p_eff
+    return float(np.sqrt(ss / (M - p_eff))), p_eff
+
+
+def _data_only_std(R: Array, sigma0: float) -> Array:
+    """``sigma0 sqrt(diag (R^T R)^-1)``: the standard errors the measurements alone give
+    (inf for parameters in a direction they cannot see)."""
+    try:
+        return sigma0 * standard_errors(inverse_normal_matrix(R))
+    except IdentifiabilityError:
+        D = np.linalg.norm(R, axis=0)
+        D = np.where(D > 0, D, 1.0)
+        _, S, Vt = np.linalg.svd(R / D, full_matrices=False)
+        ok = S > S[0] * 1e-12 if S.size else S > 0
+        var = np.sum((Vt[ok].T / S[ok]) ** 2, axis=1)
+        blind = np.any(np.abs(Vt[~ok]) > 1e-8, axis=0)
+        return np.where(blind, np.inf, sigma0 * np.sqrt(var) / D)
 
 
 def _columns(c: CompressedSystem, idx: Sequence[int]) -> CompressedSystem:
@@ -789,7 +866,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
               progress: Callable[[IterationRecord], Any] | None = None, *,
               trust_sigma: bool = False, tol_rank: float | None = None,
               initial: dict[str, float] | None = None,
-              prior: Mapping[str, float] | None = None) -> CalibrationResult:
+              prior: Mapping[str, float] | None = None,
+              noise_scale: float | None = None) -> CalibrationResult:
     """Calibrate ``robot`` from measurement ``blocks``.
 
     Args:
@@ -814,6 +892,9 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             maximum a-posteriori estimate centred on the values before calibration
             (see the module docstring); a later key overrides an earlier one for
             the names both match.  Only estimated parameters are affected.
+        noise_scale: with a prior, the factor ``sigma0`` of the stated measurement
+            sigmas used to weigh it; None (default) estimates it (module docstring,
+            "Prior"), 1 under ``trust_sigma``.
 
     Returns:
         A :class:`CalibrationResult`.  Parameters that cannot be identified are never
@@ -833,10 +914,15 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     prob, theta0 = stack(robot, list(blocks))
     center = theta0.copy()
     prior_s = _prior_sigmas(prob.names, prior)
+    if noise_scale is not None and not (np.isfinite(noise_scale) and noise_scale > 0):
+        raise KincalError(f"noise_scale must be positive and finite, got {noise_scale!r}")
+    estimate_noise = bool(prior_s) and noise_scale is None and not trust_sigma
+    # sigma0 of the measurements while the prior is weighed (prior rows scaled by it)
+    scale = [1.0 if noise_scale is None else float(noise_scale)]
 
     def with_prior(est: Sequence[int]) -> _WithPrior:
         idx = [i for i in est if i in prior_s]
-        return _WithPrior(prob, idx, np.array([prior_s[i] for i in idx]), center)
+        return _WithPrior(prob, idx, np.array([prior_s[i] for i in idx]) / scale[0], center)
 
     if initial:
         for k, v in initial.items():
@@ -930,9 +1016,29 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                 break
         theta = last.theta
         stage_info.append((label, [names[i] for i in est]))
+        earlier_ok = converged
         converged &= last.converged
         messages.append(last.message)
     assert report is not None and last is not None and end_c is not None
+    p_eff = None
+    if estimate_noise and est:
+        # the noise scale before the prior is weighed: re-solve the last stage with the
+        # prior rows scaled by the estimated sigma0 until it settles
+        label = stage_info[-1][0]
+        for _ in range(MAX_NOISE_ITER):
+            new, p_eff = _noise_scale(with_prior(est), last.r, _columns(end_c, est), theta,
+                                      ids, dims, loss, loss_scale, scale[0])
+            if new is None or abs(new / scale[0] - 1.0) < NOISE_RTOL:
+                break
+            scale[0] = new
+            last = solve(est, theta, label, end_c)
+            theta, end_c = last.theta, ended(last, est)
+            total_it += last.iterations
+            converged = earlier_ok and last.converged
+            messages[-1] = last.message
+        else:
+            messages.append(f"the noise scale did not settle in {MAX_NOISE_ITER} re-solves "
+                            f"(sigma0 = {scale[0]:.4g})")
     # final statistics over the last stage's estimated set (prior rows included), at the
     # last stage's solution, from its triangle: R^T R = J^T W J over ``est``
     aug = with_prior(est)
@@ -942,6 +1048,12 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     dof = len(r) - len(est)
     if trust_sigma:
         sigma0 = 1.0
+    elif prior_s and est:
+        sigma0 = scale[0]
+        if estimate_noise:
+            got, p_eff = _noise_scale(aug, r, _columns(end_c, est), theta, ids, dims, loss,
+                                      loss_scale, scale[0])
+            sigma0 = scale[0] if got is None else got
     elif dof > 0:
         sigma0 = float(np.sqrt(2.0 * _half_weighted_ss(r, w) / dof))
     else:
@@ -949,9 +1061,11 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         messages.append("no redundancy (measurements <= parameters): sigma0 set to 1")
     std = np.zeros(len(names))
     cov = corr = np.zeros((0, 0))
+    # with a prior the posterior covariance uses the scale the prior was weighed with
+    cov_scale = scale[0] if (prior_s and est and not trust_sigma) else sigma0
     if est:
         try:
-            cov = sigma0**2 * inverse_normal_matrix(Jw)
+            cov = cov_scale**2 * inverse_normal_matrix(Jw)
         except IdentifiabilityError:
             # still dependent after re-selection: report only the independent subset
             check = analyze(Jw, [names[i] for i in est], tol=tol_rank,
@@ -963,7 +1077,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             est = [est[k] for k in keep]
             Jw = Jw[:, keep]
             converged = False
-            cov = sigma0**2 * inverse_normal_matrix(Jw)
+            cov = cov_scale**2 * inverse_normal_matrix(Jw)
         std[est] = standard_errors(cov)
         corr = correlation(cov)
     outliers = []
@@ -980,6 +1094,13 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     if free is not None and held:
         messages.append(f"{len(held)} requested parameter(s) not identifiable, held at their "
                         f"initial values: {', '.join(held[:8])}{' ...' if len(held) > 8 else ''}")
+    data_std, held_by_prior = None, []
+    pri = {names[i]: prior_s[i] for i in est if i in prior_s}
+    if pri:
+        data_std = np.full(len(names), np.nan)
+        data_std[est] = _data_only_std(_columns(end_c, est).R, cov_scale)
+        held_by_prior = [names[i] for i in est
+                         if names[i] in pri and not data_std[i] <= pri[names[i]]]
     robot_cal, _ = prob.split(theta)
     return CalibrationResult(
         robot=robot_cal, robot_initial=robot, problem=prob, theta0=theta0, theta=theta,
@@ -987,7 +1108,9 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         covariance=cov, correlation=corr, sigma0=sigma0, residuals=r[:M], weights=w[:M],
         outliers=outliers, history=history, converged=bool(converged), iterations=total_it,
         message="; ".join(messages), stages=stage_info, method=method, loss=loss,
-        prior={names[i]: prior_s[i] for i in est if i in prior_s})
+        prior=pri, data_std=data_std, held_by_prior=held_by_prior,
+        noise_scale_estimated=estimate_noise,
+        effective_parameters=None if p_eff is None else float(p_eff))
 
 
 class Calibration:

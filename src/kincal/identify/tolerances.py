@@ -73,7 +73,7 @@ def parse_quantity(text: str, where: str, prefix: str = "") -> tuple[float, str]
     ``where`` names the entry in the one-line error (``"option --prior: 'd[3]=1'"``);
     ``prefix`` starts the examples it gives (``"d[3]="``).
     """
-    from kincal.measure.files import UNITS
+    from kincal.units import UNITS
 
     m = _VALUE.match(str(text))
     if m is None:

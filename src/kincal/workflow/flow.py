@@ -163,9 +163,13 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             None = until converged).
         tolerance: patent only: stop when no predicted point moves more than this [m]
             (default 1e-7 m).
-        prior: ``--prior`` text (:func:`parse_prior`, e.g. ``"*.origin.*=1mm"``): a
-            maximum a-posteriori estimate with Gaussian priors centred on the nominal
-            values (``procedure="lm"``).
+        prior: ``--prior`` text (:mod:`kincal.identify.tolerances`): entries that
+            override the parameters' manufacturing tolerances (role defaults, then the
+            robot file's ``tolerances:``), ``scale=K``, or ``none`` for plain least
+            squares.  By default (``procedure="lm"``) the calibration is the maximum
+            a-posteriori estimate with Gaussian priors of these standard deviations
+            centred on the nominal values, the noise scale estimated first.  The
+            tolerances also bound what is plausible (``FlowResult.verdict``).
         cross_validate: K-fold cross-validation of the same calibration on the training
             data (:func:`~kincal.identify.validation.cross_validate`, folds drawn with
             seed 0; one training block, ``procedure="lm"``): how well the chosen model
@@ -208,7 +212,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
     tols = tolerances_of(robot, prob, prior)
-    prior_s = parse_prior(prior, prob.names, prob.units) if tols.use_prior else {}
+    prior_s = tols.prior() if procedure == "lm" else {}
     options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
                "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
                "tolerance": tolerance, "prior": prior_s}
@@ -234,20 +238,15 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         "before: nominal robot, instrument frames and markers fitted to it; after: "
         "calibrated robot and frames")]
     warnings: list[str] = []
-    if prior_s and not 1 / 3 <= res.sigma0 <= 3:
-        warnings.append(
-            f"--prior: the residuals are {res.sigma0:.3g} times the measurements' standard "
-            "deviations (the files' sigma columns, or the default for files without one), "
-            f"so the data weigh {res.sigma0 ** 2:.3g} times too "
-            f"{'much' if res.sigma0 > 1 else 'little'} against the prior; give the files "
-            "a sigma column with the instrument's real uncertainty")
     if holdouts:
         comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
                                          after, validation_frames, warnings))
     from kincal.identify.checks import judge
+    from kincal.identify.weak import weak_parameters
 
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
-                      tolerances=tols, verdict=judge(res, tols.sigma))
+                      tolerances=tols, verdict=judge(res, tols.sigma),
+                      weak=weak_parameters(res))
 
 
 def tolerances_of(robot: Any, prob: Any, prior: str | None = None) -> Any:
@@ -509,6 +508,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
             doc["verdict"] = {**flow.verdict.to_dict(), "notice": notice}
         if flow.tolerances is not None:
             doc["tolerances"] = flow.tolerances.to_dict()
+        doc["held_by_prior"] = [w.to_dict() for w in flow.weak]
         doc["outputs"] = dict(planned)
         if withheld:
             doc["not_written"] = withheld

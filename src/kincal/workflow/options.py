@@ -6,7 +6,7 @@ usable from Python (:mod:`kincal.workflow.flow` re-exports every name):
 * :func:`check_flow_options` - one-line errors for options that do not fit together;
 * :func:`check_options_used` - every ``--units`` / ``--ignore`` entry matches a column;
 * :func:`parse_selection` - ``--free`` / ``--fix`` patterns -> parameter names;
-* :func:`parse_prior` - ``--prior`` text -> prior standard deviations [m / rad];
+* :func:`parse_prior` - ``--prior`` entries -> prior standard deviations [m / rad];
 * :func:`parse_stages` - ``--stages`` text -> the one-stage solver's stages.
 
 Every error is a one-line :class:`~kincal.errors.KincalError` naming the option.
@@ -15,7 +15,6 @@ Every error is a one-line :class:`~kincal.errors.KincalError` naming the option.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -78,64 +77,22 @@ def parse_selection(names: Sequence[str], roles: Sequence[str], free: str | None
     return expand(free), expand(fix) or []
 
 
-_PRIOR_VALUE = re.compile(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z]+)?\s*\Z")
-
-
 def parse_prior(text: str | None, names: Sequence[str], units: Sequence[str]
                 ) -> dict[str, float]:
-    """``--prior`` text -> prior standard deviations ``{parameter name: s}`` [m / rad].
+    """``--prior`` entries alone -> prior standard deviations ``{parameter name: s}``
+    [m / rad], without the role defaults or a robot file.
 
     ``text`` is ``PATTERN=SIGMA_WITH_UNIT`` entries, comma separated, e.g.
-    ``"*.origin.*=1mm,*.origin.*=0.1deg"``: names or ``*`` / ``?`` patterns
-    (:func:`~kincal.identify.solver.match_names`), each with a value and its unit (any
-    unit of measurement files: ``mm``, ``um``, ``m``, ``deg``, ``mrad``, ``arcsec`` ...;
-    required, so that ``1`` is never read as 1 m).  An entry applies to the parameters
-    its pattern matches *whose unit is of the entry's dimension* (a length to lengths,
-    an angle to angles), so one pattern can take both; a later entry overrides an
-    earlier one for the names both give a value.  The value becomes SI,
-    ``s = value * unit factor`` (``1mm -> 0.001``, ``0.1deg -> 0.001745``).
-
-    Raises one-line :class:`~kincal.errors.KincalError` for an entry that is not
-    ``PATTERN=VALUE UNIT``, a missing or unknown unit, a value that is not positive, or
-    a pattern that matches no parameter of the unit's dimension.
+    ``"*.origin.*=1mm,*.origin.*=0.1deg"`` (an entry applies to the matched parameters
+    of its unit's dimension; later entries win; ``scale=K`` multiplies them); see
+    :func:`kincal.identify.tolerances.parse_tolerance_entries`.  A calibration's full
+    set of tolerances (defaults, robot file, ``--prior``) is
+    :func:`kincal.workflow.flow.tolerances_of`.
     """
-    from kincal.identify.solver import match_names
-    from kincal.units import UNITS
+    from kincal.identify.tolerances import resolve_tolerances
 
-    out: dict[str, float] = {}
-    if not text:
-        return out
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        pattern, eq, value = (x.strip() for x in part.partition("="))
-        m = _PRIOR_VALUE.match(value) if eq and pattern else None
-        if m is None:
-            raise KincalError(f"option --prior: {part!r} is not PATTERN=SIGMA with a unit "
-                              "(e.g. '*.origin.*=1mm,*.origin.r?=0.1deg')")
-        number, unit = float(m.group(1)), m.group(2)
-        if unit is None:
-            raise KincalError(f"option --prior: {part!r} needs a unit (e.g. {pattern}="
-                              f"{m.group(1)}mm or {pattern}={m.group(1)}deg)")
-        if unit not in UNITS:
-            raise KincalError(f"option --prior: unknown unit {unit!r} in {part!r} (known: "
-                              f"{', '.join(UNITS)})")
-        if not (math.isfinite(number) and number > 0):
-            raise KincalError(f"option --prior: the standard deviation in {part!r} must be "
-                              "positive")
-        dim, factor = UNITS[unit]
-        try:
-            matched = match_names(names, pattern)
-        except KincalError as exc:
-            raise KincalError(f"option --prior: {exc}") from None
-        hit = [i for i in matched if units[i] in UNITS and UNITS[units[i]][0] == dim]
-        if not hit:
-            article = "an" if dim[0] in "aeiou" else "a"
-            raise KincalError(f"option --prior: {pattern!r} matches no {dim} parameter "
-                              f"(the unit of {part!r} is {article} {dim})")
-        for i in hit:
-            out[names[i]] = number * factor
-    return out
+    return resolve_tolerances(names, units, [""] * len(names), None, text,
+                              defaults={}).prior()
 
 
 def parse_stages(text: str | None) -> list[str] | None:

@@ -40,6 +40,8 @@ class FlowResult:
         verdict: whether the calibration can be trusted
             (:class:`~kincal.identify.checks.Verdict`: converged, every estimate within
             10 tolerances of nominal).
+        weak: the parameters the prior holds and what would identify them
+            (:class:`~kincal.identify.weak.WeakParameter`).
     """
 
     result: Any
@@ -53,6 +55,7 @@ class FlowResult:
     cross_validation: dict[str, Any] | None = None
     tolerances: Any = None
     verdict: Any = None
+    weak: list[Any] = dataclasses.field(default_factory=list)
 
     @property
     def trusted(self) -> bool:
