@@ -290,3 +290,21 @@ def test_export_history_and_parameters(fleet, tmp_path, capsys):
     np.testing.assert_allclose(rec["covariance"], ok["covariance"])
     code, _, err = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h.txt")
     assert code == 2 and "give a .csv or .json file name" in err
+
+
+def test_exported_robot_files_are_what_kincal_calibrate_writes(fleet, tmp_path, capsys):
+    db = tmp_path / "h.db"
+    with HistoryStore(str(db)) as store:
+        calibrate_fleet(load_fleet(fleet.root), store, SerialEngine(), crosscheck=False)
+    code, out, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h.csv",
+                       "--robots", tmp_path / "robots")
+    assert code == 0 and f"{ROBOTS} calibrated robot file(s)" in _flat(out)
+    r = fleet.robots[0]
+    latest = fleet.root / r["serial"] / r["dates"][-1] / "tracker.csv"
+    assert invoke("calibrate", "puma560", "--data", latest, "-o", tmp_path / "cal.yaml") == 0
+    from kincal.robots.files import load_robot
+
+    mine = load_robot(tmp_path / "robots" / f"{r['serial']}.yaml")
+    theirs = load_robot(tmp_path / "cal.yaml")
+    assert mine.param_names == theirs.param_names
+    np.testing.assert_allclose(mine.param_values, theirs.param_values, rtol=0, atol=1e-12)

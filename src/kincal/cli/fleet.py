@@ -365,8 +365,11 @@ def export_cmd(
     parameters_out: Annotated[str | None, typer.Option(
         "--parameters", help="Also write one CSV row per calibration and parameter "
         "(estimate, standard error; SI).")] = None,
+    robots_dir: Annotated[str | None, typer.Option(
+        "--robots", metavar="DIR", help="Also write each robot's latest calibrated robot "
+        "file, DIR/<serial>.yaml (SI; what `kincal calibrate -o` writes).")] = None,
 ) -> None:
-    """Write the calibration history as CSV or JSON."""
+    """Write the calibration history as CSV or JSON (and the calibrated robot files)."""
     from kincal.fleet.export import history_csv, history_json, parameters_csv
     from kincal.io import atomic_write_text, check_outputs
 
@@ -380,9 +383,34 @@ def export_cmd(
         records = store.records([r["id"] for r in store.summaries()])
     text = history_csv(records) if suffix == ".csv" else history_json(records)
     params = parameters_csv(records) if parameters_out else None
+    robot_files = _robot_files(records) if robots_dir else {}
     atomic_write_text(output, text)
     if params is not None and parameters_out:
         atomic_write_text(parameters_out, params)
+    for serial, yaml_text in robot_files.items():
+        atomic_write_text(Path(robots_dir or ".") / f"{serial}.yaml", yaml_text)
     out_console(None).print(f"{len(records)} calibration record(s) -> {escape(output)}"
                             + (f"; parameters -> {escape(parameters_out)}"
-                               if parameters_out else ""))
+                               if parameters_out else "")
+                            + (f"; {len(robot_files)} calibrated robot file(s) -> "
+                               f"{escape(str(robots_dir))}/" if robots_dir else ""))
+
+
+def _robot_files(records: list[Any]) -> dict[str, str]:
+    """``{serial: robot file text}`` of each robot's latest ``ok`` calibration."""
+    import re
+
+    from kincal.fleet.tasks import calibrated_robot
+    from kincal.robots.files import robot_yaml_text
+
+    latest: dict[str, Any] = {}
+    for r in records:
+        if r["status"] == "ok" and (r["serial"] not in latest or (r["date"], r["id"]) >
+                                    (latest[r["serial"]]["date"], latest[r["serial"]]["id"])):
+            latest[r["serial"]] = r
+    out = {}
+    for serial, r in sorted(latest.items()):
+        if not re.fullmatch(r"[A-Za-z0-9._-]+", serial):
+            raise KincalError(f"option --robots: serial {serial!r} cannot be a file name")
+        out[serial] = robot_yaml_text(calibrated_robot(r))
+    return out

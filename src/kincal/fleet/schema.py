@@ -16,7 +16,6 @@ converged, iterations   the solver's outcome; ``sigma0`` the a-posteriori varian
 rms_*_m                 position RMS [m] on training, held-out files, CV folds
 metrics, warnings       everything of the result JSON's ``metrics``; warnings (JSON)
 estimated, covariance   names (JSON) and their covariance (p x p float64) [m, rad]
-robot_yaml              the calibrated robot file
 =====================  ======================================================
 
 ``parameters`` - one row per parameter of a calibration (name, unit, role, nominal,
@@ -80,7 +79,6 @@ calibrations = Table(
     Column("warnings", Text, nullable=False),
     Column("estimated", Text, nullable=False),
     Column("covariance", LargeBinary),
-    Column("robot_yaml", Text),
     Column("worker", String(200)),
     UniqueConstraint("serial", "session_date", "fingerprint", name="one_record_per_input"),
 )

@@ -218,7 +218,7 @@ class HistoryStore:
             "metrics": _json(metrics), "warnings": _json(record.get("warnings") or []),
             "estimated": _json(list(record.get("estimated") or [])),
             "covariance": cov.tobytes() if cov.size else None,
-            "robot_yaml": record.get("robot_yaml"), "worker": record.get("worker"),
+            "worker": record.get("worker"),
         }
         with self.engine.begin() as c:
             old = [r[0] for r in c.execute(select(c_.id).where(
@@ -261,7 +261,7 @@ class HistoryStore:
     @_guarded
     def summaries(self, serials: Iterable[str] | None = None) -> list[dict[str, Any]]:
         """Every record without its parameters, oldest session first (by serial)."""
-        cols = [col for col in calibrations.c if col.name not in ("covariance", "robot_yaml")]
+        cols = [col for col in calibrations.c if col.name != "covariance"]
         q = select(*cols).order_by(calibrations.c.serial, calibrations.c.session_date,
                                    calibrations.c.id)
         if serials is not None:
@@ -271,7 +271,7 @@ class HistoryStore:
 
     @_guarded
     def records(self, ids: Sequence[int]) -> list[dict[str, Any]]:
-        """Full records (parameters, covariance, calibrated robot) by id, in that order."""
+        """Full records (parameters, covariance) by id, in that order."""
         out: dict[int, dict[str, Any]] = {}
         with self.engine.connect() as c:
             for start in range(0, len(ids), 500):

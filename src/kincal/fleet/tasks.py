@@ -20,6 +20,7 @@ Records are SI (m, rad).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import inspect
 import json
@@ -176,8 +177,8 @@ def calibrate_session(task: SessionTask) -> dict[str, Any]:
     ``parameters`` (``CalibrationResult.to_dict()["parameters"]``: name, unit, role,
     nominal, estimate, std, identifiable, estimated), ``estimated`` and ``covariance``
     (p x p over ``estimated``, SI); ``metrics`` (``train``, ``validation``,
-    ``cross_validation`` as in the result JSON); ``warnings``; ``robot_yaml`` (the
-    calibrated robot file).
+    ``cross_validation`` as in the result JSON); ``warnings``.  The calibrated robot is
+    the nominal one with the estimates (:func:`calibrated_robot`).
     """
     t0 = time.perf_counter()
     try:
@@ -188,16 +189,46 @@ def calibrate_session(task: SessionTask) -> dict[str, Any]:
         return failure_record(task, f"calibration failed: {type(exc).__name__}: {exc}")
 
 
+def _file_stamp(spec: str) -> tuple[int, int] | None:
+    p = Path(spec)
+    if p.is_file():
+        st = p.stat()
+        return st.st_mtime_ns, st.st_size
+    return None
+
+
+@functools.lru_cache(maxsize=32)
+def _cached_robot(spec: str, base_link: str | None, tip_link: str | None,
+                  stamp: tuple[int, int] | None) -> Any:
+    from kincal.workflow.robots import load_any_robot
+
+    return load_any_robot(spec, base_link=base_link, tip_link=tip_link)
+
+
+def load_robot_cached(spec: str, options: Mapping[str, Any]) -> Any:
+    """The session's robot, parsed once per worker process and robot file version (robots
+    are immutable values; a fleet of one model would otherwise parse the same YAML or
+    URDF for every session)."""
+    return _cached_robot(spec, options.get("base_link"), options.get("tip_link"),
+                         _file_stamp(spec))
+
+
+def _read(task: SessionTask, validate: bool = True) -> Any:
+    from kincal.workflow.session import read_session
+
+    kw = _read_kwargs(task.options)
+    robot = load_robot_cached(task.robot, kw)
+    return read_session(robot, list(task.data), list(task.validate) if validate else [],
+                        spec=task.robot, **kw)
+
+
 def _calibrate(task: SessionTask, t0: float) -> dict[str, Any]:
     from kincal.report.metrics import result_json
-    from kincal.robots.files import robot_yaml_text
     from kincal.workflow.flow import run_flow
-    from kincal.workflow.session import read_session
 
     if not task.data:
         raise KincalError("no measurement files in this session")
-    session = read_session(task.robot, list(task.data), list(task.validate),
-                           **_read_kwargs(task.options))
+    session = _read(task)
     if not hasattr(session.robot, "param_names") or type(session.robot).__name__ == "FiveBar":
         raise KincalError("fleet calibration works on serial robots")
     flow = run_flow(session.robot, session.blocks, session.holdouts,
@@ -216,8 +247,7 @@ def _calibrate(task: SessionTask, t0: float) -> dict[str, Any]:
             "sigma0": float(res.sigma0), "seconds": time.perf_counter() - t0,
             "parameters": doc["parameters"], "estimated": list(res.estimated),
             "covariance": np.asarray(res.covariance, dtype=float),
-            "metrics": metrics, "warnings": list(flow.warnings),
-            "robot_yaml": robot_yaml_text(res.robot)}
+            "metrics": metrics, "warnings": list(flow.warnings)}
 
 
 def task_of_record(record: Mapping[str, Any]) -> SessionTask:
@@ -245,10 +275,9 @@ def crosscheck_session(task: SessionTask, previous: Mapping[str, float]) -> dict
     """
     from kincal.report.metrics import error_metrics, merge_errors
     from kincal.workflow.flow import validate_blocks
-    from kincal.workflow.session import read_session
 
     try:
-        session = read_session(task.robot, list(task.data), (), **_read_kwargs(task.options))
+        session = _read(task, validate=False)
         r = session.robot
         values = [float(previous.get(n, v)) for n, v in zip(r.param_names, r.param_values,
                                                              strict=True)]
@@ -259,6 +288,16 @@ def crosscheck_session(task: SessionTask, previous: Mapping[str, float]) -> dict
         return {"status": "failed", "reason": str(exc)}
     except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
         return {"status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
+
+
+def calibrated_robot(record: Mapping[str, Any]) -> Any:
+    """The calibrated robot of a record: its nominal robot with every robot parameter's
+    estimate (the robot file ``kincal calibrate -o`` writes)."""
+    task = task_of_record(record)
+    nominal = load_robot_cached(task.robot, _read_kwargs(task.options))
+    est = {p["name"]: p["estimate"] for p in record["parameters"]}
+    return nominal.with_params(np.array([est.get(n, v) for n, v in zip(
+        nominal.param_names, nominal.param_values, strict=True)]))
 
 
 def robot_parameter_names(record: Mapping[str, Any]) -> list[str]:
