@@ -75,7 +75,7 @@ def _rows(db: Path, table: str = "calibrations") -> int:
 def test_a_task_runs_exactly_kincal_calibrate(fleet, tmp_path, serial_records):
     task = load_fleet(fleet.root)[0]
     out = tmp_path / "res.json"
-    assert invoke("calibrate", "puma560", "--data", task.data[0], "--json", out) == 0
+    assert invoke("calibrate", "puma560", "--data", task.data[0].path, "--json", out) == 0
     doc = json.loads(out.read_text())
     rec = serial_records[task.serial, task.date]
     assert rec["status"] == "ok"

@@ -40,19 +40,22 @@ def _write(path: Path, text: str) -> Path:
 
 @pytest.mark.parametrize("body, message", [
     ("robots:\n  - serial: A\n    sessions:\n      - {date: 2026-13-01, data: [x.csv]}\n",
-     "line 4: robots[0].sessions[0].date: '2026-13-01' is not a date YYYY-MM-DD"),
+     "line 4: '2026-13-01': not valid YAML (month must be in 1..12)"),
+    ("robots:\n  - serial: A\n    sessions:\n      - {date: \"26-02-30\", data: [x.csv]}\n",
+     "line 4: robots[0].sessions[0].date: '26-02-30' is not a date YYYY-MM-DD"),
     ("defaults:\n  robot: puma560\n  calibration:\n    fre: role:offset\nrobots: []\n",
-     "line 4: defaults.calibration.fre: unknown calibration option"),
+     "line 4: defaults.calibration.fre: unknown key (did you mean 'free'?)"),
     ("defaults: {robot: puma560}\nrobots:\n  - serial: A\n    sesions: []\n",
-     "line 4: robots[0].sesions: unknown key"),
-    ("robots:\n  - serial: A\n    sessions:\n      - {date: 2026-01-02, data: [x.csv]}\n",
-     "line 4: robots[0].sessions[0]: no robot"),
+     "line 4: robots[0].sesions: unknown key (did you mean 'sessions'?)"),
     ("defaults: {robot: puma560}\nrobots:\n  - serial: A\n    sessions:\n"
      "      - {date: 2026-01-02, data: [x.csv]}\n      - {date: 2026-01-02, data: [y.csv]}\n",
-     "line 6: robots[0].sessions[1].date: robot A has two sessions on 2026-01-02 (the other "
-     "at line 5)"),
-    ("defaults: {robot: puma560, hold: {j1: 0deg}}\nrobots: []\n",
-     "line 1: defaults.hold: holding joints at a value is not supported"),
+     "line 6: robots[0].sessions[1].date: robot A has two sessions on 2026-01-02 (the "
+     "other: "),
+    ("defaults: {robot: puma560, outputs: {json: r.json}}\nrobots: []\n",
+     "line 1: defaults.outputs: not in a fleet manifest"),
+    ("defaults: {robot: puma560, data: [x.csv]}\nrobots: []\n",
+     "line 1: defaults.data: defaults is a setup file without data"),
+    ("fleet: x\nrobot: puma560\n", "line 2: robot: unknown key (fleet manifest keys are"),
     ("robots: [\n", "not valid YAML"),
 ])
 def test_manifest_errors_name_file_line_and_key(tmp_path, body, message):
@@ -61,6 +64,32 @@ def test_manifest_errors_name_file_line_and_key(tmp_path, body, message):
         load_manifest(path)
     assert str(err.value).startswith(f"{path}: ")
     assert message in str(err.value)
+
+
+def test_a_bad_session_fails_alone(small, tmp_path):
+    """A missing file or a bad unit inside one session fails that session only, with its
+    line; the other sessions run."""
+    r = small.robots[0]
+    good = small.root / r["serial"] / r["dates"][0] / "tracker.csv"
+    path = _write(tmp_path / "fleet.yaml", f"""
+defaults: {{robot: puma560}}
+robots:
+  - serial: A
+    sessions:
+      - {{date: 2026-01-02, data: [{good}]}}
+      - {{date: 2026-02-02, data: [missing.csv]}}
+      - date: 2026-03-02
+        data: [{{file: {good}, units: {{x: furlong}}}}]
+""")
+    ok, missing, bad_unit = load_manifest(path)
+    assert ok.error is None
+    assert "line 7: robots[0].sessions[1].data[0].file: no such file 'missing.csv'" in \
+        missing.error
+    assert "line 9: robots[0].sessions[2].data[0].units.x: unknown unit 'furlong'" in \
+        bad_unit.error
+    assert calibrate_session(ok)["status"] == "ok"
+    rec = calibrate_session(missing)
+    assert rec["status"] == "failed" and rec["reason"] == missing.error
 
 
 def test_manifest_options_reach_the_calibration(small, tmp_path):
@@ -84,8 +113,9 @@ robots:
 """)
     first, second = load_manifest(path)
     assert first.fleet == "plant-7" and first.options["cross_validate"] == 3
-    assert second.options == {"cross_validate": 2, "stages": ["offsets", "all"],
-                              "free": "role:offset", "units": {"x": "mm"}}
+    assert second.options == {"cross_validate": 2, "stages": "offsets,all",
+                              "free": "role:offset"}
+    assert dict(second.data[0].units) == {"x": "mm"}
     assert first.fingerprint != second.fingerprint
     rec = calibrate_session(first)
     out = tmp_path / "r.json"
@@ -108,7 +138,9 @@ def test_a_folder_of_serial_date_files_is_a_fleet(small, tmp_path, capsys):
                                                   "tracker.csv").read_bytes())
     with pytest.raises(KincalError, match="needs the robot"):
         load_fleet(folder)
-    tasks = load_fleet(folder, {"robot": "puma560"})
+    from kincal.fleet.manifest import setup_defaults
+
+    tasks = load_fleet(folder, setup_defaults(robot="puma560"))
     assert [(t.serial, t.date) for t in tasks] == [(r["serial"], d) for r in small.robots
                                                    for d in r["dates"]]
     code, out, _ = run(capsys, "fleet", "calibrate", folder, "--robot", "puma560", "--db",

@@ -106,10 +106,7 @@ def calibrate_cmd(
 
     out = out_console(json_out)
     wait = parse_quantity(lock_timeout, "time", "--lock-timeout", minimum=0.0)
-    defaults = setup_defaults(config) if config else {}
-    if robot:
-        defaults["robot"] = robot
-    tasks = load_fleet(fleet, defaults)
+    tasks = load_fleet(fleet, setup_defaults(config, robot))
     store = _store(db, wait)
     store.check_writable()
     bar = _Bar(not quiet and json_out != "-")

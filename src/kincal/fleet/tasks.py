@@ -44,7 +44,7 @@ __all__ = ["SessionTask", "calibrate_session", "crosscheck_session", "fingerprin
 #: keyword of its signature but the data and the progress callback).
 FLOW_OPTIONS: tuple[str, ...] = ()
 #: Options of reading the session (:func:`kincal.workflow.session.read_session`).
-READ_OPTIONS = ("units", "ignore", "joint_model", "base_link", "tip_link")
+READ_OPTIONS = ("joint_model", "base_link", "tip_link")
 
 
 def _flow_options() -> tuple[str, ...]:
@@ -65,23 +65,28 @@ class SessionTask:
         serial: the robot's serial number.
         date: the session date, ISO ``YYYY-MM-DD``.
         robot: a built-in robot name or an absolute path to a YAML / URDF file.
-        data, validate: absolute paths of the training and held-out files.
-        options: calibration options by long name (``free``, ``prior``, ``joint_model``,
-            ``cross_validate``, ``units`` ...; see :data:`FLOW_OPTIONS`, :data:`READ_OPTIONS`).
+        data, validate: the training and held-out files: absolute paths or
+            :class:`~kincal.workflow.sources.DataSource` (a file with its reading options).
+        options: the setup file's ``calibration:`` values by long name, in the form the
+            ``kincal calibrate`` option takes (``free``, ``prior``, ``joint_model``,
+            ``cross_validate``, ``stages`` ...), and ``base_link``, ``tip_link``, ``hold``.
         fleet: the fleet's name.
         fingerprint: :func:`fingerprint` of the inputs (filled in by the manifest).
         source: where the session was declared, for messages (``fleet.yaml: line 12``).
+        error: a problem found in the manifest for this session alone (a missing file):
+            the task fails with this line instead of running.
     """
 
     serial: str
     date: str
     robot: str
-    data: tuple[str, ...]
-    validate: tuple[str, ...] = ()
+    data: tuple[Any, ...]
+    validate: tuple[Any, ...] = ()
     options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     fleet: str = ""
     fingerprint: str = ""
     source: str = ""
+    error: str | None = None
 
     @property
     def label(self) -> str:
@@ -110,31 +115,52 @@ def fingerprint(task: SessionTask) -> str:
     h = hashlib.sha256()
     h.update(b"robot\0" + _robot_bytes(task.robot))
     for kind, files in (("data", task.data), ("validate", task.validate)):
-        for f in files:
-            h.update(f"\0{kind}\0{Path(f).name}\0".encode())
-            try:
-                h.update(Path(f).read_bytes())
-            except OSError:
-                h.update(b"<missing>")
+        for f in map(source_of, files):
+            how = {k: v for k, v in dataclasses.asdict(f).items() if k not in ("path", "where")}
+            h.update(f"\0{kind}\0{Path(f.path).name}\0{json.dumps(how, sort_keys=True)}\0"
+                     .encode())
+            path = Path(f.path)
+            for part in sorted(path.rglob("*")) if path.is_dir() else [path]:
+                try:
+                    h.update(part.name.encode() + b"\0" + part.read_bytes())
+                except OSError:
+                    h.update(b"<missing>")
     h.update(b"\0options\0" + json.dumps(dict(task.options), sort_keys=True,
                                          default=str).encode())
+    h.update(b"\0error\0" + (task.error or "").encode())
     return h.hexdigest()
+
+
+def source_of(item: Any) -> Any:
+    """A :class:`~kincal.workflow.sources.DataSource` for a path, a source or its dict."""
+    from kincal.workflow.sources import DataSource
+
+    if isinstance(item, DataSource):
+        return item
+    if isinstance(item, Mapping):
+        d = dict(item)
+        d["ignore"] = tuple(d.get("ignore") or ())
+        return DataSource(**d)
+    return DataSource(str(item))
 
 
 # --------------------------------------------------------------------------- options
 def flow_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
     """The :func:`~kincal.workflow.flow.run_flow` keywords of ``options`` (lists given in
     a manifest become the comma-separated text the command line takes)."""
+    from kincal.units import parse_quantity
     from kincal.workflow.options import parse_stages
 
     out: dict[str, Any] = {}
     for k, v in options.items():
         if k not in FLOW_OPTIONS:
             continue
-        if k == "stages":
-            v = parse_stages(",".join(v) if isinstance(v, list | tuple) else v)
-        elif k in ("free", "fix", "prior") and isinstance(v, list | tuple):
+        if isinstance(v, list | tuple):
             v = ",".join(map(str, v))
+        if k == "stages":
+            v = parse_stages(v)
+        elif k == "tolerance" and isinstance(v, str):
+            v = parse_quantity(v, "length", "tolerance")
         out[k] = v
     return out
 
@@ -143,10 +169,6 @@ def _read_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
     out = {k: options[k] for k in READ_OPTIONS if options.get(k) is not None}
     if isinstance(out.get("joint_model"), list | tuple):
         out["joint_model"] = ",".join(out["joint_model"])
-    if isinstance(out.get("units"), Mapping):
-        out["units"] = ",".join(f"{k}={v}" for k, v in out["units"].items())
-    if isinstance(out.get("ignore"), str):
-        out["ignore"] = [out["ignore"]]
     return out
 
 
@@ -155,9 +177,15 @@ def _base_record(task: SessionTask) -> dict[str, Any]:
     return {"fleet": task.fleet, "serial": task.serial, "date": task.date,
             "fingerprint": task.fingerprint or fingerprint(task),
             "kincal_version": __version__, "robot": task.robot,
-            "options": dict(task.options), "data": list(task.data),
-            "validate": list(task.validate),
+            "options": dict(task.options), "data": [_source_dict(f) for f in task.data],
+            "validate": [_source_dict(f) for f in task.validate],
             "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def _source_dict(item: Any) -> dict[str, Any]:
+    d = dataclasses.asdict(source_of(item))
+    d["ignore"] = list(d["ignore"])
+    return d
 
 
 def failure_record(task: SessionTask, reason: str) -> dict[str, Any]:
@@ -181,6 +209,8 @@ def calibrate_session(task: SessionTask) -> dict[str, Any]:
     the nominal one with the estimates (:func:`calibrated_robot`).
     """
     t0 = time.perf_counter()
+    if task.error:
+        return failure_record(task, task.error)
     try:
         return _calibrate(task, t0)
     except KincalError as exc:
@@ -213,12 +243,24 @@ def load_robot_cached(spec: str, options: Mapping[str, Any]) -> Any:
                          _file_stamp(spec))
 
 
+def _robot_of(task: SessionTask) -> Any:
+    """The session's nominal robot: parsed once per process, joints held as the setup says."""
+    from kincal.workflow.config import Setup, hold_robot
+
+    robot = load_robot_cached(task.robot, _read_kwargs(task.options))
+    if task.options.get("hold"):
+        hold = {j: (float(v[0]), v[1]) for j, v in task.options["hold"].items()}
+        robot = hold_robot(robot, Setup(hold=hold, source=task.source or None))
+    return robot
+
+
 def _read(task: SessionTask, validate: bool = True) -> Any:
     from kincal.workflow.session import read_session
 
     kw = _read_kwargs(task.options)
-    robot = load_robot_cached(task.robot, kw)
-    return read_session(robot, list(task.data), list(task.validate) if validate else [],
+    robot = _robot_of(task)
+    return read_session(robot, [source_of(f) for f in task.data],
+                        [source_of(f) for f in task.validate] if validate else [],
                         spec=task.robot, **kw)
 
 
@@ -293,8 +335,7 @@ def crosscheck_session(task: SessionTask, previous: Mapping[str, float]) -> dict
 def calibrated_robot(record: Mapping[str, Any]) -> Any:
     """The calibrated robot of a record: its nominal robot with every robot parameter's
     estimate (the robot file ``kincal calibrate -o`` writes)."""
-    task = task_of_record(record)
-    nominal = load_robot_cached(task.robot, _read_kwargs(task.options))
+    nominal = _robot_of(task_of_record(record))
     est = {p["name"]: p["estimate"] for p in record["parameters"]}
     return nominal.with_params(np.array([est.get(n, v) for n, v in zip(
         nominal.param_names, nominal.param_values, strict=True)]))

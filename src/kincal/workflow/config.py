@@ -174,11 +174,33 @@ def read_yaml(path: str | os.PathLike[str], what: str = "setup file") -> YamlDoc
         raise SetupError(f"{where}not valid YAML ({problem})", source=src) from None
     except RecursionError:
         raise SetupError("nested too deeply to be a setup file", source=src) from None
+    except ValueError as exc:            # a scalar YAML types but cannot build (2026-13-01)
+        raise SetupError(f"{_bad_scalar_line(node)}not valid YAML ({exc})", source=src
+                         ) from None
     lines: dict[KeyPath, int] = {}
     if node is not None:
         lines[()] = node.start_mark.line + 1
         _walk(node, (), lines, set())
     return YamlDocument(data, src, lines)
+
+
+def _bad_scalar_line(node: Any) -> str:
+    """``"line N: "`` of the first scalar that YAML types but cannot construct."""
+    import yaml
+
+    stack = [node]
+    while stack:
+        n = stack.pop(0)
+        if isinstance(n, yaml.ScalarNode):
+            try:
+                yaml.SafeLoader("").construct_object(n)
+            except ValueError:
+                return f"line {n.start_mark.line + 1}: {n.value!r}: "
+        elif isinstance(n, yaml.MappingNode):
+            stack += [x for kv in n.value for x in kv]
+        elif isinstance(n, yaml.SequenceNode):
+            stack += list(n.value)
+    return ""
 
 
 def _walk(node: Any, path: KeyPath, lines: dict[KeyPath, int], seen: set[int]) -> None:
