@@ -49,7 +49,7 @@ def measure(fleet: str, engine_name: str) -> dict:
     from kincal.fleet.store import HistoryStore
 
     tasks = load_fleet(fleet)
-    out: dict = {"engine": engine_name, "robots": len(tasks)}
+    out: dict = {"engine": engine_name, "robots": len(tasks), "load": os.getloadavg()[0]}
     t0 = time.perf_counter()
     engine = SerialEngine() if engine_name == "serial" else DaskEngine(workers=int(engine_name))
     if engine_name != "serial":
@@ -90,7 +90,7 @@ def main() -> None:
 
     root = Path(args.root or tempfile.mkdtemp(prefix="kincal-fleet-bench-"))
     engines = args.engines.split(",")
-    rows = []
+    rows, loads = [], []
     for size in map(int, args.sizes.split(",")):
         fleet = root / f"fleet-{size}"
         if not (fleet / "fleet.yaml").is_file():
@@ -106,6 +106,7 @@ def main() -> None:
                                      capture_output=True, text=True, check=True)
                 runs[e].append(json.loads(got.stdout.strip().splitlines()[-1]))
                 r = runs[e][-1]
+                loads.append(r["load"])
                 print(f"# {size} robots, {e}: {r['calibrate_s']:.1f} s (+{r['startup_s']:.1f}"
                       f" s start-up), repeat {rep + 1}", file=sys.stderr)
         for e in engines:
@@ -116,7 +117,8 @@ def main() -> None:
                          runs[e][0]["failed"]))
     base = {size: med["calibrate_s"] for size, e, med, _, _ in rows if e == "serial"}
     print(f"\nfleet calibration, {args.poses} poses per robot, median of {args.repeats} "
-          f"interleaved repeat(s), {os.cpu_count()} cores")
+          f"interleaved repeat(s), {os.cpu_count()} cores, 1-minute load average at the "
+          f"start of each run {min(loads):.1f}-{max(loads):.1f}")
     print("| robots | engine | start-up [s] | calibration [s] | robots/s | vs loop | "
           "overhead per task [ms] | client peak [MB] | worker peak [MB] |")
     print("|---|---|---|---|---|---|---|---|---|")
