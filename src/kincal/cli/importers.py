@@ -103,3 +103,88 @@ def ur_kinematics(
     _round_trip_report(out, r, nom, text)
     atomic_write_text(output, text)
     out.print(f"kinematics YAML -> {escape(output)}")
+
+
+def _speed(text: str, option: str) -> float:
+    """``0.5deg/s``, ``0.01rad/s``, ``2mm/s`` -> SI per second."""
+    from kincal.units import parse_quantity
+
+    t = text.strip()
+    if not t.endswith("/s"):
+        raise KincalError(f"option {option}: {text!r} is not a speed with its unit "
+                          "(0.5deg/s, 0.01rad/s, 2mm/s)")
+    return parse_quantity(t[:-2], ("angle", "length"), option, positive=True)
+
+
+@import_app.command("bag")
+def import_bag(
+    bag: Annotated[str, typer.Argument(help="ROS 1 .bag file, or ROS 2 bag folder (.db3 or "
+                                       ".mcap storage).")],
+    output: Annotated[str, typer.Option("-o", "--output", help="kincal measurement CSV to "
+                                        "write.")],
+    joints: Annotated[str, typer.Option("--joints", help="sensor_msgs/JointState topic.")
+                      ] = "/joint_states",
+    point: Annotated[str | None, typer.Option("--point", help="geometry_msgs/PointStamped "
+                                              "topic of a tracked point (laser tracker).")
+                     ] = None,
+    pose: Annotated[str | None, typer.Option("--pose", help="geometry_msgs/PoseStamped topic "
+                                             "(a tracked rigid body).")] = None,
+    tf: Annotated[str | None, typer.Option("--tf", help="PARENT:CHILD frames of a /tf "
+                                           "transform (e.g. mocap:tool_marker).")] = None,
+    joint_names: Annotated[str | None, typer.Option("--joint-names", help="Keep only these "
+                                                    "joints, comma separated (default: all "
+                                                    "of the message).")] = None,
+    still_speed: Annotated[str, typer.Option("--still-speed", help="A joint faster than this "
+                                             "is moving.")] = "0.01rad/s",
+    still_time: Annotated[str, typer.Option("--still-time", help="Shortest standstill that "
+                                            "is a posture.")] = "1s",
+    settle: Annotated[str, typer.Option("--settle", help="Cut from both ends of a "
+                                        "standstill.")] = "0.2s",
+    max_spread: Annotated[str, typer.Option("--max-spread", help="Drop a posture whose "
+                                            "instrument samples spread more.")] = "1mm",
+    min_samples: Annotated[int, typer.Option("--min-samples", min=1, help="Fewest instrument "
+                                             "samples in a posture.")] = 3,
+    name: Annotated[str, typer.Option("--name", help="Instrument name in the file.")] = "bag",
+    json_out: Annotated[str | None, typer.Option("--json", help="Also write the postures "
+                                                 "and the dropped ones as JSON.")] = None,
+) -> None:
+    """Static postures of a recorded session (ROS bag) as a kincal measurement file: the
+    joint states and an instrument's stream averaged over each standstill."""
+    from kincal.io import atomic_write_text, write_json
+    from kincal.measure.bags import (
+        StillOptions,
+        find_postures,
+        measurement_text,
+        read_bag_streams,
+    )
+    from kincal.units import parse_quantity
+
+    out = out_console(json_out)
+    opt = StillOptions(
+        still_speed=_speed(still_speed, "--still-speed"),
+        still_time=parse_quantity(still_time, "time", "--still-time", positive=True),
+        settle=parse_quantity(settle, "time", "--settle", minimum=0.0),
+        min_samples=min_samples,
+        max_spread=parse_quantity(max_spread, "length", "--max-spread", positive=True))
+    names = [n.strip() for n in joint_names.split(",")] if joint_names else None
+    s = read_bag_streams(bag, joints, point, pose, tf, names)
+    postures, dropped = find_postures(s, opt)
+    if not postures:
+        raise KincalError(f"{bag}: no static posture found ({len(dropped)} standstills "
+                          "dropped" + (f": {dropped[0]}" if dropped else "") + "); check "
+                          "--still-speed and --still-time")
+    atomic_write_text(output, measurement_text(s, postures, name))
+    sig = np.array([p.sigma for p in postures]) * 1e3
+    out.print(f"{escape(Path(bag).name)}: {len(s.joint_t)} joint states, {len(s.meas_t)} "
+              f"instrument samples; {len(postures)} static postures "
+              f"({np.median([p.n for p in postures]):.0f} samples each, median), sigma "
+              f"{sig.min():.4f}-{sig.max():.4f} mm")
+    for line in dropped:
+        out.print(f"[yellow]dropped[/yellow] {escape(line)}")
+    out.print(f"measurements -> {escape(output)} (joints {', '.join(s.joint_names)})")
+    if json_out:
+        write_json(json_out, {
+            "bag": bag, "output": output, "joint_names": s.joint_names,
+            "postures": [{"t0_s": p.t0, "t1_s": p.t1, "q": p.q, "position_m": p.p,
+                          "sigma_m": p.sigma, "samples": p.n} for p in postures],
+            "dropped": dropped})

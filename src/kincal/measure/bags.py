@@ -1,0 +1,286 @@
+"""ROS bags in: the static postures of a recorded session as a kincal measurement file.
+
+A calibration session recorded in a bag has the robot's ``sensor_msgs/JointState`` stream
+and an instrument's stream: a tracked point (``geometry_msgs/PointStamped``), a pose
+(``geometry_msgs/PoseStamped``) or a transform on ``/tf`` (``PARENT:CHILD``, e.g. a
+motion-capture rigid body).  The robot stops at each posture for the measurement and
+moves in between, and the instrument may report all the time.
+
+**Static postures.**  A standstill is a maximal run of joint samples in which every
+joint's speed ``|q_{k+1} - q_k| / (t_{k+1} - t_k)`` stays below ``still_speed`` [rad/s or
+m/s], lasting at least ``still_time`` [s].  Its first and last ``settle`` seconds are cut
+(the arm still rings after a stop).  The posture is the mean of the joint samples in what
+remains, the measurement the mean of the instrument samples in the same time window
+(poses: the chordal mean of the rotations), and its ``sigma`` the standard error of that
+mean, ``sqrt(mean per-axis variance / n)``, at least ``sigma_floor``.
+
+A posture is dropped, and the reason reported, when its standstill is too short, when
+the instrument has fewer than ``min_samples`` samples in it (a tracker that lost the
+reflector), or when the instrument samples spread more than ``max_spread`` (the marker
+moved).  Defaults (0.01 rad/s, 1 s, 0.2 s, 3 samples, 1 mm) suit a laser tracker at
+10-1000 Hz and a motion-capture system at 100-200 Hz with joint states at 50-1000 Hz.
+
+Reading uses ``rosbags`` (pure Python, no ROS install; the ``ros`` extra): ROS 1 ``.bag``
+files and ROS 2 bag folders with ``.db3`` or ``.mcap`` storage.  Units: SI inside; the
+written file says its units in every column.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kincal.errors import MeasurementFileError
+from kincal.spatial import log_so3, matrix_to_rpy
+
+Array = NDArray[np.float64]
+
+__all__ = ["BagSession", "Posture", "StillOptions", "find_postures", "read_bag_streams"]
+
+
+@dataclass(frozen=True)
+class StillOptions:
+    """How standstills are found (module docstring); SI units."""
+
+    still_speed: float = 0.01
+    still_time: float = 1.0
+    settle: float = 0.2
+    min_samples: int = 3
+    max_spread: float = 1e-3
+    sigma_floor: float = 1e-6
+
+
+@dataclass
+class BagSession:
+    """The streams of a bag: joint states and instrument samples, times in s."""
+
+    joint_names: list[str]
+    joint_t: Array
+    joint_q: Array
+    meas_t: Array
+    meas_p: Array
+    meas_R: Array | None
+    kind: str                                 # "point" | "pose"
+    source: str
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Posture:
+    """One static posture: mean joints, mean measurement, its sigma and time window."""
+
+    t0: float
+    t1: float
+    q: Array
+    p: Array
+    R: Array | None
+    sigma: float
+    sigma_rot: float
+    n: int
+
+
+def _stamp(msg: object, fallback_ns: int) -> float:
+    header = getattr(msg, "header", None)
+    st = getattr(header, "stamp", None)
+    if st is not None:
+        t = float(st.sec) + 1e-9 * float(st.nanosec)
+        if t > 0:
+            return t
+    return fallback_ns * 1e-9
+
+
+def _quat_matrix(x: float, y: float, z: float, w: float) -> Array:
+    q = np.array([w, x, y, z], dtype=float)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def read_bag_streams(path: str, joints_topic: str, point: str | None = None,
+                     pose: str | None = None, tf: str | None = None,
+                     joint_names: Sequence[str] | None = None) -> BagSession:
+    """Read the joint states and one instrument stream of a bag (module docstring).
+
+    Exactly one of ``point`` (topic), ``pose`` (topic) or ``tf`` (``"PARENT:CHILD"``).
+    ``joint_names`` keeps only those joints (default: every joint of the first message).
+    Errors name the bag and the topic.
+    """
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:                                  # pragma: no cover
+        raise MeasurementFileError("reading ROS bags needs the 'ros' extra: pip install "
+                                   "'kincal[ros]'", source=path) from None
+    chosen = [x for x in (point, pose, tf) if x]
+    if len(chosen) != 1:
+        raise MeasurementFileError("give exactly one of --point TOPIC, --pose TOPIC, "
+                                   "--tf PARENT:CHILD", source=path)
+    p = Path(path)
+    if not p.exists():
+        raise MeasurementFileError("no such bag", source=path)
+    parent = child = None
+    if tf:
+        if ":" not in tf:
+            raise MeasurementFileError(f"--tf {tf!r}: give PARENT:CHILD frame names",
+                                       source=path)
+        parent, child = tf.split(":", 1)
+    meas_topic = point or pose or "/tf"
+    jt: list[float] = []
+    jq: list[list[float]] = []
+    names: list[str] | None = None
+    mt: list[float] = []
+    mp: list[list[float]] = []
+    mR: list[Array] = []
+    try:
+        reader = AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+    except Exception as exc:                            # noqa: BLE001 - rosbags' own errors
+        raise MeasurementFileError(f"not a readable ROS bag ({exc})", source=path) from None
+    with reader:
+        topics = {c.topic: c for c in reader.connections}
+        for topic in (joints_topic, meas_topic):
+            if topic not in topics:
+                raise MeasurementFileError(f"no topic {topic!r} (topics: "
+                                           f"{', '.join(sorted(topics))})", source=path)
+        conns = [c for c in reader.connections if c.topic in (joints_topic, meas_topic)]
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == joints_topic:
+                if names is None:
+                    names = list(msg.name)
+                    keep = list(joint_names) if joint_names else names
+                    missing = [n for n in keep if n not in names]
+                    if missing:
+                        raise MeasurementFileError(f"{joints_topic}: no joint "
+                                                   f"{', '.join(missing)} (joints: "
+                                                   f"{', '.join(names)})", source=path)
+                    names = keep
+                order = {n: i for i, n in enumerate(msg.name)}
+                try:
+                    jq.append([float(msg.position[order[n]]) for n in names])
+                except (KeyError, IndexError):
+                    continue                            # a message for other joints
+                jt.append(_stamp(msg, t_ns))
+            elif tf:
+                for tr in msg.transforms:
+                    if tr.header.frame_id.lstrip("/") == parent.lstrip("/") and \
+                            tr.child_frame_id.lstrip("/") == child.lstrip("/"):
+                        v, r = tr.transform.translation, tr.transform.rotation
+                        mt.append(_stamp(tr, t_ns))
+                        mp.append([v.x, v.y, v.z])
+                        mR.append(_quat_matrix(r.x, r.y, r.z, r.w))
+            elif pose:
+                ps = msg.pose
+                mt.append(_stamp(msg, t_ns))
+                mp.append([ps.position.x, ps.position.y, ps.position.z])
+                o = ps.orientation
+                mR.append(_quat_matrix(o.x, o.y, o.z, o.w))
+            else:
+                mt.append(_stamp(msg, t_ns))
+                mp.append([msg.point.x, msg.point.y, msg.point.z])
+    if not jt:
+        raise MeasurementFileError(f"{joints_topic}: no joint states", source=path)
+    if not mt:
+        what = f"transform {parent} -> {child}" if tf else f"messages on {meas_topic}"
+        raise MeasurementFileError(f"no {what}", source=path)
+    jt_a, mt_a = np.array(jt), np.array(mt)
+    js, ms = np.argsort(jt_a, kind="stable"), np.argsort(mt_a, kind="stable")
+    kind = "point" if point else "pose"
+    return BagSession(list(names or []), jt_a[js], np.array(jq)[js], mt_a[ms],
+                      np.array(mp)[ms], (np.array(mR)[ms] if kind == "pose" else None),
+                      kind, path)
+
+
+def _still_runs(t: Array, q: Array, speed: float) -> list[tuple[int, int]]:
+    """Index ranges [i, j] of maximal runs of samples whose neighbouring speeds are low."""
+    if len(t) < 2:
+        return []
+    dt = np.diff(t)
+    v = np.max(np.abs(np.diff(q, axis=0)), axis=1) / np.where(dt > 0, dt, np.inf)
+    slow = v < speed
+    runs = []
+    i = None
+    for k, s in enumerate(slow):
+        if s and i is None:
+            i = k
+        elif not s and i is not None:
+            runs.append((i, k))
+            i = None
+    if i is not None:
+        runs.append((i, len(slow)))
+    return runs
+
+
+def _mean_rotation(R: Array) -> Array:
+    U, _, Vt = np.linalg.svd(R.mean(axis=0))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def find_postures(s: BagSession, opt: StillOptions = StillOptions()
+                  ) -> tuple[list[Posture], list[str]]:
+    """The static postures of a session and one line per dropped standstill."""
+    postures: list[Posture] = []
+    dropped: list[str] = []
+    for i, j in _still_runs(s.joint_t, s.joint_q, opt.still_speed):
+        t0, t1 = float(s.joint_t[i]), float(s.joint_t[j])
+        where = f"standstill {t0 - s.joint_t[0]:.2f}-{t1 - s.joint_t[0]:.2f} s"
+        if t1 - t0 < opt.still_time:
+            if t1 - t0 >= 0.25 * opt.still_time:
+                dropped.append(f"{where}: shorter than {opt.still_time:g} s")
+            continue
+        a, b = t0 + opt.settle, t1 - opt.settle
+        jsel = (s.joint_t >= a) & (s.joint_t <= b)
+        msel = (s.meas_t >= a) & (s.meas_t <= b)
+        n = int(msel.sum())
+        if n < opt.min_samples:
+            dropped.append(f"{where}: {n} instrument sample{'s' if n != 1 else ''} "
+                           f"(at least {opt.min_samples} needed; marker lost?)")
+            continue
+        p = s.meas_p[msel]
+        spread = float(np.max(np.linalg.norm(p - p.mean(axis=0), axis=1)))
+        if spread > opt.max_spread:
+            dropped.append(f"{where}: the instrument samples spread {spread * 1e3:.3f} mm "
+                           f"(more than {opt.max_spread * 1e3:g} mm: the marker moved)")
+            continue
+        sigma = max(math.sqrt(float(np.mean(p.var(axis=0, ddof=1))) / n), opt.sigma_floor)
+        R = None
+        sigma_rot = math.nan
+        if s.meas_R is not None:
+            Rs = s.meas_R[msel]
+            R = _mean_rotation(Rs)
+            w = log_so3(Rs @ R.T)
+            sigma_rot = max(math.sqrt(float(np.mean(w.var(axis=0, ddof=1))) / n), 1e-7)
+        postures.append(Posture(a, b, s.joint_q[jsel].mean(axis=0), p.mean(axis=0), R,
+                                sigma, sigma_rot, n))
+    return postures, dropped
+
+
+def measurement_text(s: BagSession, postures: Sequence[Posture], name: str = "bag") -> str:
+    """The kincal measurement CSV of the postures: joints in rad (m for prismatic joints is
+    not known from a JointState: all joints are written in rad), x, y, z in mm, rx, ry, rz
+    (roll-pitch-yaw) in deg for poses, sigma per posture."""
+    pose = s.kind == "pose"
+    tag = "pose" if pose else "position"
+    head = [f"{n}_rad" for n in s.joint_names] + ["x_mm", "y_mm", "z_mm"]
+    if pose:
+        head += ["rx_deg", "ry_deg", "rz_deg"]
+    head += ["sigma_mm"] + (["sigma_rot_deg"] if pose else [])
+    lines = [f"# kincal measurements: instrument={tag}; name={name}",
+             f"# {len(postures)} static postures from {Path(s.source).name} "
+             "(kincal import bag)", ",".join(head)]
+    for ps in postures:
+        row = [repr(float(v)) for v in ps.q] + [f"{v * 1e3:.6f}" for v in ps.p]
+        if pose and ps.R is not None:
+            row += [f"{math.degrees(v):.8f}" for v in matrix_to_rpy(ps.R)]
+        row += [f"{ps.sigma * 1e3:.6f}"]
+        if pose:
+            row += [f"{math.degrees(ps.sigma_rot):.8f}"]
+        lines.append(",".join(row))
+    return "\n".join(lines) + "\n"
