@@ -150,6 +150,8 @@ def import_bag(
 ) -> None:
     """Static postures of a recorded session (ROS bag) as a kincal measurement file: the
     joint states and an instrument's stream averaged over each standstill."""
+    import numpy as np
+
     from kincal.io import atomic_write_text, write_json
     from kincal.measure.bags import (
         StillOptions,
