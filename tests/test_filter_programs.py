@@ -368,3 +368,30 @@ def test_plan_writes_a_joint_move_program_the_readers_read_back(case, tmp_path, 
     scale = 1.0 if dialect == "urscript" else math.pi / 180
     assert q_read.shape == q_plan.shape
     assert np.abs(q_read - q_plan).max() <= 0.5 * 10 ** -digits * scale * 1.01 * 2
+
+
+def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
+    """With a calibration result, each filtered target gets the predicted position std of
+    the calibrated model there, and targets whose joints leave the training ranges are
+    flagged 'outside the calibrated region'."""
+    from kincal.compensation.filter import accuracy_from_result
+    from kincal.identify.solver import calibrate
+    from kincal.measure.simulate import simulate_positions
+
+    nom = load_robot("ur5")
+    truth = perturb_robot(nom, np.random.default_rng(3))
+    rng = np.random.default_rng(4)
+    q = rng.uniform(-0.6, 0.6, (40, 6)) + np.array([0.1, -1.2, 1.5, -1.9, -1.57, 0.3])
+    res = calibrate(nom, [simulate_positions(truth, q, rng, noise_std=1e-5)])
+    src = _copy(tmp_path, "pick_and_place.script")
+    out = filter_program(str(src), res.robot, nom, accuracy=accuracy_from_result(res))
+    poses = [r for r in out.reports if r.kind == "pose"]
+    assert all(0 < r.predicted_std_mm < 0.05 for r in poses)
+    # a far target (shoulder pan turned by 2 rad) is outside the region the data covered
+    text = src.read_text().replace("movej(home, a=1.4, v=1.05)",
+                                   "movej([2.5, -1.2, 1.5, -1.9, -1.57, 0.3])\n"
+                                   "  movel(p[0.5, 0.3, 0.2, 0.0, 3.14, 0.0])")
+    src.write_text(text)
+    out = filter_program(str(src), res.robot, nom, accuracy=accuracy_from_result(res))
+    flagged = [r for r in out.reports if "outside the calibrated region" in r.warnings]
+    assert flagged and all(r.kind == "pose" for r in flagged)

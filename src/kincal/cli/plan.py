@@ -477,6 +477,7 @@ def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str |
               cycles: int, program: str | None, dwell: str, angle_unit: str, length_unit: str,
               base_link: str | None, tip_link: str | None, json_out: str | None) -> None:
     """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles."""
+    import numpy as np
     from rich.table import Table as _Table
 
     from kincal.identify.design import write_poses

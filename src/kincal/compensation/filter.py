@@ -319,3 +319,31 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
             warnings[good[k]].append("outside the calibrated region")
     return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
                         reason, warnings, signs)
+
+
+def accuracy_from_result(result: object, tool_point: Array | None = None,
+                         margin: float = 0.0) -> AccuracyModel:
+    """An :data:`AccuracyModel` from a calibration result (in memory).
+
+    The predicted std is :func:`kincal.identify.accuracy.predicted_position_std` of the
+    flange point (``tool_point``, (3,) in the flange frame [m], default its origin)
+    through the robot parameters' covariance.  A configuration is inside the calibrated
+    region when every joint lies within the range the training blocks covered (widened
+    by ``margin`` [rad / m]): outside it the prediction is an extrapolation.
+    """
+    from kincal.identify.accuracy import predicted_position_std
+
+    qs = [np.asarray(b.q, dtype=float) for b in result.problem.blocks  # type: ignore[attr-defined]
+          if hasattr(b, "q")]
+    q_all = np.vstack(qs) if qs else None
+    lo = q_all.min(axis=0) - margin if q_all is not None else None
+    hi = q_all.max(axis=0) + margin if q_all is not None else None
+    point = np.zeros(3) if tool_point is None else np.asarray(tool_point, dtype=float)
+
+    def model(q: Array) -> tuple[Array, NDArray[np.bool_]]:
+        std = predicted_position_std(result, q, point=point)  # type: ignore[arg-type]
+        inside = (np.all((q >= lo) & (q <= hi), axis=1) if lo is not None
+                  else np.ones(len(q), bool))
+        return std, inside
+
+    return model
