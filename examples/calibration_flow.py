@@ -1,4 +1,4 @@
-"""The calibration flow of seed 000 with the library API, on a simulated PUMA 560.
+"""The calibration flow of the lecture slides with the library API, on a simulated PUMA 560.
 
 1. make a "real" robot: the nominal PUMA 560 plus geometric errors (the lecture's
    tolerances and encoder zero offsets);

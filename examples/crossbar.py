@@ -1,4 +1,4 @@
-"""The cross-bar patent (seed 001) end to end, on a simulated PUMA 560.
+"""The cross-bar patent's procedure end to end, on a simulated PUMA 560.
 
 A probe of length 100 mm on the flange is seated in the sockets A, B, C, D of a cross
 with |AC| = |BD| = 300 mm, AC perpendicular to BD, placed 20 times in the workspace;

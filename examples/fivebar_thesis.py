@@ -9,7 +9,7 @@ repeats the run with the task-space residual and with noisy readings.
 
     python examples/fivebar_thesis.py [output folder]
 
-The same from the command line: ``kincal fivebar-thesis --out DIR --json FILE``.
+The same from the command line: ``kincal fivebar-demo --out-dir DIR --json FILE``.
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ def main() -> None:
     print(f"peak |theta2_dot| ratio J^-1 / DLS = "
           f"{np.abs(inv.qd[:, 1]).max() / np.abs(dls.qd[:, 1]).max():.3g}")
     plot_clik(runs, args.out / "seed003_clik.png",
-              title="seed 003: J^-1, DLS and adaptive damping along p_i -> p_f")
+              title="spherical arm: J^-1, DLS and adaptive damping along p_i -> p_f")
     print(f"CSV and plot written to {args.out}/")
 
 

@@ -320,8 +320,9 @@ def test_compensate_command(flow, capsys, tmp_path):
     Tc = cal.fk(qc)
     # targets were written with 1e-12 mm precision; the commands hit them to ~1e-9 m
     assert np.max(np.linalg.norm(Tc[:, :3, 3] - Tt[:, :3, 3], axis=1)) < 1e-9
-    F = np.loadtxt(filt, delimiter=",", skiprows=2, ndmin=2)
-    np.testing.assert_allclose(F[:, :3], nominal.fk(qc)[:, :3, 3], atol=1e-12)
+    F = np.loadtxt(filt, delimiter=",", skiprows=2, ndmin=2)      # in the targets' mm / deg
+    assert filt.read_text().splitlines()[1].startswith("x_mm,y_mm,z_mm,rx_deg")
+    np.testing.assert_allclose(F[:, :3] * 1e-3, nominal.fk(qc)[:, :3, 3], atol=1e-12)
     assert json.loads(js.read_text())["branch_changes"] == []
     # an unreachable target: exit 2, one line naming the line, nothing written
     targets.write_text(targets.read_text() + "9000,0,0,0,0,0\n")

@@ -49,7 +49,14 @@ def test_show_lists_joints_and_parameters(monkeypatch, capsys):
     robot = load_robot("puma560")
     for name in robot.param_names + robot.joint_names:
         assert name in out
-    assert "431.8000 mm" in out and "90.0000°" in out and "-160.0°" in out
+    rows = {ln.split("│")[1].strip(): ln for ln in out.splitlines() if ln.count("│") >= 4}
+    assert "431.8000" in rows["a[2]"] and "│ mm " in rows["a[2]"]        # value and unit agree
+    assert "90.0000" in rows["alpha[1]"] and "│ deg " in rows["alpha[1]"]
+    assert "-160.0 deg" in out
+    assert "d1 = 0" in out and "0.672 m" in out        # the notes: why RTB's PUMA differs
+    code, out, err = run_cli(monkeypatch, capsys, "show", "puma560", "--si")
+    rows = {ln.split("│")[1].strip(): ln for ln in out.splitlines() if ln.count("│") >= 4}
+    assert "0.4318000" in rows["a[2]"] and "│ m " in rows["a[2]"]
 
 
 def test_show_json_to_stdout_is_pure_json(monkeypatch, capsys):
@@ -75,7 +82,9 @@ def test_fk_table_output(monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "fk", "puma560", "--q", Q_TEXT)
     assert code == 0, err
     T = load_robot("puma560").fk(Q)
-    assert f"{T[0, 3]: .6f}".strip() in out and "position [mm]" in out
+    assert f"{T[0, 3] * 1e3:.4f}" in out and "position [mm]" in out
+    code, out, err = run_cli(monkeypatch, capsys, "fk", "puma560", "--q", Q_TEXT, "--si")
+    assert f"{T[0, 3]:.7f}" in out and "position [m]" in out
 
 
 def test_fk_deg_converts_revolute_joints_only(monkeypatch, capsys, prismatic_file):

@@ -36,8 +36,8 @@ def patent(tmp_path_factory):
                                ("sim", "sim.json"), ("cal", "cal.yaml"), ("json", "r.json"),
                                ("html", "r.html"))}
     sim = ["simulate", "puma560", "--instrument", "cross-bar", "--placements", PLACEMENTS,
-           "--bar-length", BAR_MM, "--probe-length", PROBE_MM, "--encoder-noise-deg",
-           ENCODER_DEG, "--seed", 3, "-o", f["cb"], "--truth", f["truth"],
+           "--bar-length", f"{BAR_MM}mm", "--probe-length", f"{PROBE_MM}mm", "--encoder-noise",
+           f"{ENCODER_DEG}deg", "--seed", 3, "-o", f["cb"], "--truth", f["truth"],
            "--holdout", f["hold"], "--json", f["sim"]]
     cal = ["calibrate", "puma560", "--data", f["cb"], "--procedure", "patent",
            "--condition-growth", "1.0", "-o", f["cal"], "--json", f["json"], "--report",
@@ -136,9 +136,9 @@ def test_report_has_the_patent_section_and_figures(patent):
     assert "Comparison with one-stage Levenberg-Marquardt" in text
     assert text.rstrip().endswith("</html>")
     outputs = json.loads(patent["json"].read_text())["outputs"]
-    for key in ("figure4", "figure5", "figure5_zoom"):
+    for key in ("lengths_nominal", "lengths_calibrated", "lengths_calibrated_zoom"):
         png = Path(outputs[key])
-        assert png.parent == patent["html"].parent and png.name.startswith("r_figure")
+        assert png.parent == patent["html"].parent and png.name.startswith("r_lengths")
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert text.count("data:image/png;base64,") >= 3 + 3   # report plots + the figures
 
@@ -160,12 +160,12 @@ def test_bad_patent_options_are_one_line_and_write_nothing(patent, capsys, tmp_p
 
 def test_artifact_flags_need_an_artifact_instrument(capsys, tmp_path):
     out = tmp_path / "m.csv"
-    code, _, err = run(capsys, "simulate", "puma560", "-o", out, "--bar-length", "300")
+    code, _, err = run(capsys, "simulate", "puma560", "-o", out, "--bar-length", "300mm")
     assert code == 2 and "--bar-length" in err and "position" in err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
     # two-socket: --bar-length is the socket distance
     code, _, err = run(capsys, "simulate", "puma560", "-o", out, "--instrument", "two-socket",
-                       "--bar-length", "60", "--placements", "2", "--option", "visits=2",
+                       "--bar-length", "6cm", "--placements", "2", "--option", "visits=2",
                        "--seed", "1", "--json", tmp_path / "s.json")
     assert code == 0, err
     opts = json.loads((tmp_path / "s.json").read_text())["instrument_options"]

@@ -56,7 +56,7 @@ def test_plan_from_a_candidate_file_in_degrees(puma, tmp_path) -> None:
         f.write("170,0,0,0,0,0\n")                          # q1 beyond its 160 deg limit
     out = tmp_path / "sel.csv"
     res = runner.invoke(app, ["plan", "puma560", "--candidates-file", str(cand), "-n", "12",
-                              "-c", "kappa", "--grid", "2", "--min-distance-deg", "20",
+                              "-c", "kappa", "--grid", "2", "--min-distance", "20deg",
                               "--angle-unit", "deg", "-o", str(out)], terminal_width=140)
     assert res.exit_code == 0, res.output
     assert "(1 row outside the joint limits dropped)" in " ".join(res.output.split())

@@ -187,16 +187,22 @@ def test_result_csv_has_units(tmp_path, seed_runs):
 
 
 def test_cli_clik_writes_csv_plots_and_summary(tmp_path):
-    res = runner.invoke(app, ["clik", "--out", str(tmp_path), "--dt", "0.004", "--json", "-"])
+    """kincal clik ROBOT: the spherical arm's line p_i -> p_f, from the command line."""
+    from kincal.motion.clik import SEED003_P_F, SEED003_P_I
+
+    p_f = ",".join(f"{v * 1e3:.9f}" for v in SEED003_P_F) + "mm"
+    res = runner.invoke(app, ["clik", "spherical_rrp", "--start", "0,45deg,0.5m",
+                              f"--end-position={p_f}", "--out-dir", str(tmp_path),
+                              "--dt", "4ms", "--json", "-"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     inv, dls = out["runs"]
     assert inv["method"] == "inverse" and dls["method"] == "dls"
-    assert inv["theta2_dot_peak_ratio_first_over_this"] == 1.0
-    assert dls["theta2_dot_peak_ratio_first_over_this"] > 1e3
+    assert inv["peak_speed_ratio_first_over_this"] == [1.0, 1.0, 1.0]
+    assert dls["peak_speed_ratio_first_over_this"][1] > 1e3      # theta2 blows up with J^-1
     assert dls["final_position_error_m"] < 1e-5
-    np.testing.assert_allclose(out["fk_q0"], out["p_i"], atol=1e-15)
-    np.testing.assert_allclose(out["fk_qf"], out["p_f"], atol=1e-15)
-    assert out["line_inside_unreachable_cylinder_s"][0] == pytest.approx(0.1032, abs=1e-4)
+    assert dls["max_path_deviation_m"] == pytest.approx(0.130, abs=2e-3)   # the least possible
+    np.testing.assert_allclose(out["start_position_m"], SEED003_P_I, atol=1e-15)
+    np.testing.assert_allclose(out["end_position_m"], SEED003_P_F, atol=1e-12)
     for name in ("clik_inverse.csv", "clik_dls.csv", "clik_compare.png"):
         assert (tmp_path / name).stat().st_size > 0

@@ -165,7 +165,7 @@ def test_every_calibrate_option_is_a_setup_key():
     opts = {o[2:].replace("-", "_") for p in cmd.params for o in getattr(p, "opts", [])
             if o.startswith("--") and not getattr(p, "hidden", False)}
     files = {"data", "validate", "units", "ignore", "config", "output", "urdf", "json",
-             "report", "base_link", "tip_link", "hold", "instrument", "option", "help"}
+             "report", "base_link", "tip_link", "hold", "instrument", "option", "help", "si"}
     assert set(CALIBRATION_KEYS) <= opts
     assert opts - files <= set(CALIBRATION_KEYS), opts - files - set(CALIBRATION_KEYS)
 

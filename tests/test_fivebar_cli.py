@@ -21,12 +21,12 @@ runner = CliRunner()
 
 def test_fivebar_thesis_command_writes_plots_and_history(tmp_path) -> None:
     out = tmp_path / "plots"
-    res = runner.invoke(app, ["fivebar-thesis", "--out", str(out), "--json",
+    res = runner.invoke(app, ["fivebar-demo", "--out-dir", str(out), "--json",
                               str(tmp_path / "h.json")])
     assert res.exit_code == 0, res.output
     assert "converged: True" in res.output
     assert sorted(p.name for p in out.glob("*.png")) == [
-        f"fivebar_thesis_l{k}.png" for k in range(1, 5)]
+        f"fivebar_demo_l{k}.png" for k in range(1, 5)]
     data = json.loads((tmp_path / "h.json").read_text())
     assert data["experiment"]["bases_m"] == {"base1": [1.0, 0.0], "base2": [-1.0, 0.0]}
     last = data["history"][-1]["params"]
@@ -34,7 +34,7 @@ def test_fivebar_thesis_command_writes_plots_and_history(tmp_path) -> None:
 
 
 def test_workspace_and_mobility_commands(tmp_path) -> None:
-    res = runner.invoke(app, ["fivebar-workspace", "fivebar", "--out", str(tmp_path / "w.png"),
+    res = runner.invoke(app, ["fivebar-workspace", "fivebar", "-o", str(tmp_path / "w.png"),
                               "--mode", "+-", "--resolution", "60"])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "w.png").stat().st_size > 1000
@@ -71,9 +71,9 @@ def test_generic_show_and_fk_commands_reach_the_fivebar() -> None:
 
 def test_simulate_then_calibrate_a_measurement_file(tmp_path) -> None:
     data = tmp_path / "d.csv"
-    res = runner.invoke(app, ["fivebar-simulate", "fivebar_thesis", "--out", str(data),
-                              "--set", "l1=1.86", "--set", "l2=2.2", "--set", "l3=2.8",
-                              "--set", "l4=3.3", "--set", "offset1=0.01", "--n", "40"])
+    res = runner.invoke(app, ["fivebar-simulate", "fivebar_thesis", "-o", str(data),
+                              "--set", "l1=1.86m", "--set", "l2=2200mm", "--set", "l3=2.8m",
+                              "--set", "l4=3.3m", "--set", "offset1=0.01rad", "-n", "40"])
     assert res.exit_code == 0, res.output
     robot = load_fivebar("fivebar_thesis")
     result = calibrate_fivebar_file(robot, data, tmp_path / "cal.yaml", str(tmp_path / "c.json"),
@@ -94,7 +94,7 @@ def test_user_errors_exit_with_code_2_and_one_line(tmp_path) -> None:
                    "links: {l1: 2, l2: 2, l3: -3, l4: 3}\n"
                    "bases: {base1: {x: 1, y: 0}, base2: {x: -1, y: 0}}\n")
     proc = subprocess.run([sys.executable, "-c", "from kincal.cli import main; main()",
-                           "fivebar-workspace", str(bad), "--out", str(tmp_path / "w.png")],
+                           "fivebar-workspace", str(bad), "-o", str(tmp_path / "w.png")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip() == (

@@ -69,3 +69,43 @@ def test_the_robust_loss_reference_needs_no_scipy_stats():
     d = np.arange(1.0, 60.0)
     np.testing.assert_allclose(2 * gammaincinv(d / 2, 0.5), stats.chi2.ppf(0.5, d),
                                rtol=1e-13)
+
+
+def _np_misses(node: object, have: bool, where: str) -> list[str]:
+    """Uses of ``np`` in function bodies under ``node`` without an import in scope."""
+    import ast
+
+    out = []
+    for child in ast.iter_child_nodes(node):                  # type: ignore[arg-type]
+        if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef):
+            here = have or any(isinstance(n, ast.Import) and any(a.asname == "np"
+                                                                  for a in n.names)
+                               for stmt in child.body for n in ast.walk(stmt))
+            for stmt in child.body:
+                out += _np_misses(stmt, here, f"{where}:{child.name}")
+                if not here and isinstance(stmt, ast.Name) and stmt.id == "np":
+                    out.append(f"{where}:{child.name}:{stmt.lineno}")
+        else:
+            if isinstance(child, ast.Name) and child.id == "np" and not have:
+                out.append(f"{where}:{child.lineno}")
+            out += _np_misses(child, have, where)
+    return out
+
+
+def test_lazy_numpy_is_imported_where_it_is_used():
+    """The command modules import NumPy inside the functions that use it (fast start); a
+    function that uses ``np`` without importing it would fail only when it runs."""
+    import ast
+    from pathlib import Path
+
+    import kincal.cli
+
+    bad = []
+    for path in sorted(Path(kincal.cli.__file__).parent.glob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        if any(isinstance(n, ast.Import) and any(a.asname == "np" for a in n.names)
+               for n in tree.body):
+            continue
+        for fn in (n for n in tree.body if isinstance(n, ast.FunctionDef)):
+            bad += _np_misses(ast.Module(body=[fn], type_ignores=[]), False, path.name)
+    assert not bad, f"np used without `import numpy as np` in the function: {bad}"

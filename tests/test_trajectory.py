@@ -284,8 +284,8 @@ def test_motion_is_path_times_timing():
 def test_cli_trajectory_joint_and_line(tmp_path):
     res = runner.invoke(app, ["trajectory", "puma560", "--start", "0,80,-80,0,30,0",
                               "--end", "40,60,-100,20,50,10", "--deg", "--timing",
-                              "trapezoidal", "--v-max", "1", "--a-max", "2", "--dt", "0.01",
-                              "--out", str(tmp_path / "j"), "--json", "-"])
+                              "trapezoidal", "--v-max", "1", "--a-max", "2", "--dt", "10ms",
+                              "--out-dir", str(tmp_path / "j"), "--json", "-"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
     assert max(out["max_abs_qd"]) <= 1 + 1e-12 and max(out["max_abs_qdd"]) <= 2 + 1e-12
@@ -293,10 +293,10 @@ def test_cli_trajectory_joint_and_line(tmp_path):
     assert (tmp_path / "j" / "trajectory.png").exists()
     res = runner.invoke(app, ["trajectory", "puma560", "--start", "0,80,-80,0,30,0",
                               "--end", "10,70,-90,0,40,0", "--deg", "--space", "line",
-                              "--duration", "1", "--dt", "0.02", "--out", str(tmp_path / "l")])
+                              "--duration", "1s", "--dt", "20ms", "--out-dir", str(tmp_path / "l")])
     assert res.exit_code == 0, res.output
     assert "trajectory.csv" in res.output
     res = runner.invoke(app, ["trajectory", "puma560", "--start", "0,80,-80,0,30,0",
                               "--end", "10,70,-90,0,40,0", "--deg", "--space", "arc",
-                              "--duration", "1", "--out", str(tmp_path / "a")])
+                              "--duration", "1s", "--out-dir", str(tmp_path / "a")])
     assert res.exit_code == 2 or "via-position" in str(res.exception)

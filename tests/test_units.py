@@ -30,7 +30,7 @@ def test_quantity_to_si(text, dim, si):
 
 
 @pytest.mark.parametrize("text, words", [
-    ("0.01", ["--noise", "needs a unit", "m, mm, um, cm"]),
+    ("0.01", ["--noise", "needs a unit", "m, mm, um, cm", "e.g. 0.01m"]),
     ("1arcsec", ["--noise", "is an angle", "takes a length"]),
     ("1mmm", ["--noise", "unknown unit 'mmm'"]),
     ("abc", ["--noise", "not a number"]),

@@ -95,6 +95,8 @@ def _a(word: str | None) -> str:
 
 def split_value(text: str, option: str) -> tuple[float, str | None]:
     """``"0.01mm" -> (0.01, "mm")``, ``"3" -> (3.0, None)``; an error naming ``option``."""
+    if re.fullmatch(r"\s*[-+]?(nan|inf(inity)?)\s*[^\s\d]*\s*", text, re.IGNORECASE):
+        raise KincalError(f"option {option}: {text.strip()!r} is not finite")
     m = _VALUE.match(text)
     if m is None:
         raise KincalError(f"option {option}: {text.strip()!r} is not a number with a unit "
@@ -140,7 +142,7 @@ def parse_quantity(text: str, dimension: str | Sequence[str], option: str, *,
     unit = unit or bare
     if unit is None:
         raise KincalError(f"option {option}: {text.strip()!r} needs a unit: "
-                          f"{_dims_text(dims)}, e.g. {text.strip()}{units_of(dims[0])[1]}")
+                          f"{_dims_text(dims)}, e.g. {text.strip()}{units_of(dims[0])[0]}")
     dim, f = UNITS[unit]
     if dim not in dims:
         raise KincalError(f"option {option}: {text.strip()!r} is {_a(dim)}; {option} takes "
@@ -159,8 +161,9 @@ def parse_quantities(text: str, dimensions: str | Sequence[str], option: str, *,
                      ) -> list[float]:
     """Comma-separated quantities -> SI values, one dimension per value.
 
-    ``"400,0,300mm"``: bare values take the unit written at the end;
-    ``"10deg,20deg,0.1m"``: each value its own.  ``dimensions`` is one dimension for
+    ``"400,0,300mm"``: bare values take the unit written after them (back to the
+    previous value with a unit: ``"400,0,300mm,0,90,0deg"``); ``"10deg,20deg,0.1m"``:
+    each value its own.  ``dimensions`` is one dimension for
     all values or one per value (a value may also be ``"length|angle"``); ``bare`` the
     unit of values without one when the text has no unit at all (one for all, or one
     per value; None: an error).  ``count`` checks the number of values.
@@ -179,11 +182,18 @@ def parse_quantities(text: str, dimensions: str | Sequence[str], option: str, *,
         raise KincalError(f"option {option}: expected {len(dims)} comma-separated values, got "
                           f"{n}")
     split = [split_value(p, option) for p in parts]
-    trailing = split[-1][1]
+    # a unit written on a value also applies to the bare values before it (back to the
+    # previous value that has a unit): "400,0,300mm,0,90,0deg"
+    carried: list[str | None] = [None] * n
+    unit_after: str | None = None
+    for i in range(n - 1, -1, -1):
+        if split[i][1] is not None:
+            unit_after = split[i][1]
+        carried[i] = unit_after
     out = []
-    for (_, unit), p, d, b in zip(split, parts, dims, bares, strict=True):
+    for (_, unit), after, p, d, b in zip(split, carried, parts, dims, bares, strict=True):
         allowed = d.split("|")
-        if unit is None and trailing is not None and UNITS[trailing][0] in allowed:
-            p += trailing
+        if unit is None and after is not None and UNITS[after][0] in allowed:
+            p += after
         out.append(parse_quantity(p, allowed, option, bare=b))
     return out

@@ -47,7 +47,7 @@ from kincal.cli.calibration_common import (
     scaled,
     serial,
 )
-from kincal.cli.options import length_option
+from kincal.cli.options import SiOpt, console_quantity, length_option, use_si
 from kincal.cli.setupfile import (
     ConfigOpt,
     HoldOpt,
@@ -69,7 +69,8 @@ def identifiability(
     free: Annotated[str | None, typer.Option("--free", help="Candidate parameters: names or * "
                                              "patterns, 'role:offset' (default: all).")] = None,
     fix: Annotated[str | None, typer.Option("--fix", help="Parameters to hold fixed.")] = None,
-    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
+    base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
+    json_out: JsonOpt = None,
 ) -> None:
     """Which parameters can these measurements identify? Zero and dependent columns,
     the base parameter set and the condition number, in plain sentences."""
@@ -79,6 +80,7 @@ def identifiability(
     from kincal.workflow.flow import check_options_used, parse_selection
 
     out = out_console(json_out)
+    cu = use_si(si)
     r = serial(load(robot, base_link, tip_link), "identifiability")
     check_options_used(data, units, ignore)
     blocks = read_blocks(data, r, units, ignore, out)
@@ -106,7 +108,7 @@ def identifiability(
         else:
             status = "[yellow]dependent on " + escape(", ".join(rep.dependent.get(n, []))) + \
                 "[/yellow]"
-        t.add_row(escape(n), {"m": "mm", "rad": "deg"}.get(prob.units[i], prob.units[i]), status)
+        t.add_row(escape(n), cu.scale(prob.units[i])[1], status)
     out.print(t)
     for s in rep.describe():
         out.print(f"- {escape(s)}")
@@ -126,8 +128,8 @@ def calibrate_cmd(
     ] = None,
     report: Annotated[str | None, typer.Option("--report", help="Write a single-file HTML "
                                                "report here (artifact data: also the "
-                                               "patent's figures 4 and 5 as PNG next to "
-                                               "it).")] = None,
+                                               "plots of the artifact's length errors as PNG "
+                                               "next to it).")] = None,
     json_out: JsonOpt = None,
     urdf: Annotated[str | None, typer.Option("--urdf", help="Also write the calibrated robot as "
                                              "URDF (URDF robots: the original file with "
@@ -194,7 +196,7 @@ def calibrate_cmd(
                                         "the calibration cannot be trusted (did not converge, "
                                         "or an estimate more than 10 tolerances from nominal); "
                                         "the exit status is still 1.")] = False,
-    base_link: BaseLink = None, tip_link: TipLink = None,
+    base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
     config: ConfigOpt = None, hold: HoldOpt = None, instrument: InstrumentOpt = None,
     option: OptionOpt = None,
 ) -> None:
@@ -217,6 +219,7 @@ def calibrate_cmd(
     from kincal.workflow.session import read_session
 
     out = out_console(json_out)
+    use_si(si)
     robot = require_robot(robot, "calibrate")
     if not data:
         raise KincalError("`kincal calibrate` needs --data FILE (or data: in the setup file)")
@@ -327,7 +330,8 @@ def validate_cmd(
                                           "distance accuracy AD (P2-P4). Rows at the same "
                                           "joint values are one position.")] = False,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
-    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
+    base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
+    json_out: JsonOpt = None,
 ) -> None:
     """Errors of ROBOT on held-out measurements: RMS, mean and max of every measured kind
     (position, orientation, range ...).
@@ -336,10 +340,11 @@ def validate_cmd(
     to the robot: they absorb a little of any robot error."""
     from kincal.io import write_json
     from kincal.measure.joints.terms import parse_joint_model, with_joint_model
-    from kincal.report.metrics import error_keys, error_metrics, merge_errors, quantity
+    from kincal.report.metrics import error_keys, error_metrics, merge_errors
     from kincal.workflow.flow import check_options_used, extras_from_result, validate_blocks
 
     out = out_console(json_out)
+    use_si(si)
     r = serial(load(robot, base_link, tip_link), "validate")
     before = serial(load(nominal, base_link, tip_link), "validate") if nominal else None
     terms = parse_joint_model(joint_model)
@@ -365,7 +370,7 @@ def validate_cmd(
             t.add_column(c, justify="left" if c in ("file", "quantity") else "right")
         for c in comps:
             for k, key in enumerate(error_keys(c.after)):
-                name, f, unit = quantity(key)
+                name, f, unit = console_quantity(key)
                 m = error_metrics({key: c.after[key]})
                 t.add_row(escape(c.title) if k == 0 else "", escape(f"{name} [{unit}]"),
                           str(m["n"]),

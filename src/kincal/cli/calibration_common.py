@@ -16,6 +16,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from kincal.cli import options as _options
 from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink re-exported)
     BaseLink,
     JsonOut,
@@ -24,6 +25,7 @@ from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink re-e
     console,
     err_console,
 )
+from kincal.cli.options import console_quantity
 from kincal.errors import KincalError
 from kincal.workflow.session import joint_masses  # noqa: F401  (re-exported)
 
@@ -74,11 +76,10 @@ def load(spec: str, base_link: str | None = None, tip_link: str | None = None) -
 
 def print_cross_validation(out: Any, cv: dict[str, Any]) -> None:
     """One line per error kind of ``run_flow(cross_validate=K)`` (mm / deg / px)."""
-    from kincal.report.metrics import quantity
 
     for key, v in cv.items():
         if key.startswith("rms_"):
-            name, f, unit = quantity(key[4:])
+            name, f, unit = console_quantity(key[4:])
             out.print(f"{cv['folds']}-fold cross-validation on the training file (seed "
                       f"{cv['seed']}, split by {cv['split']}): RMS {escape(name)} "
                       f"{v * f:.4g} {escape(unit)} on held-out folds")
@@ -164,12 +165,15 @@ class Progress:
 
 # --------------------------------------------------------------------------- tables
 def scaled(v: float | None, factor: float) -> str:
-    return "-" if v is None or not math.isfinite(v) else f"{v * factor:.4f}"
+    """``v * factor`` for a table cell (4 decimals in mm / deg, 7 in SI with ``--si``)."""
+    if v is None or not math.isfinite(v):
+        return "-"
+    return f"{v * factor:.{7 if _options.CONSOLE.si else 4}f}"
 
 
 def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
     """The before/after table: RMS and max of every measured error kind (mm, deg, px)."""
-    from kincal.report.metrics import error_keys, error_metrics, quantity
+    from kincal.report.metrics import error_keys, error_metrics
 
     captions = [escape(c.title) for c in comparisons if " (" in c.title]
     t = Table(title="Errors before -> after calibration", caption="; ".join(captions) or None)
@@ -178,7 +182,7 @@ def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
                      overflow="fold", no_wrap=c == "quantity")
     for c in comparisons:
         for k, key in enumerate(error_keys(c.before, c.after)):
-            name, f, unit = quantity(key)
+            name, f, unit = console_quantity(key)
             b = error_metrics({key: c.before[key]}) if key in c.before else {}
             a = error_metrics({key: c.after[key]}) if key in c.after else {}
             t.add_row(escape(c.title.split(" (")[0]) if k == 0 else "", escape(f"{name} [{unit}]"),
@@ -188,13 +192,19 @@ def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
     out.print(t)
 
 
+def CONSOLE_UNITS() -> Any:  # noqa: N802  (reads like the constant it returns)
+    """The running command's console units (``--si``)."""
+    return _options.CONSOLE
+
+
 def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
     """Estimated parameters: nominal, estimate, change, std (mm / deg); with a prior
     (MAP estimate), its standard deviation ``prior (1σ)`` per parameter."""
     d = res.to_dict()
     with_prior = any(p.get("prior_std") is not None for p in d["parameters"])
+    u = CONSOLE_UNITS()
     t = Table(title=f"Estimated parameters ({d['estimated_count']} of {len(d['parameters'])}; "
-              "lengths mm, angles deg)")
+              f"lengths {u.length_unit}, angles {u.angle_unit})")
     cols = ["parameter", "nominal", "estimate", "change", "std (1σ)"]
     cols += ["prior (1σ)"] * with_prior + ["status"]
     for c in cols:
@@ -203,8 +213,9 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
     for p in d["parameters"]:
         if not everything and not p["estimated"]:
             continue
-        f = {"m": lambda v: scaled(v, 1e3), "rad": lambda v: scaled(v, 180 / math.pi)
-             }.get(p["unit"], lambda v: f"{v:g}")
+        factor, _ = CONSOLE_UNITS().scale(p["unit"])
+        f = (lambda v, k=factor: scaled(v, k)) if p["unit"] in ("m", "rad") else \
+            (lambda v: f"{v:g}")
         cells = [escape(p["name"]), f(p["nominal"]), f(p["estimate"]),
                  f(p["estimate"] - p["nominal"]), f(p["std"]) if p["std"] is not None else "-"]
         if with_prior:
@@ -261,7 +272,6 @@ def print_weak(out: Console, weak: Sequence[Any]) -> None:
 
 def print_patent(out: Console, info: Any) -> None:
     """The patent procedure's record: selection, cycles, comparison with one-stage LM."""
-    from kincal.report.metrics import quantity
 
     d = info.to_dict()
     n_all = len(d["kept"]) + len(d["discarded"])
@@ -270,11 +280,12 @@ def print_patent(out: Console, info: Any) -> None:
         out.print(f"patent data selection (condition growth <= {d['condition_growth']:g}): "
                   f"kept [bold]{len(d['kept'])} of {n_all}[/bold] placements; discarded: "
                   f"{escape(dropped)}")
-    moved = d["cycle_corrections_m"][-1] * 1e3 if d["cycle_corrections_m"] else float("nan")
+    u = CONSOLE_UNITS()
+    moved = d["cycle_corrections_m"][-1] if d["cycle_corrections_m"] else float("nan")
     out.print(f"patent procedure: {d['cycles']} cycle(s) of {len(d['stages'])} stages, "
               + ("converged" if d["converged"] else "[red]NOT converged[/red]")
-              + f" (last cycle moved the points by {moved:.3g} mm; tolerance "
-              f"{d['tolerance_m'] * 1e3:g} mm)")
+              + f" (last cycle moved the points by {u.value(moved, 'm', 4)}; tolerance "
+              f"{u.value(d['tolerance_m'], 'm', 4)})")
     comp = d.get("comparison")
     if not comp:
         return
@@ -286,11 +297,11 @@ def print_patent(out: Console, info: Any) -> None:
     for c in ("estimated", "sigma0"):
         t.add_column(c, justify="right")
     for k in keys:
-        name, _, unit = quantity(k[4:])
+        name, _, unit = console_quantity(k[4:])
         t.add_column(f"RMS {name} \\[{unit}]", justify="right")
     for label, s in runs:
         t.add_row(label, str(s["estimated"]), f"{s['sigma0']:.4g}",
-                  *(scaled(s.get(k), quantity(k[4:])[1]) for k in keys))
+                  *(scaled(s.get(k), console_quantity(k[4:])[1]) for k in keys))
     out.print(t)
     same = comp["same_parameters"]
     out.print(f"same parameters: largest difference {same['max_sigmas']:.3g} standard errors"

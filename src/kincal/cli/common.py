@@ -63,14 +63,27 @@ def robot_arg(spec: str, base_link: str | None = None, tip_link: str | None = No
 
 
 def joint_vector(robot: Any, text: str, deg: bool, option: str = "--q") -> np.ndarray:
-    """Joint values from the command line; ``--deg`` converts revolute joints only."""
+    """Joint values from the command line [rad / m]: each with its unit (``10deg,0.1m``)
+    or bare: rad for revolute joints (deg with ``--deg``), m for prismatic ones."""
     import numpy as np
 
-    q = parse_vector(text, option, robot.n)
-    if deg:
-        rev = np.array([j.kind == "revolute" for j in robot.joints])
-        q = np.where(rev, np.deg2rad(q), q)
-    return q
+    from kincal.units import parse_quantities
+
+    kinds = [j.kind for j in getattr(robot, "joints", ())] or ["revolute"] * int(robot.n)
+    dims = ["angle" if k == "revolute" else "length" for k in kinds]
+    bare = [("deg" if deg else "rad") if k == "revolute" else "m" for k in kinds]
+    return np.array(parse_quantities(text, dims, option, count=len(kinds), bare=bare))
+
+
+def point_vector(text: str, option: str, dims: list[str], deg: bool = False) -> np.ndarray:
+    """A position / pose on the command line [m, rad]: ``400,0,300mm`` or
+    ``0.4,0,0.3,0,90,0deg``; bare lengths in m, bare angles in rad (deg with ``--deg``)."""
+    import numpy as np
+
+    from kincal.units import parse_quantities
+
+    bare = ["m" if d == "length" else ("deg" if deg else "rad") for d in dims]
+    return np.array(parse_quantities(text, dims, option, count=len(dims), bare=bare))
 
 
 def matrix_table(M: np.ndarray, title: str, row_labels: list[str] | None = None,

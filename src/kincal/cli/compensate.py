@@ -19,11 +19,9 @@ from rich.markup import escape
 
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
-    AngleUnit,
     BaseLink,
     IgnoreOpt,
     JsonOpt,
-    LengthUnit,
     TipLink,
     UnitsOpt,
     check_unit,
@@ -31,7 +29,9 @@ from kincal.cli.calibration_common import (
     out_console,
     serial,
 )
+from kincal.cli.options import SiOpt, use_si
 from kincal.errors import KincalError, MeasurementFileError
+from kincal.io import check_outputs
 
 if TYPE_CHECKING:
     import numpy as np
@@ -94,11 +94,18 @@ def compensate_cmd(
                                                  "controller that only knows the nominal "
                                                  "model.")] = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
-    length_unit: LengthUnit = "m", angle_unit: AngleUnit = "rad",
-    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
+    length_unit: Annotated[str | None, typer.Option(
+        "--length-unit", help="Length unit of the written files: m, mm, um (default: the "
+        "targets file's).")] = None,
+    angle_unit: Annotated[str | None, typer.Option(
+        "--angle-unit", help="Angle unit of the written files: rad, deg (default: the "
+        "targets file's).")] = None,
+    base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
+    json_out: JsonOpt = None,
 ) -> None:
     """Joint commands that put the calibrated (real) robot on the targets, and filtered
-    targets for a controller that only knows the nominal model."""
+    targets for a controller that only knows the nominal model; written in the units of
+    the targets file (mm/deg targets give joint commands in deg) unless told."""
     import numpy as np
 
     from kincal.compensation.compensate import compensate, require_all
@@ -108,13 +115,21 @@ def compensate_cmd(
     from kincal.units import UNITS
 
     out = out_console(json_out)
+    cu = use_si(si)
+    check_outputs({"-o": output, "--filtered": filtered, "--json": json_out},
+                  {"--targets": [targets], "CALIBRATED": [calibrated],
+                   "--nominal": [nominal] if nominal else []})
     cal = serial(load(calibrated, base_link, tip_link), "compensate")
     nom = serial(load(nominal, base_link, tip_link), "compensate") if nominal else None
     if filtered and nom is None:
         raise KincalError("--filtered needs --nominal (the controller's model)")
-    check_unit(length_unit, "length", "--length-unit")
-    check_unit(angle_unit, "angle", "--angle-unit")
+    if length_unit is not None:
+        check_unit(length_unit, "length", "--length-unit")
+    if angle_unit is not None:
+        check_unit(angle_unit, "angle", "--angle-unit")
     T, seeds, table = read_targets(targets, cal, units, ignore)
+    length_unit = length_unit or table.units.get("x", "m")
+    angle_unit = angle_unit or table.units.get("rx", "rad" if length_unit == "m" else "deg")
     comp = compensate(cal, T, nominal=nom, q0=seeds)
     require_all(comp, targets, table.lines)
     cols = [(name, comp.q[:, k] * f) for k, (name, f) in
@@ -135,9 +150,10 @@ def compensate_cmd(
     atomic_write_text(output, jtext)
     if ftext is not None and filtered:
         atomic_write_text(filtered, ftext)
+    L, A = cu.length_unit, cu.angle_unit
     out.print(f"{len(comp)} targets ({comp.mask}): calibrated FK of the commands matches the "
-              f"targets to {np.max(comp.position_error) * 1e3:.2e} mm"
-              + (f" / {math.degrees(np.max(comp.orientation_error)):.2e} deg"
+              f"targets to {np.max(comp.position_error) * cu.scale('m')[0]:.2e} {L}"
+              + (f" / {np.max(comp.orientation_error) * cu.scale('rad')[0]:.2e} {A}"
                  if comp.mask == "pose" else ""))
     if comp.branch_changes.size:
         lines = ", ".join(str(int(table.lines[i])) for i in comp.branch_changes[:10])
@@ -146,9 +162,9 @@ def compensate_cmd(
                   "(near a singularity or a limit); check them before sending.")
     if comp.correction is not None:
         out.print(f"compensation size |filtered - target|: RMS "
-                  f"{math.sqrt(np.mean(comp.correction**2)) * 1e3:.4f} mm, max "
-                  f"{np.max(comp.correction) * 1e3:.4f} mm")
-    out.print(f"joint commands -> {escape(output)}"
+                  f"{cu.value(math.sqrt(np.mean(comp.correction**2)), 'm')}, max "
+                  f"{cu.value(float(np.max(comp.correction)), 'm')}")
+    out.print(f"joint commands ({angle_unit} / {length_unit}) -> {escape(output)}"
               + (f"; filtered targets -> {escape(filtered)}" if ftext else ""))
     if json_out:
         doc = {"robot": cal.name, "targets": targets, "mask": comp.mask,

@@ -17,8 +17,15 @@ import typer
 from rich.markup import escape
 
 from kincal.cli.app import app
-from kincal.cli.calibration_common import BaseLink, RobotArg, TipLink, is_fivebar, load
-from kincal.cli.common import console
+from kincal.cli.calibration_common import (
+    BaseLink,
+    JsonOpt,
+    RobotArg,
+    TipLink,
+    is_fivebar,
+    load,
+    out_console,
+)
 from kincal.errors import KincalError
 
 
@@ -35,7 +42,7 @@ def export_cmd(
                                          "ets) instead of its DH table.")] = False,
     name: Annotated[str | None, typer.Option("--name", help="URDF: the <robot name=...> "
                                              "(default: the robot's name).")] = None,
-    base_link: BaseLink = None, tip_link: TipLink = None,
+    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
 ) -> None:
     """Write ROBOT (built-in name, YAML or URDF with --base-link/--tip-link) as a YAML robot
     file or a URDF with the same forward kinematics (SI units): kincal export ROBOT -o
@@ -45,6 +52,7 @@ def export_cmd(
     output = output_opt or output_arg
     if output is None:
         raise KincalError("`kincal export` needs -o OUT.yaml or -o OUT.urdf")
+    console = out_console(json_out)
     suffix = Path(output).suffix.lower()
     if suffix not in (".yaml", ".yml", ".urdf"):
         raise KincalError(f"cannot tell the format of {output!r}: name it .yaml, .yml or "
@@ -58,6 +66,7 @@ def export_cmd(
 
         write_fivebar(r, output)
         console.print(f"five-bar {escape(r.name)} -> {escape(output)}")
+        _json(json_out, r.name, output, "yaml")
         return
     if suffix == ".urdf":
         if as_ets:
@@ -68,6 +77,7 @@ def export_cmd(
         console.print(f"{escape(r.name)} ({r.n} joints) -> {escape(output)} (URDF; chain "
                       f"{escape(base)} -> {escape(tip)}: use --base-link {escape(base)} "
                       f"--tip-link {escape(tip)} to load it)")
+        _json(json_out, r.name, output, "urdf", base_link=base, tip_link=tip)
         return
     if name is not None:
         raise KincalError("--name is for URDF output")
@@ -78,3 +88,11 @@ def export_cmd(
     conv = conv if conv in ("standard_dh", "modified_dh", "hayati") else "ets"
     console.print(f"{escape(r.name)} ({r.n} joints) -> {escape(output)} (YAML, convention "
                   f"{conv}, SI units)")
+    _json(json_out, r.name, output, "yaml", convention=conv)
+
+
+def _json(path: str | None, robot: str, output: str, fmt: str, **more: str) -> None:
+    if path:
+        from kincal.io import write_json
+
+        write_json(path, {"robot": robot, "output": output, "format": fmt, **more})

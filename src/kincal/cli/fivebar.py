@@ -1,4 +1,4 @@
-"""Five-bar commands (``fivebar-thesis``, ``fivebar-workspace``, ``fivebar-mobility``,
+"""Five-bar commands (``fivebar-demo``, ``fivebar-workspace``, ``fivebar-mobility``,
 ``fivebar-simulate``) and the helpers the generic ``show``/``fk``/``ik``/``calibrate``
 commands call when the robot is a :class:`~kincal.parallel.fivebar.FiveBar`.
 """
@@ -15,12 +15,12 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
+from kincal.cli.options import OutputOpt, SeedOpt, Units, legacy_quantity, quantity
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
     import numpy as np
 
-if TYPE_CHECKING:
     from kincal.parallel.calibration import FiveBarCalibration
     from kincal.parallel.fivebar import FiveBar
 
@@ -92,24 +92,34 @@ def _print_config(console: Console, title: str, c: dict[str, Any]) -> None:
 
 
 # ----------------------------------------------------------------- helpers for the lead
-def show_fivebar(robot: FiveBar, console: Console) -> None:
-    """Print a five-bar's parameters (SI), default modes, limits, mobility and source."""
-    t = Table(title=f"{robot.name}: five-bar, {len(robot.param_names)} parameters (SI)")
+def show_fivebar(robot: FiveBar, console: Console, units: Units | None = None,
+                 json_out: str | None = None) -> None:
+    """Print a five-bar's parameters (mm and degrees; SI with ``--si``), default modes,
+    limits, mobility and source; ``json_out`` also writes them (SI)."""
+    units = units or Units()
+    t = Table(title=f"{robot.name}: five-bar, {len(robot.param_names)} parameters")
     for c in ("parameter", "value", "unit"):
         t.add_column(c, justify="right" if c == "value" else "left")
     for name, value, unit in robot.parameter_table():
-        shown = f"{value:.9g}" + (f"  ({math.degrees(value):.6g}°)" if unit == "rad" else "")
-        t.add_row(name, shown, unit)
-    console.print(t)
-    console.print(f"default assembly {robot.assembly:+d} (+1: J3 left of J1->J2), "
-                  f"working mode {robot.working_mode} (+: elbow left of B_i->J3)")
-    if robot.limits is not None:
-        lim = ", ".join(f"q{i + 1} in [{a:.6g}, {b:.6g}] rad"
-                        for i, (a, b) in enumerate(robot.limits))
-        console.print(f"reading limits: {lim}")
-    console.print(f"mobility (Kutzbach, planar five-bar): F = {robot.mobility()}")
-    if robot.source:
-        console.print(f"source: {escape(robot.source)}")
+        f, u = units.scale(unit)
+        t.add_row(name, f"{value * f:.{4 if not units.si else 9}f}", u)
+    if json_out != "-":
+        console.print(t)
+        console.print(f"default assembly {robot.assembly:+d} (+1: J3 left of J1->J2), "
+                      f"working mode {robot.working_mode} (+: elbow left of B_i->J3)")
+        if robot.limits is not None:
+            lim = ", ".join(f"q{i + 1} in [{units.value(a, 'rad', 2)}, {units.value(b, 'rad', 2)}]"
+                            for i, (a, b) in enumerate(robot.limits))
+            console.print(f"reading limits: {lim}")
+        console.print(f"mobility (Kutzbach, planar five-bar): F = {robot.mobility()}")
+        if robot.source:
+            console.print(f"source: {escape(robot.source)}")
+    if json_out:
+        _write_json(json_out, {"name": robot.name, "kind": "fivebar", "parameters": [
+            {"name": n, "value": float(v), "unit": u} for n, v, u in robot.parameter_table()],
+            "assembly": robot.assembly, "working_mode": robot.working_mode,
+            "limits": None if robot.limits is None else [list(x) for x in robot.limits],
+            "mobility": robot.mobility(), "units": {"length": "m", "angle": "rad"}})
 
 
 def fk_fivebar(robot: FiveBar, q: np.ndarray, json_path: str | None) -> None:
@@ -222,40 +232,51 @@ def _print_result(console: Console, result: FiveBarCalibration) -> None:
 
 
 # ----------------------------------------------------------------- commands
-@app.command("fivebar-thesis")
-def fivebar_thesis(
-    n: Annotated[int, typer.Option(help="Number of measured configurations.")] = 50,
-    seed: Annotated[int, typer.Option(help="Seed of the numpy Generator.")] = 0,
-    method: Annotated[str, typer.Option(help="gauss-newton (the thesis's) or lm.")] = (
-        "gauss-newton"
-    ),
-    residual: Annotated[str, typer.Option(help="ik (joint space, the thesis's) or fk.")] = "ik",
-    noise_deg: Annotated[float, typer.Option("--noise-deg", help="Std of joint-reading "
-                                             "noise [deg].")] = 0.0,
-    out: Annotated[str | None, typer.Option(help="Folder for the four plots "
-                                            "fivebar_thesis_l1..l4.png.")] = "fivebar-thesis",
+@app.command("fivebar-demo")
+def fivebar_demo(
+    n: Annotated[int, typer.Option("-n", "--configurations", help="Number of measured "
+                                   "configurations.")] = 50,
+    seed: SeedOpt = 0,
+    method: Annotated[str, typer.Option(help="gauss-newton (iterative linearised least "
+                                        "squares) or lm.")] = "gauss-newton",
+    residual: Annotated[str, typer.Option(help="ik (joint-space residuals) or fk "
+                                          "(end-point residuals).")] = "ik",
+    noise: Annotated[str | None, typer.Option(
+        "--noise", metavar="ANGLE", help="Joint-reading noise (standard deviation) with its "
+        "unit, e.g. 0.01deg (default: none).")] = None,
+    out_dir: Annotated[str | None, typer.Option(
+        "--out-dir", help="Folder for the four plots of the lengths against the iteration "
+        "(fivebar_demo_l1..l4.png).")] = "fivebar-demo",
+    noise_deg: Annotated[float | None, typer.Option("--noise-deg", hidden=True)] = None,
+    n_old: Annotated[int | None, typer.Option("--n", hidden=True)] = None,
+    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
     json_out: Annotated[str | None, typer.Option(
         "--json", help="Write the result with its iteration history as JSON ('-': stdout).")
     ] = None,
 ) -> None:
-    """The thesis's experiment: true lengths [1.86, 2.2, 2.8, 3.3] m from nominal [2, 2, 3, 3] m.
+    """A simulated five-bar calibration: from nominal lengths [2, 2, 3, 3] m the true
+    [1.86, 2.2, 2.8, 3.3] m are recovered from joint readings at measured end points.
 
-    Bases B1 = (1, 0) m, B2 = (-1, 0) m; J3 from the direct kinematics with beta1 in
-    (0, pi/2), beta2 in (pi/2, pi); well-conditioned configurations only; stop at 1e-10.
+    Bases B1 = (1, 0) m, B2 = (-1, 0) m; the end point from the direct kinematics with
+    beta1 in (0, pi/2), beta2 in (pi/2, pi); well-conditioned configurations only; stop
+    at 1e-10 m.  (The experiment of Pittr's dual SCARA thesis.)
     """
+    n = n_old if n_old is not None else n
+    out_dir = out_old if out_old is not None else out_dir
+    noise_rad = legacy_quantity(noise, "--noise", noise_deg, "--noise-deg", "angle", "deg",
+                                minimum=0.0) or 0.0
     from kincal.parallel.thesis import THESIS_TRUE, plot_thesis, run_thesis
 
     if n < 3:
-        raise KincalError("option --n: at least 3 configurations are needed for 4 lengths")
+        raise KincalError("option -n: at least 3 configurations are needed for 4 lengths")
     key = _METHODS.get(method.lower())
     if key is None:
         raise KincalError(f"option --method: one of {', '.join(_METHODS)}, not {method!r}")
-    result, true = run_thesis(n=n, seed=seed, method=key, residual=residual,
-                              noise=math.radians(noise_deg))
+    result, true = run_thesis(n=n, seed=seed, method=key, residual=residual, noise=noise_rad)
     console = _console(json_out)
     names = list(THESIS_TRUE)
-    t = Table(title=f"thesis experiment: {n} configurations, seed {seed}, {key}, {residual} "
-              f"residual (B1 = (1, 0) m, B2 = (-1, 0) m)")
+    t = Table(title=f"five-bar calibration: {n} configurations, seed {seed}, {key}, "
+              f"{residual} residual (B1 = (1, 0) m, B2 = (-1, 0) m)")
     for c in ["iteration", *[f"{k} [m]" for k in names], "max step", "rms residual"]:
         t.add_column(c, justify="right")
     for h in result.history:
@@ -266,22 +287,26 @@ def fivebar_thesis(
     err = max(abs(result.params[k] - THESIS_TRUE[k]) for k in names)
     console.print(f"converged: {result.converged} after {result.iterations} iterations; "
                   f"largest length error {err:.3g} m")
-    if out:
-        paths = plot_thesis(result, true, out)
+    if out_dir:
+        paths = plot_thesis(result, true, out_dir)
         console.print("plots: " + ", ".join(str(p) for p in paths))
     if json_out:
         data = result.to_dict()
         data["experiment"] = {"true": THESIS_TRUE, "n": n, "seed": seed,
-                              "noise_rad": math.radians(noise_deg),
+                              "noise_rad": noise_rad,
                               "bases_m": {"base1": [true.base1_x, true.base1_y],
                                           "base2": [true.base2_x, true.base2_y]}}
         _write_json(json_out, data)
 
 
+app.command("fivebar-thesis", hidden=True)(fivebar_demo)      # the old name
+
+
 @app.command("fivebar-workspace")
 def fivebar_workspace(
     robot: Annotated[str, typer.Argument(help="Five-bar robot: built-in name or YAML file.")],
-    out: Annotated[str, typer.Option(help="Image file to write (PNG, SVG, PDF).")],
+    output: Annotated[str | None, typer.Option("-o", "--output", help="Image file to write "
+                                               "(PNG, SVG, PDF).")] = None,
     mode: Annotated[str | None, typer.Option(help="Working mode ++, +-, -+, -- "
                                              "(default: the robot's).")] = None,
     assembly: Annotated[int | None, typer.Option(help="Keep only points reached in this "
@@ -289,10 +314,16 @@ def fivebar_workspace(
     margin: Annotated[float, typer.Option(help="Keep only points whose singularity measures "
                                           "are at least this (0..1).")] = 0.0,
     resolution: Annotated[int, typer.Option(help="Grid points per axis.")] = 250,
+    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Also write the area and the "
+                                                 "mode as JSON ('-' for stdout).")] = None,
 ) -> None:
     """Plot the reachable region of a working mode, with the Type-2 singular curves."""
     from kincal.parallel.workspace import plot_workspace, workspace
 
+    output = output or out_old
+    if output is None:
+        raise KincalError("`kincal fivebar-workspace` needs -o FILE.png")
     r = _load(robot)
     if mode is not None and mode not in ("++", "+-", "-+", "--"):
         raise KincalError(f"option --mode: one of ++, +-, -+, --, not {mode!r}")
@@ -300,15 +331,19 @@ def fivebar_workspace(
         raise KincalError("option --assembly: +1 or -1")
     if resolution < 10:
         raise KincalError("option --resolution: at least 10")
-    path = plot_workspace(r, out, mode, resolution, assembly, margin)
+    path = plot_workspace(r, output, mode, resolution, assembly, margin)
     ws = workspace(r, mode, resolution, assembly=assembly, margin=margin)
-    Console().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} m^2 "
-                    f"-> {path}")
+    if json_out != "-":
+        Console().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} "
+                        f"m² -> {path}")
+    if json_out:
+        _write_json(json_out, {"robot": r.name, "working_mode": ws.mode, "area_m2": ws.area,
+                               "output": str(path)})
 
 
 @app.command("fivebar-mobility")
 def fivebar_mobility() -> None:
-    """Kutzbach/Grübler mobility of the thesis's dual SCARA (4) and of the planar five-bar (2)."""
+    """Kutzbach/Grübler mobility of the dual SCARA (4) and of the planar five-bar (2)."""
     from kincal.parallel.mobility import dual_scara_thesis, planar_five_bar
 
     t = Table(title="mobility F = lam (n - j - 1) + sum f_i  (Grübler: sum f_i - lam L)")
@@ -326,48 +361,77 @@ def fivebar_mobility() -> None:
 @app.command("fivebar-simulate")
 def fivebar_simulate(
     robot: Annotated[str, typer.Argument(help="Nominal five-bar: built-in name or YAML file.")],
-    out: Annotated[str, typer.Option(help="Measurement CSV to write.")],
-    set_: Annotated[list[str] | None, typer.Option("--set", help="True parameter, e.g. "
-                                                   "l1=1.86 (SI: m, rad); repeatable.")] = None,
-    n: Annotated[int, typer.Option(help="Number of configurations.")] = 50,
-    seed: Annotated[int, typer.Option(help="Seed of the numpy Generator.")] = 0,
-    noise_deg: Annotated[float, typer.Option("--noise-deg", help="Reading noise std [deg].")] = 0.0,
-    q1_range: Annotated[str | None, typer.Option(help="min,max of beta1 [deg] (default: the "
-                                                 "robot's limits or the full turn).")] = None,
-    q2_range: Annotated[str | None, typer.Option(help="min,max of beta2 [deg].")] = None,
+    output: OutputOpt = None,
+    set_: Annotated[list[str] | None, typer.Option("--set", help="True parameter with its "
+                                                   "unit, e.g. l1=1.86m; repeatable.")] = None,
+    n: Annotated[int, typer.Option("-n", "--configurations", help="Number of "
+                                   "configurations.")] = 50,
+    seed: SeedOpt = 0,
+    noise: Annotated[str | None, typer.Option("--noise", metavar="ANGLE", help="Reading noise "
+                                              "(standard deviation) with its unit, e.g. "
+                                              "0.01deg.")] = None,
+    q1_range: Annotated[str | None, typer.Option(help="min,max of beta1 with units, e.g. "
+                                                 "0,90deg (default: the robot's limits or the "
+                                                 "full turn).")] = None,
+    q2_range: Annotated[str | None, typer.Option(help="min,max of beta2, e.g. 90,180deg.")
+                        ] = None,
+    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
+    n_old: Annotated[int | None, typer.Option("--n", hidden=True)] = None,
+    noise_deg: Annotated[float | None, typer.Option("--noise-deg", hidden=True)] = None,
+    json_out: Annotated[str | None, typer.Option("--json", help="Also write what was "
+                                                 "simulated as JSON ('-' for stdout).")
+                        ] = None,
 ) -> None:
     """Simulate a five-bar measurement file (readings in deg, points in mm) from a true robot."""
     import numpy as np
 
     from kincal.parallel.data import write_fivebar_csv
     from kincal.parallel.thesis import simulate
+    from kincal.units import parse_quantities
 
+    output = output or out_old
+    if output is None:
+        raise KincalError("`kincal fivebar-simulate` needs -o FILE.csv")
+    n = n_old if n_old is not None else n
+    noise_rad = legacy_quantity(noise, "--noise", noise_deg, "--noise-deg", "angle", "deg",
+                                minimum=0.0) or 0.0
     nominal = _load(robot)
     changes = {}
     for item in set_ or []:
-        name, _, value = item.partition("=")
-        try:
-            changes[name.strip()] = float(value)
-        except ValueError:
-            raise KincalError(f"option --set: {item!r} is not name=number") from None
+        name, eq, value = item.partition("=")
+        if not eq:
+            raise KincalError(f"option --set: {item!r} is not NAME=VALUE (e.g. l1=1.86m)")
+        changes[name.strip()] = float(quantity(value, ("length", "angle"), "--set") or 0.0) \
+            if any(c.isalpha() for c in value) else _bare_si(value, "--set")
     true = nominal.with_params(changes)
     ranges = []
     for k, text in enumerate((q1_range, q2_range)):
         if text is not None:
-            parts = text.split(",")
-            try:
-                lo, hi = (math.radians(float(v)) for v in parts)
-            except ValueError:
-                raise KincalError(f"option --q{k + 1}-range: expected min,max in deg") from None
+            lo, hi = parse_quantities(text, "angle", f"--q{k + 1}-range", count=2, bare="deg")
         elif nominal.limits is not None:
             lo, hi = nominal.limits[k]
         else:
             lo, hi = -math.pi, math.pi
         ranges.append((lo, hi))
     q, x = simulate(true, nominal, n, np.random.default_rng(seed), tuple(ranges),
-                    noise=math.radians(noise_deg))
+                    noise=noise_rad)
     comment = (f"simulated by kincal fivebar-simulate from {nominal.name}, seed {seed}, "
-               f"noise {noise_deg} deg\ntrue parameters (SI): "
+               f"noise {math.degrees(noise_rad):g} deg\ntrue parameters (SI): "
                + ", ".join(f"{k}={v:.12g}" for k, v, _ in true.parameter_table()))
-    write_fivebar_csv(out, q, x, comment=comment)
-    Console().print(f"{q.shape[0]} measurements -> {out}")
+    write_fivebar_csv(output, q, x, comment=comment)
+    if json_out != "-":
+        Console().print(f"{q.shape[0]} measurements -> {output}")
+    if json_out:
+        _write_json(json_out, {"robot": nominal.name, "measurements": int(q.shape[0]),
+                               "output": output, "seed": seed, "noise_rad": noise_rad,
+                               "true_parameters": {k: v for k, v, _ in
+                                                   true.parameter_table()}})
+
+
+def _bare_si(text: str, option: str) -> float:
+    """A bare number in SI (m, rad), the old spelling of ``--set``."""
+    try:
+        return float(text)
+    except ValueError:
+        raise KincalError(f"option {option}: {text!r} is not a number with its unit") \
+            from None

@@ -18,7 +18,7 @@ import typer
 from rich.markup import escape
 
 from kincal.cli.app import app
-from kincal.cli.calibration_common import load, out_console, serial
+from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
 from kincal.errors import KincalError
 
 import_app = typer.Typer(help="Other tools' files in: UR calibration files, ROS bags.",
@@ -53,6 +53,7 @@ def import_ur(
     output: Annotated[str, typer.Option("-o", "--output", help="kincal robot file to write.")],
     kinematics: Annotated[str | None, typer.Option("--kinematics", help="Also write the robot "
                                                    "as a ROS kinematics YAML here.")] = None,
+    json_out: JsonOpt = None,
 ) -> None:
     """Read a UR controller's calibration (calibration.conf) or a ROS kinematics YAML as a
     kincal robot file."""
@@ -62,7 +63,7 @@ def import_ur(
     from kincal.robots.files import robot_yaml_text
     from kincal.robots.ur import kinematics_yaml, read_calibration_conf, read_kinematics_yaml
 
-    out = out_console(None)
+    out = out_console(json_out)
     nom = serial(load(nominal), "import ur")
     if not Path(file).is_file():
         raise KincalError("no such file", source=file)
@@ -81,6 +82,13 @@ def import_ur(
               "the flange (500 random postures)")
     out.print(f"robot -> {escape(output)}" + (f"; kinematics YAML -> {escape(kinematics)}"
                                                if kinematics else ""))
+    if json_out:
+        from kincal.io import write_json
+
+        write_json(json_out, {"file": file, "robot": robot.name, "nominal": nom.name,
+                              "output": output, "kinematics": kinematics,
+                              "flange_difference_m": {"rms": float(np.sqrt(np.mean(diff**2))),
+                                                      "max": float(diff.max())}})
 
 
 @app.command("ur-kinematics")
@@ -90,19 +98,24 @@ def ur_kinematics(
     nominal: NominalOpt,
     output: Annotated[str, typer.Option("-o", "--output", help="ROS kinematics YAML to "
                                         "write.")],
+    json_out: JsonOpt = None,
 ) -> None:
     """Write a calibrated UR as the ROS kinematics YAML (ur_description's
     default_kinematics.yaml format), every joint origin near its nominal value."""
     from kincal.io import atomic_write_text
     from kincal.robots.ur import kinematics_yaml
 
-    out = out_console(None)
+    out = out_console(json_out)
     r = serial(load(robot), "ur-kinematics")
     nom = serial(load(nominal), "ur-kinematics")
     text = kinematics_yaml(r, nom)
     _round_trip_report(out, r, nom, text)
     atomic_write_text(output, text)
     out.print(f"kinematics YAML -> {escape(output)}")
+    if json_out:
+        from kincal.io import write_json
+
+        write_json(json_out, {"robot": r.name, "nominal": nom.name, "output": output})
 
 
 def _speed(text: str, option: str) -> float:

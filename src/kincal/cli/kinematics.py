@@ -16,11 +16,12 @@ from kincal.cli.common import (
     RobotArg,
     TipLink,
     console,
-    fmt_value,
+    err_console,
     joint_vector,
     matrix_table,
     robot_arg,
 )
+from kincal.cli.options import SiOpt, Units
 from kincal.io import write_json
 
 QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: rad for revolute, "
@@ -34,7 +35,7 @@ def _is_fivebar(robot: object) -> bool:
 
 
 @app.command()
-def robots() -> None:
+def robots(json_out: JsonOut = None) -> None:
     """List the built-in robots (`kincal show NAME` gives the parameters and their source)."""
     from kincal.robots.files import library_names
     from kincal.workflow.robots import load_any_robot
@@ -42,6 +43,7 @@ def robots() -> None:
     t = Table(title="Built-in robots (use the name wherever ROBOT is asked)")
     for c in ("name", "joints", "convention", "description"):
         t.add_column(c, overflow="fold")
+    rows = []
     for name in library_names():
         r = load_any_robot(name)
         if _is_fivebar(r):
@@ -52,58 +54,71 @@ def robots() -> None:
         desc = str(getattr(r, "meta", {}).get("description", "")) or "five-bar parallel robot"
         short = desc if len(desc) <= 64 else desc[:63].rstrip(" ,") + "…"
         t.add_row(name, kinds, conv, escape(short))
-    console.print(t)
+        rows.append({"name": name, "joints": kinds, "convention": conv, "description": desc})
+    if json_out != "-":
+        console.print(t)
+    if json_out:
+        write_json(json_out, {"robots": rows})
 
 
-def _print_robot(r: Any) -> None:
-    """Joint table, parameter table (mm / deg for people) and the source of the numbers."""
+def _print_robot(r: Any, units: Units) -> None:
+    """Joint table, parameter table (mm / deg, or SI with --si), the source and the notes."""
+    out = console
     jt = Table(title=f"{r.name}: {r.n} joints ({r.meta.get('convention', '')})")
     for c in ("#", "joint", "type", "lower", "upper"):
         jt.add_column(c, justify="right" if c in ("#", "lower", "upper") else "left")
     for i, j in enumerate(r.joints, start=1):
         lims = (j.lower, j.upper)
-        if j.kind == "revolute":
-            lo, hi = (f"{math.degrees(v):.1f}°" if math.isfinite(v) else "-" for v in lims)
-        else:
-            lo, hi = (f"{v * 1e3:.1f} mm" if math.isfinite(v) else "-" for v in lims)
+        unit = "rad" if j.kind == "revolute" else "m"
+        lo, hi = (units.value(v, unit, 1 if not units.si else 4) if math.isfinite(v) else "-"
+                  for v in lims)
         jt.add_row(str(i), j.name, j.kind, lo, hi)
-    console.print(jt)
-    pt = Table(title=f"{r.name}: {r.num_params} parameters (SI inside; shown in mm and deg)")
+    out.print(jt)
+    held = dict(r.meta.get("held_joints") or {})
+    if held:
+        out.print("held joints: " + ", ".join(f"{escape(k)} = {v:g}" for k, v in held.items()))
+    pt = Table(title=f"{r.name}: {r.num_params} parameters")
     for c in ("parameter", "value", "unit", "role"):
         pt.add_column(c, justify="right" if c == "value" else "left")
     for name, v, u, role in zip(r.param_names, r.param_values, r.param_units, r.param_roles,
                                 strict=True):
-        pt.add_row(name, fmt_value(float(v), u), u, role)
-    console.print(pt)
-    if "source" in r.meta:
-        console.print(f"[dim]source: {escape(str(r.meta['source']))}[/dim]")
+        f, cu = units.scale(u)
+        pt.add_row(name, f"{float(v) * f:.{4 if not units.si else 7}f}", cu, role)
+    out.print(pt)
+    for key in ("source", "notes"):
+        if r.meta.get(key):
+            out.print(f"[bold]{key}[/bold]: {escape(' '.join(str(r.meta[key]).split()))}")
 
 
 @app.command()
 def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
-         json_out: JsonOut = None) -> None:
-    """Show a robot's joints and its named parameters with units."""
+         si: SiOpt = False, json_out: JsonOut = None) -> None:
+    """Show a robot's joints and its named parameters with units (mm and degrees; --si: m
+    and rad), where its numbers come from, and its notes."""
     r = robot_arg(robot, base_link, tip_link)
     if _is_fivebar(r):
         from kincal.cli.fivebar import show_fivebar
 
-        show_fivebar(r, console)
+        show_fivebar(r, console if json_out != "-" else err_console, Units(si), json_out)
         return
     if json_out != "-":
-        _print_robot(r)
+        _print_robot(r, Units(si))
     if json_out:
         write_json(json_out, {"name": r.name, "joints": [
             {"name": j.name, "type": j.kind, "lower": j.lower if math.isfinite(j.lower) else None,
              "upper": j.upper if math.isfinite(j.upper) else None} for j in r.joints],
             "parameters": [{"name": n, "value": float(v), "unit": u, "role": ro} for n, v, u, ro
                            in zip(r.param_names, r.param_values, r.param_units, r.param_roles,
-                                  strict=True)]})
+                                  strict=True)],
+            "units": {"length": "m", "angle": "rad"},
+            **{k: str(r.meta[k]) for k in ("description", "source", "notes") if k in r.meta}})
 
 
 @app.command()
-def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, base_link: BaseLink = None,
-       tip_link: TipLink = None, json_out: JsonOut = None) -> None:
-    """Forward kinematics: the tool pose T(q) in the base frame (metres)."""
+def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, si: SiOpt = False,
+       base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOut = None) -> None:
+    """Forward kinematics: the tool pose T(q) in the base frame (position in mm and
+    roll-pitch-yaw in degrees; --si: m and rad)."""
     import numpy as np
 
     r = robot_arg(robot, base_link, tip_link)
@@ -113,37 +128,57 @@ def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, base_link: BaseLink = None
         fk_fivebar(r, joint_vector(r, q, deg), json_out)
         return
     T = r.fk(joint_vector(r, q, deg))
-    if json_out != "-":
-        console.print(matrix_table(T, f"{r.name}: T(q) \\[m]", digits=6))
-        from kincal.spatial import matrix_to_rpy
+    from kincal.spatial import matrix_to_rpy
 
-        rpy = np.degrees(matrix_to_rpy(T[:3, :3]))
-        console.print(f"position \\[mm]: {np.round(T[:3, 3] * 1e3, 4).tolist()}   "
-                      f"rpy \\[deg]: {np.round(rpy, 4).tolist()}")
+    rpy = matrix_to_rpy(T[:3, :3])
+    if json_out != "-":
+        u = Units(si)
+        M = T.copy()
+        M[:3, 3] *= u.scale("m")[0]
+        console.print(matrix_table(M, f"{r.name}: T(q) (translation \\[{u.length_unit}])",
+                                   digits=6))
+        console.print(f"position \\[{u.length_unit}]: "
+                      f"{', '.join(u.length(v) for v in T[:3, 3])}   "
+                      f"rpy \\[{u.angle_unit}]: {', '.join(u.angle(v) for v in rpy)}")
     if json_out:
-        write_json(json_out, {"T": T.tolist(), "units": {"length": "m"}})
+        write_json(json_out, {"T": T.tolist(), "position": T[:3, 3].tolist(),
+                              "rpy": np.asarray(rpy).tolist(),
+                              "units": {"length": "m", "angle": "rad"}})
 
 
 @app.command()
 def jacobian(robot: RobotArg, q: QOpt, deg: DegOpt = False,
              frame: Annotated[str, typer.Option(help="base: velocities in the base frame; "
                                                 "tool: in the tool frame.")] = "base",
-             base_link: BaseLink = None, tip_link: TipLink = None,
+             si: SiOpt = False, base_link: BaseLink = None, tip_link: TipLink = None,
              json_out: JsonOut = None) -> None:
-    """Geometric Jacobian: rows vx vy vz [m/s per unit] and wx wy wz [rad/s per unit]."""
+    """Geometric Jacobian: rows vx vy vz (mm/s) and wx wy wz (deg/s) per unit joint speed
+    (rad/s, deg/s with --deg; m/s for prismatic joints); --si: m/s and rad/s."""
     import numpy as np
 
     r = robot_arg(robot, base_link, tip_link)
     J = r.jacobian(joint_vector(r, q, deg), frame=frame)  # type: ignore[arg-type]
     if json_out != "-":
-        console.print(matrix_table(J, f"{r.name}: geometric Jacobian ({frame} frame)",
-                                   ["vx", "vy", "vz", "wx", "wy", "wz"], list(r.joint_names)))
+        u = Units(si)
+        M = J.copy()
+        M[:3] *= u.scale("m")[0]
+        M[3:] *= u.scale("rad")[0]
+        rev = np.array([j.kind == "revolute" for j in r.joints])
+        if deg:
+            M[:, rev] *= math.pi / 180.0
+        per = [("deg/s" if deg else "rad/s") if k else "m/s" for k in rev]
+        console.print(matrix_table(M, f"{r.name}: geometric Jacobian ({frame} frame; rows "
+                                   f"{u.length_unit}/s and {u.angle_unit}/s per joint speed)",
+                                   ["vx", "vy", "vz", "wx", "wy", "wz"],
+                                   [escape(f"{n} [{p}]") for n, p in zip(r.joint_names, per,
+                                                                         strict=True)]))
         s = np.linalg.svd(J, compute_uv=False)
         cond = s[0] / s[-1] if s[-1] > 0 else math.inf
-        console.print(f"singular values: {np.round(s, 6).tolist()}   condition number: {cond:.4g}")
+        console.print(f"singular values (SI): {np.round(s, 6).tolist()}   condition number: "
+                      f"{cond:.4g}")
     if json_out:
         write_json(json_out, {"J": J.tolist(), "frame": frame,
                               "rows": ["vx", "vy", "vz", "wx", "wy", "wz"],
-                              "columns": list(r.joint_names)})
-
-
+                              "columns": list(r.joint_names),
+                              "units": "SI: m/s and rad/s per rad/s (revolute) or m/s "
+                                       "(prismatic)"})

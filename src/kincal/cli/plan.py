@@ -26,7 +26,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.common import console, err_console, parse_vector, robot_arg
+from kincal.cli.common import console, err_console, parse_vector, point_vector, robot_arg
+from kincal.cli.options import SeedOpt, SiOpt, legacy_quantity, use_si
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
@@ -162,11 +163,11 @@ def _seconds(text: str, option: str) -> float:
 
 # --------------------------------------------------------------------------- output
 def _fmt_std(value: float, unit: str) -> str:
-    if unit == "m":
-        return f"{value * 1e3:.4g} mm"
-    if unit == "rad":
-        return f"{math.degrees(value) * 3600:.4g} arcsec"
-    return f"{value:.4g} {unit}"
+    """A standard deviation in the console's units (mm and deg; m and rad with --si)."""
+    from kincal.cli.options import CONSOLE
+
+    f, u = CONSOLE.scale(unit)
+    return f"{value * f:.4g} {u}"
 
 
 def _indices_table(plan: Plan) -> Table:
@@ -187,15 +188,17 @@ def _indices_table(plan: Plan) -> Table:
 
 
 def _accuracy_table(plan: Plan) -> Table:
+    from kincal.cli.options import CONSOLE
+
     p, r = plan.prediction, plan.random_prediction
+    f, u = CONSOLE.scale("m")
     t = Table(title=f"Predicted position error after calibration over {len(p.q_eval)} "
-                    f"grid configurations [mm] (noise {p.noise * 1e3:g} mm)")
+                    f"grid configurations \\[{u}] (noise {p.noise * f:g} {u})")
     for c in ("poses", "RMS", "95 %", "max"):
         t.add_column(c, justify="left" if c == "poses" else "right")
-    t.add_row(f"{plan.design.criterion} design", f"{p.rms * 1e3:.4g}", f"{p.p95 * 1e3:.4g}",
-              f"{p.max * 1e3:.4g}")
-    t.add_row("random (median)", f"{r.rms * 1e3:.4g}", f"{r.p95 * 1e3:.4g}",
-              f"{r.max * 1e3:.4g}")
+    t.add_row(f"{plan.design.criterion} design", f"{p.rms * f:.4g}", f"{p.p95 * f:.4g}",
+              f"{p.max * f:.4g}")
+    t.add_row("random (median)", f"{r.rms * f:.4g}", f"{r.p95 * f:.4g}", f"{r.max * f:.4g}")
     return t
 
 
@@ -305,7 +308,7 @@ def plan(
                                        "select.")] = 30,
     criterion: Annotated[str, typer.Option("--criterion", "-c", help="O1 (D-optimal, DETMAX), "
                                            "O2, O3, O4, O5 (exchange) or kappa (greedy "
-                                           "condition number, seed 001).")] = "O1",
+                                           "condition number, the cross-bar procedure's).")] = "O1",
     candidates: Annotated[int, typer.Option("--candidates", min=1, help="Number of random "
                                             "candidate configurations.")] = 2000,
     candidates_file: Annotated[str | None, typer.Option("--candidates-file", help="CSV of "
@@ -315,21 +318,20 @@ def plan(
     reachable: Annotated[bool, typer.Option("--reachable", help="Candidates from the "
                                             "instrument's simulator (configurations it can "
                                             "measure).")] = False,
-    noise_mm: Annotated[float, typer.Option("--noise-mm", min=0.0, help="Instrument noise per "
-                                            "coordinate, in mm.")] = 0.01,
-    orientation_noise_deg: Annotated[float, typer.Option(
-        "--orientation-noise-deg", min=0.0,
-        help="Pose instrument: rotation noise per axis, in deg.")
-    ] = 0.005,
-    marker_mm: Annotated[str | None, typer.Option("--marker-mm", help="Marker (or target "
-                                                  "origin) in the tool frame, 'x,y,z' in mm; "
-                                                  "default 20,10,50.")] = None,
+    noise: Annotated[str, typer.Option("--noise", help="Instrument noise per coordinate, "
+                                       "with its unit.")] = "0.01mm",
+    orientation_noise: Annotated[str, typer.Option(
+        "--orientation-noise", help="Pose instrument: rotation noise per axis, with its "
+        "unit.")] = "0.005deg",
+    marker: Annotated[str | None, typer.Option("--marker", help="Marker (or target origin) in "
+                                               "the tool frame, x,y,z with its unit; default "
+                                               "20,10,50mm.")] = None,
     scaling: Annotated[str, typer.Option("--scaling", help="workspace (default), unit or "
                                          "errors: the Jacobian scaling of the indices.")
                        ] = "workspace",
-    min_distance_deg: Annotated[float, typer.Option("--min-distance-deg", min=0.0, help="Minimum "
-                                                    "joint-space distance between poses, "
-                                                    "in deg.")] = 0.0,
+    min_distance: Annotated[str, typer.Option("--min-distance", help="Minimum joint-space "
+                                              "distance between poses, with its unit.")
+                            ] = "0deg",
     margin: Annotated[float, typer.Option("--margin", min=0.0, max=0.45, help="Fraction of "
                                           "each joint range kept away from the limits.")
                       ] = 0.05,
@@ -337,7 +339,7 @@ def plan(
                                       "evaluation grid.")] = 3,
     no_exchange: Annotated[bool, typer.Option("--no-exchange", help="Greedy selection only "
                                               "(no DETMAX / exchange).")] = False,
-    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    seed: SeedOpt = 0,
     program: Annotated[str | None, typer.Option("--program", help="Write the poses as a "
                                                 "joint-move program to run on the robot: krl, "
                                                 "rapid, urscript or fanuc-ls. -o is then the "
@@ -372,6 +374,13 @@ def plan(
                          ] = None,
     tip_link: Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link.")
                         ] = None,
+    si: SiOpt = False,
+    noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
+    orientation_noise_deg: Annotated[float | None, typer.Option("--orientation-noise-deg",
+                                                                hidden=True)] = None,
+    marker_mm: Annotated[str | None, typer.Option("--marker-mm", hidden=True)] = None,
+    min_distance_deg: Annotated[float | None, typer.Option("--min-distance-deg", hidden=True)
+                                ] = None,
 ) -> None:
     """Choose calibration poses by an observability index (O1-O5, kappa) and predict the
     accuracy after calibration before measuring anything."""
@@ -391,10 +400,16 @@ def plan(
         if u not in UNITS or UNITS[u][0] != dim:
             raise KincalError(f"option {opt}: {u!r} is not {'an' if dim == 'angle' else 'a'} "
                               f"{dim} unit")
-    if noise_mm <= 0:
-        raise KincalError("option --noise-mm must be positive")
-    if instrument == "pose" and orientation_noise_deg <= 0:
-        raise KincalError("option --orientation-noise-deg must be positive")
+    use_si(si)
+    sd = legacy_quantity(noise if noise_mm is None else None, "--noise", noise_mm,
+                         "--noise-mm", "length", "mm", positive=True)
+    sd_rot = legacy_quantity(orientation_noise if orientation_noise_deg is None else None,
+                             "--orientation-noise", orientation_noise_deg,
+                             "--orientation-noise-deg", "angle", "deg",
+                             positive=instrument == "pose", minimum=0.0)
+    min_dist = legacy_quantity(min_distance if min_distance_deg is None else None,
+                               "--min-distance", min_distance_deg, "--min-distance-deg",
+                               "angle", "deg", minimum=0.0)
     if candidates_file and reachable:
         raise KincalError("use either --candidates-file or --reachable, not both")
     from kincal.measure.registry import get_instrument
@@ -408,23 +423,27 @@ def plan(
     if not hasattr(r, "param_jacobian"):
         raise KincalError(f"robot {getattr(r, 'name', robot)!r}: `kincal plan` works on serial "
                           "robots")
-    marker = None if marker_mm is None else parse_vector(marker_mm, "--marker-mm", 3) * 1e-3
+    if marker is not None and marker_mm is not None:
+        raise KincalError("give --marker (with its unit) or --marker-mm, not both")
+    marker_m = (point_vector(marker, "--marker", ["length"] * 3) if marker is not None else
+                parse_vector(marker_mm, "--marker-mm", 3) * 1e-3 if marker_mm is not None
+                else None)
     out = err_console if json_out == "-" else console
     with _Bar() as bar:
         p = build_plan(r, instrument=instrument, poses=poses, criterion=crit,
                        candidates=candidates, candidates_file=candidates_file,
                        reachable=reachable, units=units, ignore=ignore,
-                       noise=noise_mm * 1e-3,
-                       orientation_noise=math.radians(orientation_noise_deg) or 1e-5,
-                       marker=marker, scaling=scaling,
-                       min_distance=math.radians(min_distance_deg), margin=margin, grid=grid,
+                       noise=sd,
+                       orientation_noise=sd_rot or 1e-5,
+                       marker=marker_m, scaling=scaling,
+                       min_distance=min_dist, margin=margin, grid=grid,
                        exchange=not no_exchange, seed=seed, progress=bar)
     d, pred = p.design, p.prediction
     html_text = render_plan_html(p) if report else None
     comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={crit} "
                 f"({d.method}); poses={d.poses}; seed={seed}",
                 f"predicted RMS position error after calibration: {pred.rms * 1e3:.4g} mm "
-                f"(noise {noise_mm:g} mm); O1={d.indices.O1:.4g} kappa={d.indices.kappa:.4g}"]
+                f"(noise {sd * 1e3:g} mm); O1={d.indices.O1:.4g} kappa={d.indices.kappa:.4g}"]
     poses_csv = output
     prog_text = None
     if program:

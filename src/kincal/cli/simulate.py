@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -32,21 +32,34 @@ from kincal.cli.calibration_common import (
     serial,
 )
 from kincal.cli.common import console
+from kincal.cli.options import SeedOpt, SiOpt, Units, legacy_quantity
 from kincal.errors import KincalError
+from kincal.io import check_outputs
 
-#: First-class artifact flags -> the instrument options they set (first one present).
-ARTIFACT_FLAGS: dict[str, tuple[str, ...]] = {
-    "--placements": ("placements",),
-    "--bar-length": ("bar_length_mm", "socket_distance_mm"),
-    "--probe-length": ("probe_length_mm",),
-    "--encoder-noise-deg": ("encoder_noise_deg",),
+#: First-class artifact flags -> the instrument options they set (first one present) and
+#: the dimension of their value.
+ARTIFACT_FLAGS: dict[str, tuple[tuple[str, ...], str]] = {
+    "--placements": (("placements",), "count"),
+    "--bar-length": (("bar_length_mm", "socket_distance_mm"), "length"),
+    "--probe-length": (("probe_length_mm",), "length"),
+    "--encoder-noise": (("encoder_noise_deg",), "angle"),
 }
 
 
 @app.command("instruments")
-def instruments_cmd() -> None:
+def instruments_cmd(json_out: JsonOpt = None) -> None:
     """List the measurement instruments (for `kincal simulate --instrument`) and options."""
+    from kincal.io import write_json
     from kincal.measure.registry import LOAD_ERRORS, instruments
+
+    if json_out:
+        write_json(json_out, {"instruments": [
+            {"name": name, "description": inst.description, "noise_unit": inst.noise_unit,
+             "options": {k: {"default": v, "help": h} for k, (v, h) in inst.options.items()}}
+            for name, inst in sorted(instruments().items())],
+            "load_errors": dict(LOAD_ERRORS)})
+        if json_out == "-":
+            return
 
     t = Table(title="Instruments (use with --instrument; options with --option KEY=VALUE)")
     for c in ("name", "description", "noise unit", "options (default)"):
@@ -90,60 +103,46 @@ def parse_options(items: Sequence[str] | None, inst: Any) -> dict[str, Any]:
     return out
 
 
-def artifact_options(inst: Any, flags: dict[str, float | int | None]) -> dict[str, Any]:
-    """Map ``--placements``, ``--bar-length`` [mm], ``--probe-length`` [mm] and
-    ``--encoder-noise-deg`` [deg] to ``inst``'s options; an error when it has none."""
+def artifact_options(inst: Any, flags: dict[str, str | int | None]) -> dict[str, Any]:
+    """Map ``--placements``, ``--bar-length 300mm``, ``--probe-length 100mm`` and
+    ``--encoder-noise 0.001deg`` to ``inst``'s options (in their mm / deg spelling); an
+    error when it has none."""
+    from kincal.units import parse_quantity
+
     out: dict[str, Any] = {}
     for flag, value in flags.items():
         if value is None:
             continue
-        key = next((k for k in ARTIFACT_FLAGS[flag] if k in inst.options), None)
+        keys, dim = ARTIFACT_FLAGS[flag]
+        key = next((k for k in keys if k in inst.options), None)
         if key is None:
-            have = [f for f, ks in ARTIFACT_FLAGS.items() if any(k in inst.options for k in ks)]
+            have = [f for f, (ks, _) in ARTIFACT_FLAGS.items()
+                    if any(k in inst.options for k in ks)]
             raise KincalError(f"option {flag}: instrument {inst.name!r} has no such option "
                               f"(it is for cross-bar, ball-bar, two-socket"
                               + (f"; {inst.name} takes {', '.join(have)}" if have else "")
                               + ")")
-        if not math.isfinite(value):
-            raise KincalError(f"option {flag}: must be finite")
-        if flag in ("--bar-length",) and not value > 0:
-            raise KincalError(f"option {flag}: must be > 0 mm (got {value:g})")
-        if flag in ("--probe-length", "--encoder-noise-deg") and value < 0:
-            raise KincalError(f"option {flag}: must be >= 0 (got {value:g})")
-        out[key] = type(inst.options[key][0])(value)
+        if dim == "count":
+            out[key] = type(inst.options[key][0])(value)
+            continue
+        si = parse_quantity(str(value), dim, flag, positive=flag == "--bar-length",
+                            minimum=0.0)
+        out[key] = type(inst.options[key][0])(si * (1e3 if dim == "length" else
+                                                    180.0 / math.pi))
     return out
 
 
-def parse_noise(noise_mm: float | None, noise: str | None, inst: Any) -> float:
-    """The instrument's main noise in its SI unit from --noise-mm or --noise VALUE+UNIT."""
-    from kincal.units import UNITS
-
+def parse_noise(noise_mm: float | None, noise: str | None, inst: Any,
+                option: str = "--noise") -> float:
+    """The instrument's main noise in its SI unit from ``--noise 0.01mm`` (its dimension:
+    length, angle or pixel) or the old ``--noise-mm`` spelling; the instrument's default
+    otherwise."""
     dim = {"m": "length", "rad": "angle", "px": "pixel"}.get(inst.noise_unit, "dimensionless")
-    if noise_mm is not None and noise is not None:
-        raise KincalError("give either --noise-mm or --noise, not both")
-    if noise is not None:
-        m = re.fullmatch(r"\s*([-+0-9.eE]+)\s*([a-z1]+)\s*", noise)
-        if not m or m.group(2) not in UNITS:
-            raise KincalError(f"option --noise: {noise!r} is not VALUE+UNIT (e.g. 0.02mm, "
-                              "1arcsec, 0.3px)")
-        try:
-            v = float(m.group(1))
-        except ValueError:
-            raise KincalError(f"option --noise: {m.group(1)!r} is not a number") from None
-        d, f = UNITS[m.group(2)]
-        if d != dim:
-            raise KincalError(f"option --noise: instrument {inst.name!r} has {dim} noise; "
-                              f"{m.group(2)} is {d}")
-        value = v * f
-    elif noise_mm is not None:
-        if dim != "length":
-            raise KincalError(f"instrument {inst.name!r} has {dim} noise: use --noise "
-                              "VALUE+UNIT")
-        value = noise_mm * 1e-3
-    else:
+    if noise_mm is not None and dim != "length":
+        raise KincalError(f"instrument {inst.name!r} has {dim} noise: use --noise VALUE+UNIT")
+    value = legacy_quantity(noise, option, noise_mm, "--noise-mm", dim, "mm", minimum=0.0)
+    if value is None:
         value = {"length": 1e-5, "angle": 2e-6, "pixel": 0.2}.get(dim, 1e-5)
-    if not math.isfinite(value) or value < 0:
-        raise KincalError("the noise must be a finite number >= 0")
     return float(value)
 
 
@@ -169,13 +168,11 @@ def simulate(
     poses: Annotated[int, typer.Option("--poses", "-n", min=1, help="Number of measured "
                                        "configurations (artifacts: poses / sockets "
                                        "placements unless --placements).")] = 100,
-    noise_mm: Annotated[float | None, typer.Option("--noise-mm", help="Measurement noise "
-                                                   "(standard deviation per coordinate) [mm]; "
-                                                   "default 0.01.")] = None,
-    noise: Annotated[str | None, typer.Option("--noise", help="Noise with its unit for "
-                                              "non-length instruments: '1arcsec', '0.3px'.")
-                     ] = None,
-    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    noise: Annotated[str | None, typer.Option("--noise", help="Measurement noise (standard "
+                                              "deviation per coordinate) with its unit: "
+                                              "0.01mm, 1arcsec, 0.3px (default 0.01 mm, "
+                                              "2 urad, 0.2 px).")] = None,
+    seed: SeedOpt = 0,
     instrument: Annotated[str, typer.Option("--instrument", "-i", help="Instrument (see "
                                             "`kincal instruments`): position, pose, "
                                             "cross-bar, ...")] = "position",
@@ -185,30 +182,41 @@ def simulate(
     placements: Annotated[int | None, typer.Option(
         "--placements", min=1, help="Artifacts (cross-bar, ball-bar, two-socket): number of "
         "artifact placements.")] = None,
-    bar_length: Annotated[float | None, typer.Option(
-        "--bar-length", help="Artifacts: the known length [mm]: cross-bar |AC| = |BD|, "
-        "ball-bar length, two-socket socket distance.")] = None,
-    probe_length: Annotated[float | None, typer.Option(
-        "--probe-length", help="Artifacts: probe length along the flange z axis [mm].")
+    bar_length: Annotated[str | None, typer.Option(
+        "--bar-length", metavar="LENGTH", help="Artifacts: the known length with its unit "
+        "(300mm): cross-bar |AC| = |BD|, ball-bar length, two-socket socket distance.")
     ] = None,
-    encoder_noise_deg: Annotated[float | None, typer.Option(
-        "--encoder-noise-deg", help="Artifacts: encoder noise per joint [deg] (standard "
-        "deviation; replaces --noise).")] = None,
+    probe_length: Annotated[str | None, typer.Option(
+        "--probe-length", metavar="LENGTH", help="Artifacts: probe length along the flange z "
+        "axis, with its unit.")] = None,
+    encoder_noise: Annotated[str | None, typer.Option(
+        "--encoder-noise", metavar="ANGLE", help="Artifacts: encoder noise per joint "
+        "(standard deviation) with its unit, e.g. 0.001deg; replaces --noise.")] = None,
     holdout: Annotated[str | None, typer.Option("--holdout", help="Also write held-out "
                                                 "measurements (same robot, same instrument "
                                                 "placement) to this CSV.")] = None,
     holdout_poses: Annotated[int, typer.Option("--holdout-poses", min=1, help="Poses in the "
                                                "held-out file.")] = 50,
-    length_error_mm: Annotated[float, typer.Option(help="Std of the injected length errors "
-                                                   "[mm].")] = 0.5,
-    angle_error_deg: Annotated[float, typer.Option(help="Std of the injected angle errors "
-                                                   "[deg].")] = 0.05,
-    offset_error_deg: Annotated[float, typer.Option(help="Std of the injected joint offset "
-                                                    "errors [deg].")] = 0.1,
+    length_error: Annotated[str, typer.Option(help="Standard deviation of the injected length "
+                                              "errors, with its unit.")] = "0.5mm",
+    angle_error: Annotated[str, typer.Option(help="Standard deviation of the injected angle "
+                                             "errors.")] = "0.05deg",
+    offset_error: Annotated[str, typer.Option(help="Standard deviation of the injected joint "
+                                              "offset errors.")] = "0.1deg",
     perturb: Annotated[str | None, typer.Option(help="Only perturb these parameters (names or "
                                                 "* patterns, comma separated).")] = None,
     length_unit: LengthUnit = "m", angle_unit: AngleUnit = "rad",
-    base_link: BaseLink = None, tip_link: TipLink = None, json_out: JsonOpt = None,
+    base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
+    json_out: JsonOpt = None,
+    noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
+    encoder_noise_deg: Annotated[float | None, typer.Option("--encoder-noise-deg", hidden=True)
+                                 ] = None,
+    length_error_mm: Annotated[float | None, typer.Option("--length-error-mm", hidden=True)
+                               ] = None,
+    angle_error_deg: Annotated[float | None, typer.Option("--angle-error-deg", hidden=True)
+                               ] = None,
+    offset_error_deg: Annotated[float | None, typer.Option("--offset-error-deg", hidden=True)
+                                ] = None,
 ) -> None:
     """Simulate a calibration experiment: a true robot (nominal + errors) measured by an
     instrument with noise. Writes the measurements (and the truth) for `kincal calibrate`.
@@ -228,18 +236,32 @@ def simulate(
     from kincal.robots.files import robot_yaml_text
 
     out = out_console(json_out)
+    errors = {what: legacy_quantity(text, f"--{what}-error", old, f"--{what}-error-"
+                                    f"{'mm' if what == 'length' else 'deg'}",
+                                    "length" if what == "length" else "angle",
+                                    "mm" if what == "length" else "deg", minimum=0.0)
+              for what, text, old in (("length", length_error, length_error_mm),
+                                      ("angle", angle_error, angle_error_deg),
+                                      ("offset", offset_error, offset_error_deg))}
+    if encoder_noise_deg is not None:
+        if encoder_noise is not None:
+            raise KincalError("give --encoder-noise (with its unit) or --encoder-noise-deg, "
+                              "not both")
+        encoder_noise = f"{encoder_noise_deg!r}deg"
+    check_outputs({"-o": output, "--holdout": holdout, "--truth": truth, "--json": json_out},
+                  {"ROBOT": [robot] if Path(robot).is_file() else []})
     nominal = serial(load(robot, base_link, tip_link), "simulate")
     inst = get_instrument(instrument)
     opts = parse_options(option, inst)
     flags = artifact_options(inst, {"--placements": placements, "--bar-length": bar_length,
                                     "--probe-length": probe_length,
-                                    "--encoder-noise-deg": encoder_noise_deg})
+                                    "--encoder-noise": encoder_noise})
     both = sorted(set(flags) & set(opts))
     if both:
         raise KincalError(f"option {both[0]} is given twice (as a flag and as --option)")
     opts.update(flags)
-    if encoder_noise_deg is not None and (noise is not None or noise_mm is not None):
-        raise KincalError("give either --encoder-noise-deg or --noise, not both")
+    if encoder_noise is not None and (noise is not None or noise_mm is not None):
+        raise KincalError("give either --encoder-noise or --noise, not both")
     sd = parse_noise(noise_mm, noise, inst)
     used, noise_text = noise_used(inst, opts, sd)
     units = {"length": check_unit(length_unit, "length", "--length-unit"),
@@ -251,12 +273,9 @@ def simulate(
 
         names = [nominal.param_names[i] for i in
                  match_names(nominal.param_names, [p.strip() for p in perturb.split(",")])]
-    true = perturb_robot(nominal, rng, length_std=length_error_mm * 1e-3,
-                         angle_std=math.radians(angle_error_deg),
-                         offset_std=math.radians(offset_error_deg),
-                         base_std=(length_error_mm * 1e-3, math.radians(angle_error_deg)),
-                         tool_std=(length_error_mm * 1e-3, math.radians(angle_error_deg)),
-                         names=names)
+    ls, as_, os_ = errors["length"], errors["angle"], errors["offset"]
+    true = perturb_robot(nominal, rng, length_std=ls, angle_std=as_, offset_std=os_,
+                         base_std=(ls, as_), tool_std=(ls, as_), names=names)
     blocks, inst_truth = simulate_measurements(inst, true, rng, poses, sd, opts)
     held = None
     if holdout:
@@ -289,9 +308,10 @@ def simulate(
         hrows = sum(int(b.q.shape[0]) for b in held)
         out.print(f"held-out: {hrows} measurements -> {escape(str(holdout))}")
     lin = np.array([u == "m" for u in nominal.param_units])
+    units = Units(si)
     out.print(f"injected errors: {int(np.count_nonzero(delta))} parameters, largest "
-              f"{np.max(np.abs(delta[lin]), initial=0) * 1e3:.3f} mm / "
-              f"{math.degrees(np.max(np.abs(delta[~lin]), initial=0)):.4f} deg"
+              f"{units.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
+              f"{units.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
               + (f"; truth -> {escape(truth)}" if truth else ""))
     if json_out:
         doc: dict[str, Any] = {

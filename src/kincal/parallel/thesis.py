@@ -99,7 +99,7 @@ def run_thesis(
 def plot_thesis(result: FiveBarCalibration, true: FiveBar, out_dir: str | Path) -> list[Path]:
     """One figure per length (like the thesis's figures 4.1-4.4): value vs iteration.
 
-    Writes ``fivebar_thesis_l1.png`` ... ``_l4.png`` in ``out_dir``; returns the paths.
+    Writes ``fivebar_demo_l1.png`` ... ``_l4.png`` in ``out_dir``; returns the paths.
     """
     import matplotlib
 
@@ -110,19 +110,20 @@ def plot_thesis(result: FiveBarCalibration, true: FiveBar, out_dir: str | Path) 
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     its = np.arange(len(result.history))
-    for k, name in enumerate(THESIS_FREE, start=1):
+    for name in THESIS_FREE:
         fig, ax = plt.subplots(figsize=(5.0, 3.4))
         ax.plot(its, result.trajectory(name), "o-", label="estimate")
         ax.axhline(getattr(true, name), color="k", ls="--", lw=0.8, label="true value")
         ax.set_xlabel("iteration")
         ax.set_ylabel(f"{name} [m]")
         ax.set_title(
-            f"Figure 4.{k}: evolution of {name} ({result.method}, {result.residual})", fontsize=9
+            f"{name} against the iteration ({result.method}, {result.residual} residual)",
+            fontsize=11
         )
         ax.legend(fontsize=8)
         fig.tight_layout()
-        path = out / f"fivebar_thesis_{name}.png"
-        tmp = out / f".fivebar_thesis_{name}.tmp.png"
+        path = out / f"fivebar_demo_{name}.png"
+        tmp = out / f".fivebar_demo_{name}.tmp.png"
         fig.savefig(tmp, dpi=110)
         plt.close(fig)
         tmp.replace(path)

@@ -1,4 +1,5 @@
-"""The patent's figures 4 and 5: artifact lengths from the joint readings, before and after.
+"""Artifact lengths from the joint readings, before and after calibration (the cross-bar
+patent's figures 4 and 5).
 
 For every placement of an artifact block the known lengths (``|AC|``, ``|BD|`` of the
 cross-bar, ``|AB|`` of a ball-bar, the socket distance of the two-socket tool) are
@@ -102,28 +103,30 @@ def plot_lengths(block: ArtifactMeasurement, robot: Robot, extra: ArrayLike | No
 def save_patent_figures(block: ArtifactMeasurement, nominal: Robot, calibrated: Robot,
                         directory: str | Path, extra_nominal: ArrayLike | None = None,
                         extra_calibrated: ArrayLike | None = None,
-                        prefix: str = "figure") -> dict[str, str]:
-    """Write figure 4 (nominal model) and figure 5 (calibrated model) as PNG files.
+                        prefix: str = "artifact") -> dict[str, str]:
+    """Write the artifact's length errors under the nominal and the calibrated model as
+    PNG files (the cross-bar patent's figures 4 and 5).
 
-    Both use the y range of figure 4 so they compare at a glance; figure 5 is also
-    written zoomed (``*_zoom.png``) to show the remaining errors.
+    Both use the y range of the nominal one so they compare at a glance; the calibrated
+    one is also written zoomed (``*_zoom.png``) to show the remaining errors.
 
-    Returns ``{"figure4": path, "figure5": path, "figure5_zoom": path}``.
+    Returns ``{"lengths_nominal": path, "lengths_calibrated": path,
+    "lengths_calibrated_zoom": path}``.
     """
     plt = _agg()
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     err = 1e3 * block.lengths(nominal, extra_nominal).error
     lim = float(np.max(np.abs(err))) * 1.15 if err.size else 1.0
-    out = {"figure4": str(d / f"{prefix}4_nominal.png"),
-           "figure5": str(d / f"{prefix}5_calibrated.png"),
-           "figure5_zoom": str(d / f"{prefix}5_calibrated_zoom.png")}
-    figs = [plot_lengths(block, nominal, extra_nominal, "Figure 4: nominal model",
-                         (-lim, lim), out["figure4"]),
-            plot_lengths(block, calibrated, extra_calibrated, "Figure 5: calibrated model",
-                         (-lim, lim), out["figure5"]),
+    out = {"lengths_nominal": str(d / f"{prefix}_lengths_nominal.png"),
+           "lengths_calibrated": str(d / f"{prefix}_lengths_calibrated.png"),
+           "lengths_calibrated_zoom": str(d / f"{prefix}_lengths_calibrated_zoom.png")}
+    figs = [plot_lengths(block, nominal, extra_nominal, "nominal model",
+                         (-lim, lim), out["lengths_nominal"]),
+            plot_lengths(block, calibrated, extra_calibrated, "calibrated model",
+                         (-lim, lim), out["lengths_calibrated"]),
             plot_lengths(block, calibrated, extra_calibrated,
-                         "Figure 5 (zoomed): calibrated model", None, out["figure5_zoom"])]
+                         "calibrated model (zoomed)", None, out["lengths_calibrated_zoom"])]
     for f in figs:
         plt.close(f)
     return out

@@ -41,7 +41,7 @@ def artifact_figures(flow: FlowResult, report: str) -> dict[str, tuple[str, byte
     out: dict[str, tuple[str, bytes]] = {}
     with tempfile.TemporaryDirectory(prefix="kincal-figures-") as tmp:
         for b in blocks:
-            prefix = f"{stem}_figure" if len(blocks) == 1 else f"{stem}_{b.name}_figure"
+            prefix = stem if len(blocks) == 1 else f"{stem}_{b.name}"
             made = save_patent_figures(b, flow.nominal, flow.result.robot, tmp,
                                        flow.before.get(b.name), flow.after.get(b.name),
                                        prefix=prefix)
@@ -150,9 +150,10 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
 def figures_section_html(figures: Mapping[str, tuple[str, bytes]], heading: str = "h2") -> str:
     """The patent's figures 4 and 5 (``{key: (file, PNG bytes)}``) as a report section."""
     e = html.escape
-    parts = [f"<{heading}>Artifact lengths from the joint readings (the patent's figures 4 "
-             f"and 5)</{heading}><p class='small'>figure 4: nominal model, figure 5: "
-             "calibrated model, same scale; the files are next to the report.</p>"]
+    parts = [f"<{heading}>Artifact lengths from the joint readings</{heading}>"
+             "<p class='small'>The length errors of the artifact seen through the nominal "
+             "and the calibrated model, on the same scale (then zoomed); the files are next "
+             "to the report.</p>"]
     for key, (path, png) in figures.items():
         b64 = base64.b64encode(png).decode("ascii")
         parts.append(f"<p class='small'>{e(key)} ({e(Path(path).name)})</p>"
