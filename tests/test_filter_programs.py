@@ -9,6 +9,7 @@ CONFIG) picking the asked branch, and one-line errors with file:line:column.
 from __future__ import annotations
 
 import csv
+import json
 import math
 import shutil
 from pathlib import Path
@@ -386,7 +387,17 @@ def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
     src = _copy(tmp_path, "pick_and_place.script")
     out = filter_program(str(src), res.robot, nom, accuracy=accuracy_from_result(res))
     poses = [r for r in out.reports if r.kind == "pose"]
-    assert all(0 < r.predicted_std_mm < 0.05 for r in poses)
+    assert all(np.isfinite(r.predicted_std_mm) and r.predicted_std_mm > 0 for r in poses)
+    # the same numbers from the result JSON's accuracy model (covariance, joint ranges)
+    from kincal.compensation.accuracy_model import accuracy_document, accuracy_from_document
+    from kincal.identify.accuracy import predicted_position_std
+
+    model = accuracy_from_document({"accuracy_model": accuracy_document(res)}, res.robot)
+    q_t = np.array([out.result.joints[r.index] for r in poses])
+    m = np.array([0.0, 0.0, 0.15])                                  # the program's set_tcp
+    std, _ = model(q_t, np.tile(m, (len(q_t), 1)))
+    assert np.allclose(std * 1e3, [r.predicted_std_mm for r in poses], rtol=1e-9)
+    assert np.allclose(std, predicted_position_std(res, q_t, point=m), rtol=1e-9)
     # a far target (shoulder pan turned by 2 rad) is outside the region the data covered
     text = src.read_text().replace("movej(home, a=1.4, v=1.05)",
                                    "movej([2.5, -1.2, 1.5, -1.9, -1.57, 0.3])\n"
@@ -395,3 +406,32 @@ def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
     out = filter_program(str(src), res.robot, nom, accuracy=accuracy_from_result(res))
     flagged = [r for r in out.reports if "outside the calibrated region" in r.warnings]
     assert flagged and all(r.kind == "pose" for r in flagged)
+
+
+def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys):
+    """`kincal calibrate --json` stores the robot parameters' covariance and the training
+    joint ranges; `kincal filter --result` reports the predicted std at every target's TCP,
+    equal to the in-memory propagation (kincal.identify.accuracy), and flags targets
+    outside the calibrated joint ranges."""
+    from kincal.compensation.accuracy_model import accuracy_from_document
+
+    train = tmp_path / "train.csv"
+    code, _, err = run(capsys, "simulate", "kr6", "-o", train, "--truth", tmp_path / "t.yaml",
+                       "--poses", "60", "--noise-mm", "0.01", "--seed", "1")
+    assert code == 0, err
+    cal, rj = tmp_path / "cal.yaml", tmp_path / "r.json"
+    code, _, err = run(capsys, "calibrate", "kr6", "--data", train, "-o", cal, "--json", rj)
+    assert code == 0, err
+    src = _copy(tmp_path, "weld_seam.src")
+    code, out, err = run(capsys, "filter", src, "--robot", cal, "--nominal", "kr6", "-o",
+                         tmp_path / "o" / "weld_seam.src", "--frames",
+                         tmp_path / "krl_frames.yaml", "--result", rj, "--json",
+                         tmp_path / "f.json")
+    assert code == 0, err
+    rows = json.loads((tmp_path / "f.json").read_text())["targets"]
+    stds = [r["predicted_std_mm"] for r in rows if r["status"] == "filtered"]
+    assert stds and all(s > 0 for s in stds)
+    doc = json.loads(rj.read_text())
+    model = accuracy_from_document(doc, load_robot(str(cal)))
+    std, inside = model(np.radians([[5.0, -80, 100, 10, 40, -20]]), np.array([[0.01, 0, 0.15]]))
+    assert std[0] > 0

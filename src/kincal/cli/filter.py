@@ -65,6 +65,11 @@ def filter_cmd(
                                                "stay (taught on the real robot); offline: "
                                                "correct them as offline-programmed ones.")
                              ] = "taught",
+    result: Annotated[str | None, typer.Option("--result", help="Result JSON of the "
+                                               "calibration (`kincal calibrate --json`): each "
+                                               "target gets the calibrated model's predicted "
+                                               "accuracy there, and targets outside the "
+                                               "calibrated joint ranges are flagged.")] = None,
     csv_out: Annotated[str | None, typer.Option("--csv", help="Also write the per-target "
                                                 "table as CSV.")] = None,
     json_out: JsonOpt = None, base_link: BaseLink = None, tip_link: TipLink = None,
@@ -84,7 +89,18 @@ def filter_cmd(
     cal = serial(load(robot, base_link, tip_link), "filter")
     nom = serial(load(nominal, base_link, tip_link), "filter")
     fr = read_frames(frames)
-    res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline")
+    accuracy = None
+    if result:
+        import json
+
+        from kincal.compensation.accuracy_model import accuracy_from_document
+
+        try:
+            doc = json.loads(Path(result).read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise KincalError(f"cannot read the result JSON ({exc})", source=result) from None
+        accuracy = accuracy_from_document(doc, cal, result)
+    res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
     targets = _outputs(program, output, res.texts)
     for f, o in targets.items():
         atomic_write_bytes(o, res.texts[f].encode("latin-1"))

@@ -50,9 +50,10 @@ SINGULARITY_MARGINS = (0.020, math.sin(math.radians(2.0)), math.sin(math.radians
 #: A joint within this distance of a limit [rad] is flagged.
 LIMIT_MARGIN = math.radians(2.0)
 
-#: The accuracy model's answer at joint values (N, n): predicted position std [m] and
-#: whether each configuration lies inside the region the calibration data covered.
-AccuracyModel = Callable[[Array], tuple[Array, NDArray[np.bool_]]]
+#: The accuracy model's answer at joint values (N, n) for TCPs (N, 3) in the flange frame:
+#: predicted position std [m] and whether each configuration lies inside the region the
+#: calibration data covered.
+AccuracyModel = Callable[[Array, Array], tuple[Array, NDArray[np.bool_]]]
 
 
 @dataclass
@@ -313,7 +314,7 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
     changed = ok & (pose | offline_joints) & ((shift_p > 1e-9) | (shift_r > 1e-9))
     std = np.full(N, np.nan)
     if accuracy is not None and good.size:
-        s, inside = accuracy(q_cal[good])
+        s, inside = accuracy(q_cal[good], tools[good][:, :3, 3])
         std[good] = s
         for k in np.flatnonzero(~np.asarray(inside, bool)):
             warnings[good[k]].append("outside the calibrated region")
@@ -340,8 +341,12 @@ def accuracy_from_result(result: object, tool_point: Array | None = None,
     hi = q_all.max(axis=0) + margin if q_all is not None else None
     point = np.zeros(3) if tool_point is None else np.asarray(tool_point, dtype=float)
 
-    def model(q: Array) -> tuple[Array, NDArray[np.bool_]]:
-        std = predicted_position_std(result, q, point=point)  # type: ignore[arg-type]
+    def model(q: Array, tcp: Array) -> tuple[Array, NDArray[np.bool_]]:
+        std = np.zeros(len(q))
+        pts = np.asarray(tcp, dtype=float) if tool_point is None else np.tile(point, (len(q), 1))
+        for m in np.unique(pts, axis=0):          # one propagation per distinct TCP
+            rows = np.all(pts == m, axis=1)
+            std[rows] = predicted_position_std(result, q[rows], point=m)  # type: ignore[arg-type]
         inside = (np.all((q >= lo) & (q <= hi), axis=1) if lo is not None
                   else np.ones(len(q), bool))
         return std, inside

@@ -509,6 +509,11 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         if flow.tolerances is not None:
             doc["tolerances"] = flow.tolerances.to_dict()
         doc["held_by_prior"] = [w.to_dict() for w in flow.weak]
+        from kincal.compensation.accuracy_model import accuracy_document
+
+        model = accuracy_document(res)
+        if model is not None:
+            doc["accuracy_model"] = model
         doc["outputs"] = dict(planned)
         if withheld:
             doc["not_written"] = withheld
