@@ -184,7 +184,11 @@ def test_bad_cross_validation_is_one_line(capsys, files, args, message):
     assert not (files / "bad.yaml").exists()
 
 
-def test_cross_validation_takes_one_training_file(capsys, files):
+def test_cross_validation_of_two_training_files(capsys, files, tmp_path):
+    """Each fold holds out a part of every training file (fused calibration)."""
+    j = tmp_path / "two.json"
     code, _, err = run(capsys, "calibrate", "puma560", "--data", files / "train.csv",
-                       "--data", files / "hold.csv", "--cross-validate", "3")
-    assert code == 2 and "takes one training file (got 2)" in err
+                       "--data", files / "hold.csv", "--cross-validate", "3", "--json", j)
+    assert code == 0, err
+    c = json.loads(j.read_text())["metrics"]["cross_validation"]
+    assert c["folds"] == 3 and c["split"] == "rows" and c["rms_position_m"] > 0

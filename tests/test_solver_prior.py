@@ -249,16 +249,17 @@ def test_the_noise_scale_is_estimated_before_the_prior_is_weighed():
     res = calibrate(ROBOT, [LinearBlock(A, y)], prior=prior, tol_step=1e-14)
     k, want, cov, p_eff = noise_fixed_point(A, y, s, SIGMA)
     assert res.noise_scale_estimated and k > 20
-    assert res.sigma0 == pytest.approx(k, rel=2e-3)
+    # the iteration stops when sigma0 changes by less than 0.5 %
+    assert res.sigma0 == pytest.approx(k, rel=5e-3)
     assert res.effective_parameters == pytest.approx(p_eff, rel=1e-2)
-    assert np.allclose(block_part(res), want, rtol=2e-3, atol=1e-6)
-    assert np.allclose(res.covariance, cov, rtol=5e-3)
+    assert np.allclose(block_part(res), want, rtol=1e-2, atol=1e-6)
+    assert np.allclose(res.covariance, cov, rtol=2e-2)
     # the stated sigma no longer matters: 100x larger, the same MAP and covariance
     big = calibrate(ROBOT, [LinearBlock(A, y, sigma=100 * SIGMA)], prior=prior,
                     tol_step=1e-14)
-    assert np.allclose(block_part(big), block_part(res), rtol=1e-3, atol=1e-7)
-    assert np.allclose(big.covariance, res.covariance, rtol=1e-2)
-    assert big.sigma0 == pytest.approx(res.sigma0 / 100, rel=2e-3)
+    assert np.allclose(block_part(big), block_part(res), rtol=1e-2, atol=1e-7)
+    assert np.allclose(big.covariance, res.covariance, rtol=2e-2)
+    assert big.sigma0 == pytest.approx(res.sigma0 / 100, rel=1e-2)
     # with the stated sigmas (noise_scale=1) the data weigh ~900x too much: the weak
     # combination b3 - b4 follows the noise far beyond its prior (0.05 and 0.003)
     stated = calibrate(ROBOT, [LinearBlock(A, y)], prior=prior, noise_scale=1.0)

@@ -42,6 +42,7 @@ from kincal.cli.calibration_common import (
     print_ignored,
     print_parameters,
     print_patent,
+    print_selection,
     print_weak,
     read_blocks,
     scaled,
@@ -182,6 +183,15 @@ def calibrate_cmd(
         "calibration on the training file (folds drawn with seed 0): the RMS error on "
         "measurements each fold was not fitted to. Compare models (--joint-model, --prior, "
         "markers) by it, not by the validation file.")] = None,
+    select: Annotated[str, typer.Option(
+        "--select", metavar="auto|none", help="auto: choose the joint model (geometric, "
+        "+hysteresis, +compliance where the URDF has masses) and the prior scale (1x, 3x the "
+        "tolerances, least squares) by K-fold cross-validation on the training files, print "
+        "the table and fit the winner: the lowest cross-validated RMS among the fits that "
+        "converge with plausible estimates. --joint-model and --prior none/scale= restrict "
+        "it. none (default): fit the model as given.")] = "none",
+    folds: Annotated[int, typer.Option("--folds", min=2, help="K of --select auto "
+                                       "(permutation seed 0).")] = 10,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     validation_frames: Annotated[str, typer.Option(
         "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
@@ -209,6 +219,7 @@ def calibrate_cmd(
     --procedure patent follows the cross-bar patent: angles (joint offsets, twists), then
     lengths, with an optional condition-number data selection; the JSON and report add its
     record and a comparison with one-stage Levenberg-Marquardt on the same data."""
+    from kincal.measure.joints.terms import parse_joint_model
     from kincal.workflow.flow import (
         check_flow_options,
         parse_stages,
@@ -216,7 +227,7 @@ def calibrate_cmd(
         truth_values,
         write_outputs,
     )
-    from kincal.workflow.session import read_session
+    from kincal.workflow.session import available_masses, read_session
 
     out = out_console(json_out)
     use_si(si)
@@ -245,10 +256,17 @@ def calibrate_cmd(
     check_outputs({"-o": output, "--urdf": urdf, "--json": json_out, "--report": report},
                   {"--data": [s.path for s in train_src],
                    "--validate": [s.path for s in held_src]})
-    session = read_session(r, train_src, held_src, joint_model=joint_model, spec=robot,
-                           base_link=base_link, tip_link=tip_link)
+    auto = select == "auto"
+    if select not in ("auto", "none"):
+        raise KincalError(f"option --select: {select!r} is not auto or none")
+    session = read_session(r, train_src, held_src, joint_model=None if auto else joint_model,
+                           spec=robot, base_link=base_link, tip_link=tip_link)
     print_ignored(out, session.blocks + session.holdouts)
     blocks, holdouts, terms = session.blocks, session.holdouts, session.terms
+    masses, models = None, None
+    if auto:
+        models = [parse_joint_model(joint_model)] if joint_model else None
+        masses = available_masses(robot, base_link, tip_link)
     truth_vals = truth_values(truth) if truth else None
     if urdf is None and output and r.meta.get("convention") == "urdf":
         urdf = str(Path(output).with_suffix(".urdf"))
@@ -259,15 +277,21 @@ def calibrate_cmd(
                         validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
                         tolerance=tolerance, prior=prior, cross_validate=cross_validate,
-                        progress=bar)
+                        progress=bar, select=select, folds=folds, masses=masses,
+                        joint_models=models, mapper=bar.mapper)
     res = flow.result
+    if flow.selection is not None:
+        terms = flow.selection.choice.terms if flow.selection.choice else ()
+        print_selection(out, flow.selection)
     inputs = {"robot": robot, "data": ", ".join(s.path for s in train_src),
               "validation": ", ".join(s.path for s in held_src) or "-",
               "procedure": procedure, "method": method, "loss": loss,
               "stages": stages or "all", "validation frames": validation_frames,
               "free": free or "automatic (identifiable set)", "fixed": fix or "-",
               "prior": prior or f"default tolerances ({describe_defaults()})",
-              "joint model": ", ".join(terms) or "geometric only"}
+              "joint model": ", ".join(terms) or "geometric only",
+              "model selection": (f"--select auto, {folds}-fold cross-validation on the "
+                                  "training files" if auto else "none")}
     if procedure == "patent":
         inputs.update({"method": "patent (two stages: angles, then lengths)", "stages":
                        "angles, lengths",
@@ -282,6 +306,8 @@ def calibrate_cmd(
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
     if getattr(res, "prior", None):
         what = escape(prior) if prior else "default tolerances"
+        if flow.tolerances is not None and flow.tolerances.scale != 1:
+            what += f" x{flow.tolerances.scale:g}"
         noise = (f"; noise scale sigma0 = {res.sigma0:.3g} (residual / stated sigma) estimated "
                  "before the prior was weighed" if res.noise_scale_estimated else "")
         out.print(f"MAP estimate: {len(res.prior)} estimated parameter(s) have a Gaussian "

@@ -150,6 +150,17 @@ class Progress:
     def __exit__(self, *exc: Any) -> None:
         self.progress.__exit__(*exc)
 
+    def mapper(self, fn: Any, tasks: Any) -> Any:
+        """A ``map`` for the fold tasks of model selection and cross-validation that
+        advances a bar per finished task."""
+        tasks = list(tasks)
+        task = self.progress.add_task("cross-validation", total=len(tasks),
+                                      info=f"{len(tasks)} fits")
+        for k, t in enumerate(tasks):
+            yield fn(t)
+            self.progress.update(task, completed=k + 1, info=f"fit {k + 1} of {len(tasks)}")
+        self.progress.remove_task(task)
+
     def __call__(self, rec: Any) -> None:
         if rec.stage != self.stage:     # one bar, restarted per stage (the patent has many)
             self.stage = rec.stage
@@ -238,6 +249,29 @@ def print_identifiability(out: Console, res: Any, limit: int = 8) -> None:
         out.print(f"  - {escape(g)}")
     if len(groups) > limit:
         out.print(f"  ... and {len(groups) - limit} more (see the report / JSON).")
+
+
+def print_selection(out: Console, sel: Any) -> None:
+    """The ``--select auto`` table: every candidate's cross-validated RMS, the choice."""
+    from kincal.identify.selection import RULE
+    from kincal.report.metrics import quantity
+
+    name, f, unit = quantity(sel.kind) if sel.kind else ("error", 1.0, "")
+    t = Table(title=f"Model selection: {sel.folds}-fold cross-validation on the training "
+              f"files (seed {sel.seed})", caption=f"rule: {RULE}")
+    for c in ("joint model", "prior", f"CV RMS {name} [{unit}]", "not eligible because"):
+        t.add_column(escape(c), justify="right" if c.startswith("CV") else "left",
+                     overflow="fold")
+    for i, c in enumerate(sel.candidates):
+        model = "geometric" + "".join(f" + {x}" for x in c.terms)
+        prior = "least squares" if c.scale is None else f"{c.scale:g}x tolerances"
+        cells = [escape(model), prior, scaled(sel.rms[i], f), escape(sel.reasons[i])]
+        if i == sel.chosen:
+            cells = [f"[bold green]{x}[/bold green]" for x in cells[:3]] + ["<- chosen"]
+        t.add_row(*cells)
+    out.print(t)
+    for n in sel.notes:
+        out.print(f"[yellow]note[/yellow]: {escape(n)}")
 
 
 def print_weak(out: Console, weak: Sequence[Any]) -> None:

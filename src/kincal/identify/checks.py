@@ -105,6 +105,18 @@ class Verdict:
                        + (f" and {more} more" if more > 0 else ""))
         return out
 
+    def short(self) -> str:
+        """A few words for tables: ``"did not converge"``, ``"d[3] 42x its tolerance"``."""
+        if self.trusted:
+            return ""
+        if not self.converged:
+            return "did not converge"
+        p = self.implausible[0]
+        more = f" (+{len(self.implausible) - 1})" if len(self.implausible) > 1 else ""
+        if p.reason == "change" and p.tolerance:
+            return f"{p.name} {abs(p.change) / p.tolerance:.3g}x tolerance{more}"
+        return f"{p.name} std {_show(p.std, p.unit)}{more}"
+
     def line(self) -> str:
         """One line for stderr: ``calibration not trusted: ...``."""
         if self.trusted:

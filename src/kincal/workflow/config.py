@@ -89,6 +89,9 @@ def _calibration_keys() -> dict[str, Key]:
         "loss_scale": Key("float", "robust threshold in standard deviations"),
         "max_iter": Key("int", "iterations"),
         "cross_validate": Key("int", "K-fold cross-validation on the training file"),
+        "select": Key("choice", "choose the joint model and prior scale by cross-validation "
+                                "on the training files", ("auto", "none")),
+        "folds": Key("int", "folds of select: auto"),
         "validation_frames": Key("choice", "instrument frames on held-out files",
                                  ("auto", "training", "register")),
         "condition_growth": Key("float", "patent: data selection factor"),

@@ -55,6 +55,7 @@ from kincal.workflow.report_sections import (
     artifact_figures,
     figures_section_html,
     patent_section_html,
+    trust_section_html,
 )
 from kincal.workflow.result import FlowResult
 
@@ -143,7 +144,10 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              procedure: str = "lm", condition_growth: float | None = None,
              cycles: int | None = None, tolerance: float | None = None,
              prior: str | None = None, cross_validate: int | None = None,
-             progress: Callable[[Any], Any] | None = None) -> FlowResult:
+             progress: Callable[[Any], Any] | None = None, select: str | None = None,
+             folds: int = 10, masses: Sequence[Any] | None = None,
+             joint_models: Sequence[Sequence[str]] | None = None,
+             mapper: Callable[..., Any] = map) -> FlowResult:
     """Calibrate, then compute the errors before/after on the training and held-out data.
 
     Args:
@@ -175,6 +179,17 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             seed 0; one training block, ``procedure="lm"``): how well the chosen model
             predicts measurements it was not fitted to, from the training data alone.
         progress: called with every :class:`~kincal.identify.solver.IterationRecord`.
+        select: ``"auto"``: choose the joint model and the prior scale by ``folds``-fold
+            cross-validation on the training blocks
+            (:func:`~kincal.identify.selection.select_model`), then fit the winner.  The
+            blocks (and held-out blocks) must then be plain, without a joint model: each
+            candidate wraps them in its own.  ``masses`` (link masses) adds the
+            compliance candidates; ``joint_models`` restricts the joint models tried; a
+            ``--prior`` with ``none`` or ``scale=K`` pins the prior scale.
+        folds: K of ``select`` (default 10).
+        mapper: runs the selection's and the cross-validation's fold tasks
+            (:func:`~kincal.identify.selection.run_fold`): the builtin ``map``, an
+            executor's ``map`` or a Dask client's ``map``.
 
     *Before* = the nominal robot with the instruments registered to it (only the
     blocks' own parameters fitted: the "registration only" baseline); *after* = the
@@ -204,14 +219,24 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     if cross_validate is not None:
         if procedure != "lm":
             raise KincalError("--cross-validate works with --procedure lm")
-        if len(blocks) != 1:
-            raise KincalError(f"--cross-validate takes one training file (got {len(blocks)})")
         if cross_validate < 2:
             raise KincalError(f"option --cross-validate: needs at least 2 folds (got "
                               f"{cross_validate})")
+    if select not in (None, "none", "auto"):
+        raise KincalError(f"option --select: {select!r} is not auto or none")
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
     tols = tolerances_of(robot, prob, prior)
+    solver_options = {"free": free_names, "fixed": fixed, "method": method, "stages": stages,
+                      "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100}
+    selection = None
+    warnings: list[str] = []
+    if select == "auto":
+        if procedure != "lm":
+            raise KincalError("--select auto works with --procedure lm")
+        selection, blocks, holdouts, tols = _select_model(
+            robot, blocks, list(holdouts), tols, prior, folds, masses, joint_models, mapper,
+            solver_options, warnings)
     prior_s = tols.prior() if procedure == "lm" else {}
     options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
                "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
@@ -220,14 +245,24 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
     seconds = time.perf_counter() - t0
     cv = None
-    if cross_validate is not None:
-        from kincal.identify.validation import cross_validate as k_fold
+    if selection is not None and selection.chosen is not None:
+        i = selection.chosen
+        from kincal.identify.selection import split_kind
 
-        got = k_fold(robot, blocks[0], folds=cross_validate, rng=np.random.default_rng(0),
-                     free=free_names, fixed=fixed, method=method, stages=stages, loss=loss,
-                     loss_scale=loss_scale, max_iter=max_iter or 100, prior=prior_s or None)
-        cv = {"folds": cross_validate, "seed": 0, "split": got["split"],
-              **{k: v for k, v in got.items() if k.startswith("rms_")}}
+        cv = {"folds": selection.folds, "seed": selection.seed, "split": split_kind(blocks),
+              "model": selection.candidates[i].label,
+              **{f"rms_{k}": v for k, v in selection.rms_all[i].items()}}
+    elif cross_validate is not None:
+        from kincal.identify.selection import Candidate, fold_units, gather_folds, split_kind
+
+        parts, _ = fold_units(blocks, cross_validate, 0)
+        if all(p is None for p in parts):
+            raise KincalError(f"--cross-validate {cross_validate}: no training file has "
+                              f"{cross_validate} rows or placements to hold out")
+        got = gather_folds(robot, [blocks], [Candidate()], parts, tols.sigma,
+                           {**solver_options, "prior": prior_s or None}, mapper)
+        cv = {"folds": cross_validate, "seed": 0, "split": split_kind(blocks),
+              **{f"rms_{k}": v for k, v in got[0].items()}}
     train = _with_origin(res.problem.blocks, blocks)
     before = {b.name: reregister(robot, b, None, None) for b in train}
     after = {b.name: res.theta[res.problem.block_slice(b.name)] for b in train}
@@ -237,7 +272,6 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         merge_errors([errors_with(res.robot, b, after[b.name]) for b in train]),
         "before: nominal robot, instrument frames and markers fitted to it; after: "
         "calibrated robot and frames")]
-    warnings: list[str] = []
     if holdouts:
         comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
                                          after, validation_frames, warnings))
@@ -246,7 +280,45 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
 
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=judge(res, tols.sigma),
-                      weak=weak_parameters(res))
+                      weak=weak_parameters(res), selection=selection)
+
+
+def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
+                  prior: str | None, folds: int, masses: Sequence[Any] | None,
+                  joint_models: Sequence[Sequence[str]] | None, mapper: Callable[..., Any],
+                  options: Mapping[str, Any], warnings: list[str]
+                  ) -> tuple[Any, list[Any], list[Any], Any]:
+    """``--select auto``: the selection, the blocks inside the chosen joint model, and the
+    tolerances with the chosen prior scale (appends to ``warnings``)."""
+    from kincal.identify.selection import JOINT_MODELS, PRIOR_SCALES, candidates, select_model
+    from kincal.identify.tolerances import parse_tolerance_entries
+    from kincal.measure.joints.deflection import JointDeflection
+    from kincal.measure.joints.terms import with_joint_model
+
+    if any(isinstance(b, JointDeflection) for b in [*blocks, *holdouts]):
+        raise KincalError("--select auto chooses the joint model itself: give the blocks "
+                          "without one (joint_models= restricts the models it tries)")
+    spec = parse_tolerance_entries(prior)
+    scales: Sequence[float | None] = PRIOR_SCALES
+    if not spec.use_prior:
+        scales = [None]
+    elif spec.scale_given:
+        scales = [spec.scale]
+    models = [tuple(m) for m in joint_models] if joint_models else list(JOINT_MODELS)
+    cands = candidates(bool(masses), scales, models)
+    if not cands:
+        raise KincalError("--select auto: no candidate model (compliance needs link masses)")
+    sel = select_model(robot, blocks, tols.sigma, cands, masses=masses, folds=folds,
+                       mapper=mapper, **dict(options))
+    choice = sel.choice
+    if choice is None:
+        choice = cands[0]
+        warnings.append("--select auto: " + "; ".join(sel.notes) + f"; fitting {choice.label}")
+    terms = choice.terms
+    if terms:
+        blocks = with_joint_model(blocks, robot, terms, masses)
+        holdouts = with_joint_model(holdouts, robot, terms, masses)
+    return sel, blocks, holdouts, tols.with_scale(choice.scale)
 
 
 def tolerances_of(robot: Any, prob: Any, prior: str | None = None) -> Any:
@@ -489,6 +561,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         units = dict(zip(res.names, res.problem.units, strict=True))
         sections = ([patent_section_html(info, figures, units)] if info is not None else
                     [figures_section_html(figures)] if figures else [])
+        sections = [trust_section_html(flow), *sections]
         contents["report"] = _render_report(res, flow.comparisons, inputs, truth, sections,
                                             notice)
     if output:
@@ -514,6 +587,8 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         model = accuracy_document(res)
         if model is not None:
             doc["accuracy_model"] = model
+        if flow.selection is not None:
+            doc["selection"] = flow.selection.to_dict()
         doc["outputs"] = dict(planned)
         if withheld:
             doc["not_written"] = withheld

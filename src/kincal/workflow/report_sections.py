@@ -5,7 +5,9 @@ artifact figures.
   block, rendered in memory (PNG bytes and the path next to the report);
 * :func:`patent_section_html` - the patent's procedure: stages, kept and discarded
   placements with their condition numbers, the comparison with one-stage LM;
-* :func:`figures_section_html` - figures 4 and 5 embedded as a section.
+* :func:`figures_section_html` - figures 4 and 5 embedded as a section;
+* :func:`trust_section_html` - can the calibration be trusted: the verdict, the
+  tolerances, the parameters the prior holds, the model selection table.
 
 :func:`kincal.workflow.flow.render_outputs` hands these sections to
 :func:`kincal.report.html.render_html`; :mod:`kincal.workflow.flow` re-exports the two HTML
@@ -24,7 +26,8 @@ from typing import Any
 
 from kincal.workflow.result import FlowResult
 
-__all__ = ["artifact_figures", "patent_section_html", "figures_section_html"]
+__all__ = ["artifact_figures", "patent_section_html", "figures_section_html",
+           "trust_section_html"]
 
 
 def artifact_figures(flow: FlowResult, report: str) -> dict[str, tuple[str, bytes]]:
@@ -158,4 +161,70 @@ def figures_section_html(figures: Mapping[str, tuple[str, bytes]], heading: str 
         b64 = base64.b64encode(png).decode("ascii")
         parts.append(f"<p class='small'>{e(key)} ({e(Path(path).name)})</p>"
                      f"<img alt='{e(key)}' src='data:image/png;base64,{b64}'>")
+    return "\n".join(parts)
+
+
+def _si(value: float, unit: str, digits: int = 3) -> str:
+    if not math.isfinite(value):
+        return "-"
+    if unit == "m":
+        return f"{value * 1e3:.{digits}g} mm"
+    if unit == "rad":
+        return f"{math.degrees(value):.{digits}g} deg"
+    return f"{value:.{digits}g} {unit}"
+
+
+def trust_section_html(flow: FlowResult) -> str:
+    """The report's section "Can this calibration be trusted?": the verdict (convergence,
+    estimates within 10 tolerances), the prior (tolerances, noise scale), the parameters
+    the prior holds with what would identify them, and the ``--select auto`` table."""
+    e = html.escape
+    res = flow.result
+    parts = ["<h2>Can this calibration be trusted?</h2>"]
+    v = flow.verdict
+    if v is not None:
+        if v.trusted:
+            parts.append(f"<p class='ok'>Converged; every estimate lies within "
+                         f"{v.bound:g} tolerances of its nominal value.</p>")
+        else:
+            parts.append("<ul>" + "".join(f"<li class='bad'>{e(r)}</li>" for r in v.reasons(50))
+                         + "</ul>")
+    tol = flow.tolerances
+    if tol is not None:
+        how = (f"maximum a-posteriori: Gaussian priors centred on the nominal values, "
+               f"{tol.scale:g} x the tolerances" if tol.use_prior else "plain least squares "
+               "(no prior)")
+        noise = (f"; the noise scale sigma0 = {res.sigma0:.3g} (residual / stated sigma) was "
+                 "estimated before the prior was weighed"
+                 if getattr(res, "noise_scale_estimated", False) else "")
+        srcs: dict[str, int] = {}
+        for src in tol.source.values():
+            srcs[src] = srcs.get(src, 0) + 1
+        parts.append(f"<p>Estimate: {e(how)}{e(noise)}. Tolerances of "
+                     f"{len(tol.sigma)} parameters ("
+                     + e(", ".join(f"{k}: {n}" for k, n in srcs.items())) + ").</p>")
+    if flow.weak:
+        rows = "".join(
+            f"<tr><td class='l'>{e(w.name)}</td><td>{_si(w.data_std, w.unit)}</td>"
+            f"<td>{_si(w.prior_std, w.unit)}</td><td class='l'>{e(w.sentence())}</td></tr>"
+            for w in flow.weak)
+        parts.append("<h3>Held by the prior (weakly identifiable)</h3><table><tr>"
+                     "<th class='l'>parameter</th><th>data alone (1σ)</th><th>prior (1σ)</th>"
+                     f"<th class='l'>what would identify it</th></tr>{rows}</table>")
+    sel = flow.selection
+    if sel is not None:
+        from kincal.identify.selection import RULE
+        from kincal.report.metrics import quantity
+
+        name, f, unit = quantity(sel.kind) if sel.kind else ("error", 1.0, "")
+        rows = "".join(
+            f"<tr class='{'' if sel.trusted[i] else 'no'}'><td class='l'>{e(c.label)}</td>"
+            f"<td>{'-' if not math.isfinite(sel.rms[i]) else f'{sel.rms[i] * f:.4f}'}</td>"
+            f"<td class='l'>{'chosen' if i == sel.chosen else e(sel.reasons[i])}</td></tr>"
+            for i, c in enumerate(sel.candidates))
+        parts.append(f"<h3>Model selection ({sel.folds}-fold cross-validation on the training "
+                     f"files, seed {sel.seed})</h3><p>Rule: {e(RULE)}.</p><table><tr>"
+                     f"<th class='l'>model</th><th>CV RMS {e(name)} [{e(unit)}]</th>"
+                     f"<th class='l'>status</th></tr>{rows}</table>"
+                     + "".join(f"<p class='small'>{e(n)}</p>" for n in sel.notes))
     return "\n".join(parts)

@@ -42,6 +42,8 @@ class FlowResult:
             10 tolerances of nominal).
         weak: the parameters the prior holds and what would identify them
             (:class:`~kincal.identify.weak.WeakParameter`).
+        selection: with ``select="auto"``, the cross-validation of every candidate model
+            and the choice (:class:`~kincal.identify.selection.Selection`).
     """
 
     result: Any
@@ -56,6 +58,7 @@ class FlowResult:
     tolerances: Any = None
     verdict: Any = None
     weak: list[Any] = dataclasses.field(default_factory=list)
+    selection: Any = None
 
     @property
     def trusted(self) -> bool:

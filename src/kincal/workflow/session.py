@@ -21,7 +21,7 @@ from typing import Any
 
 from kincal.errors import KincalError
 
-__all__ = ["Session", "read_session", "joint_masses"]
+__all__ = ["Session", "read_session", "joint_masses", "available_masses"]
 
 
 @dataclasses.dataclass
@@ -55,6 +55,18 @@ def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None =
         raise KincalError(f"--joint-model compliance: {spec!r} has no <inertial> mass on the "
                           "chain", source=str(spec))
     return masses
+
+
+def available_masses(spec: str | None, base_link: str | None = None,
+                     tip_link: str | None = None) -> list[Any] | None:
+    """The link masses of ROBOT when it is a URDF with ``<inertial>`` masses on the chain,
+    else None (``--select auto`` then tries no compliance model)."""
+    if not spec or not str(spec).lower().endswith(".urdf"):
+        return None
+    try:
+        return joint_masses(spec, base_link, tip_link)
+    except KincalError:
+        return None
 
 
 def read_session(robot: str | Any, data: Sequence[Any], validate: Sequence[Any] = (), *,
