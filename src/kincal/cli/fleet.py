@@ -95,8 +95,8 @@ def calibrate_cmd(
 
     Sessions whose inputs (files, robot, options) are already stored are skipped, so an
     interrupted run continues where it stopped. One robot's bad file fails that robot
-    only; its reason is stored and listed. Exit status 1 when any session failed or did
-    not converge."""
+    only; its reason is stored and listed. Exit status 1 when any session failed, did not
+    converge or cannot be trusted (the checks of `kincal calibrate`)."""
     from kincal.units import parse_quantity
 
     _need_fleet_extra()
