@@ -13,7 +13,7 @@ set -e
 HERE=$(dirname "$0")
 kincal identifiability "$HERE/../../shared/data/tiago_mocap/tiago_48_schunk.urdf" \
     --tip-link wrist_ft_tool_link --data "$HERE/../../shared/data/tiago_mocap/train_2021-11-30.csv" \
-    --units 'x?=m,y?=m,z?=m' --ignore '?2,?3,?4' --free 'role:offset,tracker.*'
+    --units 'x?=m,y?=m,z?=m' --ignore '?2,?3,?4' --free 'role:offset,instrument.*'
 for setup in tiago_offsets tiago_mocap motoman_right panda_two_socket; do
     kincal calibrate --config "$HERE/setups/$setup.yaml"
 done

@@ -262,7 +262,7 @@ BAD = {
             "1,2,3,4,5,6,1,2,3\n1,2,NaN,4,5,6,1,2,3\n",
             "line 4: column 3 (q3_deg): 'NaN' is not a finite number"),
     "no units": ("q1,q2,q3,q4,q5,q6,x,y,z\n1,2,3,4,5,6,1,2,3\n",
-                 "line 2: column 1 (q1) has no unit"),
+                 "line 2: 9 columns have no unit: q1, q2, q3, q4, q5, q6, x, y, z"),
     "empty": ("", "line 1: the file is empty"),
 }
 
@@ -388,7 +388,7 @@ def test_urdf_robot_real_data_writes_calibrated_urdf(capsys, tmp_path):
                             "wrist_ft_tool_link", "--data", d / "train_2021-11-30.csv",
                             "--validate", d / "validation_2021-11-26.csv",
                             "--units", "x?=m,y?=m,z?=m", "--ignore", "?2,?3,?4",
-                            "--free", "role:offset,tracker.*", "--validation-frames",
+                            "--free", "role:offset,instrument.*", "--validation-frames",
                             "training", "-o", out, "--json", j, "--prior", "none")
     assert code == 0, err
     assert "not read" in stdout and "shipped_row" in stdout
@@ -462,7 +462,7 @@ def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
                    "q1,q2,q3,q4,q5,q6,x_mm,y_mm,z_mm\n0.1,0.2,0.3,0.4,0.5,0.6,1,2,3\n")
     block = read_measurements(csv, load_robot(from_urdf))[0]
     np.testing.assert_allclose(block.q, [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
-    with pytest.raises(MeasurementFileError, match="has no unit"):
+    with pytest.raises(MeasurementFileError, match="have no unit"):
         read_measurements(csv, load_robot("puma560"))
     # bad output names: one line, nothing written
     code, _, err = run(capsys, "export", "puma560", tmp_path / "puma.txt")

@@ -122,11 +122,12 @@ def test_tiago_from_the_command_line(capsys, tmp_path):
     doc = json.loads((tmp_path / "res.json").read_text())
     par = {p["name"]: p for p in doc["parameters"]}
     assert doc["identifiable_count"] == 56
-    h6, k6 = par["tracker.h[arm_6_joint]"], par["tracker.k[arm_6_joint]"]
+    # the file names no instrument: its block (and the joint terms around it) is "instrument"
+    h6, k6 = par["instrument.h[arm_6_joint]"], par["instrument.k[arm_6_joint]"]
     assert h6["estimate"] == pytest.approx(-5.8e-3, abs=0.1e-3), h6
     assert h6["std"] == pytest.approx(0.6e-3, abs=0.1e-3), h6
     assert 0.02 < k6["estimate"] < 0.03 and k6["std"] < 0.003, k6
-    assert not par["tracker.k[arm_1_joint]"]["identifiable"]
+    assert not par["instrument.k[arm_1_joint]"]["identifiable"]
     m = doc["metrics"]
     print(f"\nTIAGo CLI, all four markers, hysteresis + compliance: train "
           f"{m['train']['rms_position_m'] * 1e3:.3f} mm, validation "

@@ -127,8 +127,8 @@ BAD = {
     "empty cell": (f"{HEAD},x_mm,y_mm,z_mm\n{ROW},1,,3\n",
                    r"line 3: column 8 \(y_mm\): is empty"),
     "no units": (f"{HEAD},x,y,z\n{ROW},1,2,3\n",
-                 r"line 2: column 7 \(x\) has no unit: name it like 'x_mm' or pass "
-                 r"--units x=UNIT"),
+                 r"line 2: 3 columns have no unit: x, y, z: name them with their unit "
+                 r"\(like x_mm\) or pass --units 'x=m,y=m,z=m'"),
     "joint without unit": ("q1,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,x_mm,y_mm,z_mm\n"
                            f"{ROW},1,2,3\n", r"column 1 \(q1\) has no unit"),
     "empty": ("", r"line 1: the file is empty"),
@@ -211,7 +211,8 @@ def test_real_tiago_mocap_file_needs_units_and_reads_with_them():
     from kincal.robots.urdf import load_urdf
 
     robot = load_urdf(path.parent / "tiago_48_schunk.urdf", tip_link="wrist_ft_tool_link")
-    with pytest.raises(MeasurementFileError, match=r"line 1: column 1 \(x1\) has no unit"):
+    with pytest.raises(MeasurementFileError, match=r"line 1: 12 columns have no unit: x1, y1, "
+                       r"z1, .* --units 'x\?=m,y\?=m,z\?=m'"):
         read_measurements(path, robot)
     units = parse_units_option("x?=m,y?=m,z?=m")
     (b,) = read_measurements(path, robot, units)

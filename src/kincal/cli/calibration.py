@@ -381,15 +381,18 @@ def validate_cmd(
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
     extras = extras_from_result(result) if result else None
-    how = "frames from " + result if result else "instrument re-registered on this file"
-    comps = validate_blocks(r, blocks, before, extras, how)
+    before_extras = (extras_from_result(result, "before") or None) if result and before \
+        else None
+    comps = validate_blocks(r, blocks, before, extras,
+                            "training frames from " + result if result else None,
+                            before_extras=before_extras)
     files: dict[str, Any] = {}
     for b, c in zip(blocks, comps, strict=True):
-        files[b.source_path] = {**error_metrics(c.after), "protocol": how}
+        files[b.source_path] = {**error_metrics(c.after), "protocol": c.note}
         if before is not None:
             files[b.source_path]["before"] = error_metrics(c.before)
     if before is not None:
-        print_errors(out, comps)
+        print_errors(out, comps)            # states what "before" means under the table
     else:
         t = Table(title=f"Errors of {escape(r.name)} on held-out data")
         for c in ("file", "quantity", "n", "RMS", "mean", "max"):
@@ -402,7 +405,8 @@ def validate_cmd(
                           str(m["n"]),
                           *(scaled(m.get(f"{s}_{key}"), f) for s in ("rms", "mean", "max")))
         out.print(t)
-    out.print(f"[dim]protocol: {escape(comps[0].note)}[/dim]")
+    if before is None:
+        out.print(f"[dim]protocol: {escape(comps[0].note)}[/dim]")
     iso_doc = _iso9283(out, r, before, blocks, extras) if iso9283 else None
     if json_out:
         overall = error_metrics(merge_errors([c.after for c in comps]))

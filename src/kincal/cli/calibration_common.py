@@ -201,6 +201,9 @@ def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
                       f"[bold]{scaled(a.get(f'rms_{key}'), f)}[/bold]",
                       scaled(b.get(f"max_{key}"), f), scaled(a.get(f"max_{key}"), f))
     out.print(t)
+    for c in comparisons:
+        if c.note:
+            out.print(f"[dim]{escape(c.title.split(' (')[0])}: {escape(c.note)}[/dim]")
 
 
 def CONSOLE_UNITS() -> Any:  # noqa: N802  (reads like the constant it returns)

@@ -172,9 +172,10 @@ def _print_ik(r: Any, one: Any, data: dict[str, Any], units: Units) -> None:
         console.print(errors)
     else:
         console.print(f"[red]no solution within the tolerances[/red]: {escape(one.reason)}")
-        console.print("closest configuration found (not a solution): " + ", ".join(
-            f"{escape(j.name)} = {units.joint(float(v), j.kind)}"
-            for j, v in zip(r.joints, one.q, strict=True)) + f"; {errors}")
+        if one.iterations > 0:          # else the solver never started: q is the guess
+            console.print("closest configuration found (not a solution): " + ", ".join(
+                f"{escape(j.name)} = {units.joint(float(v), j.kind)}"
+                for j, v in zip(r.joints, one.q, strict=True)) + f"; {errors}")
     for b in data.get("branches", []):
         if b["q"] is None:
             console.print(f"  branch {b['branch']}: unreachable")

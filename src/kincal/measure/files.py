@@ -376,6 +376,7 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
     lower_j = {n.lower(): n for n in jnames}
 
     used: list[tuple[int, str, str, str]] = []   # (col index, base, unit, role)
+    no_unit: list[tuple[int, str, str, str]] = []   # (column, name, base, dimension)
     ignored: list[str] = []
     bases: dict[str, int] = {}
     for c, name in enumerate(names):
@@ -417,14 +418,15 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         if unit is None and role in ("joint", "held"):
             unit = robot_units.get(base)
         if unit is None:
-            example = f"{base}_{'deg' if want == 'angle' else 'mm' if want == 'length' else 'px'}"
-            raise fail(f"column {col} ({name}) has no unit: name it like {example!r} or pass "
-                       f"--units {name}=UNIT")
+            no_unit.append((col, name, base, want))
+            continue
         if UNITS[unit][0] != want:
             raise fail(f"column {col} ({name}): unit {unit} is {_a(UNITS[unit][0])}, "
                        f"expected {_a(want)}")
         used.append((c, base, unit, role))
 
+    if no_unit:
+        raise fail(_no_unit_message(no_unit))
     if jnames:
         missing = [j for j in jnames if j not in bases]
         if missing:
@@ -484,6 +486,24 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         ignored.append(f"{names[c]} (held joint)")
     return MeasurementTable(src, tags, q, values, {b: u for _, b, u, r in used if r != "held"},
                             linenos, ignored, col_names, header_line)
+
+
+def _no_unit_message(cols: Sequence[tuple[int, str, str, str]]) -> str:
+    """One message for every column without a unit, with the ``--units`` that fixes it."""
+    example = {"angle": "deg", "length": "mm", "pixel": "px"}
+    first = cols[0]
+    what = (f"column {first[0]} ({first[1]}) has no unit" if len(cols) == 1 else
+            f"{len(cols)} columns have no unit: " + ", ".join(n for _, n, _, _ in cols))
+    pats: dict[str, str] = {}
+    for _, name, _, want in cols:
+        pat = re.sub(r"\d+$", "?", name) if sum(
+            re.sub(r"\d+$", "?", n) == re.sub(r"\d+$", "?", name) for _, n, _, _ in cols) > 1 \
+            else name
+        pats.setdefault(pat, "UNIT" if want not in example else
+                        f"{example[want] if want != 'length' else 'm'}")
+    fix = ",".join(f"{k}={v}" for k, v in pats.items())
+    return (f"{what}: name them with their unit (like {first[2]}_"
+            f"{example.get(first[3], 'mm')}) or pass --units '{fix}' (with the real units)")
 
 
 def _a(word: str) -> str:

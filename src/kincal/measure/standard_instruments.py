@@ -43,6 +43,11 @@ from kincal.spatial import exp_so3, homogeneous, matrix_to_rpy, rpy_to_matrix
 
 Array = NDArray[np.float64]
 
+#: Name of the block of a position / pose file that names no instrument (``name=`` tag or
+#: a setup file's ``name:``): its parameters are ``instrument.x`` ... (it may be a laser
+#: tracker, a motion-capture system, a CMM: the file does not say).
+UNNAMED = "instrument"
+
 #: Default standard deviation when a file has no sigma column [m] / [rad].
 DEFAULT_SIGMA = 1e-5
 
@@ -276,7 +281,7 @@ def read_position(path: str | Path, robot: Any, units: Mapping[str, str] | None 
     y, sigma = marker_positions(t)
     K = 1 if y.ndim == 2 else y.shape[1]
     block = PositionMeasurement(t.q, y, sigma=_sigma_scalar(sigma, _tag_sigma(t, "sigma")),
-                                name=name or t.tags.get("name") or "tracker", markers=K)
+                                name=name or t.tags.get("name") or UNNAMED, markers=K)
     block.table = t  # type: ignore[attr-defined]
     return [block]
 
@@ -305,7 +310,7 @@ def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = No
                                                                  _tag_sigma(t, "sigma")),
                             sigma_orientation=_sigma_scalar(t.values.get("sigma_rot"),
                                                             _tag_sigma(t, "sigma_rot")),
-                            name=name or t.tags.get("name") or "tracker")
+                            name=name or t.tags.get("name") or UNNAMED)
     block.table = t  # type: ignore[attr-defined]
     return [block]
 

@@ -126,6 +126,8 @@ class UrdfJoint:
             continuous joints).
         mimic: the joint this one mimics, or None.
         line: line of the ``<joint>`` element in the file.
+        effort, velocity: the ``<limit>``'s effort [N m | N] and velocity [rad/s | m/s],
+            None when not given.
     """
 
     name: str
@@ -139,6 +141,8 @@ class UrdfJoint:
     upper: float = math.inf
     mimic: str | None = None
     line: int = 0
+    effort: float | None = None
+    velocity: float | None = None
 
     @property
     def moving(self) -> bool:
@@ -376,10 +380,15 @@ def _joint(elem: ET.Element, f: _Fields) -> UrdfJoint:
             upper = f.number(lim, "upper", what)
         if lower > upper:
             raise f.fail(lim, what, f"<limit> has lower > upper ({lower} > {upper})")
+    dyn: dict[str, float | None] = {"effort": None, "velocity": None}
+    if lim is not None:
+        for key in dyn:
+            if lim.get(key) is not None:
+                dyn[key] = f.number(lim, key, what)
     mimic_elem = elem.find("mimic")
     mimic = None if mimic_elem is None else (mimic_elem.get("joint") or "?")
     return UrdfJoint(name, jtype, ends["parent"], ends["child"], xyz, rpy, axis,
-                     lower, upper, mimic, line)
+                     lower, upper, mimic, line, dyn["effort"], dyn["velocity"])
 
 
 def _model(root: ET.Element, lines: dict[int, int], source: str) -> UrdfModel:
@@ -565,7 +574,10 @@ def _compile(model: UrdfModel, base: str, tip: str, path: list[UrdfJoint]) -> Ro
     b.frame("tool", [0.0] * 6)
     meta = {"convention": "urdf", "source": model.source,
             "urdf_file": str(Path(model.source).resolve()), "base_link": base,
-            "tip_link": tip, "urdf_robot_name": model.name}
+            "tip_link": tip, "urdf_robot_name": model.name,
+            "joint_effort_velocity": {j.name: [j.effort, j.velocity] for j in path
+                                      if j.moving and (j.effort is not None
+                                                       or j.velocity is not None)}}
     return b.build(meta=meta)
 
 
@@ -720,13 +732,24 @@ def _unique(name: str, taken: set[str]) -> str:
     return out
 
 
-def _limit_elem(parent: ET.Element, lower: float, upper: float) -> None:
+def _limit_elem(parent: ET.Element, lower: float, upper: float,
+                dynamics: Sequence[float | None] | None = None) -> None:
+    """``<limit>``: the bounds, and the effort and velocity only when known (a kinematic
+    model has none; writing 0 would tell a controller the joint may not move)."""
     attrs = {}
     if math.isfinite(lower):
         attrs["lower"] = _fmt([lower])
     if math.isfinite(upper):
         attrs["upper"] = _fmt([upper])
-    attrs.update(effort="0", velocity="0")
+    effort, velocity = (list(dynamics or []) + [None, None])[:2]
+    if effort is not None:
+        attrs["effort"] = _fmt([effort])
+    if velocity is not None:
+        attrs["velocity"] = _fmt([velocity])
+    if effort is None or velocity is None:
+        parent.append(ET.Comment(" effort and velocity unknown (a kinematic model): take "
+                                 "them from the robot's datasheet before a controller uses "
+                                 "this file "))
     ET.SubElement(parent, "limit", attrs)
 
 
@@ -758,7 +781,8 @@ def urdf_text(robot: Robot, name: str | None = None) -> tuple[str, str, str]:
         axis["xyz".index(et.kind[1])] = et.scale
         ET.SubElement(je, "axis", {"xyz": _fmt(axis)})
         if jtype != "continuous":
-            _limit_elem(je, jt.lower, jt.upper)
+            _limit_elem(je, jt.lower, jt.upper,
+                        dict(robot.meta.get("joint_effort_velocity") or {}).get(jt.name))
         parent, M = child, np.eye(4)
     tip = _unique("tool_link", links)
     ET.SubElement(root, "link", {"name": tip})
@@ -785,8 +809,9 @@ def write_urdf(robot: Robot, path: str | os.PathLike[str], name: str | None = No
     ``tool_joint``.  Links: ``base_link``, ``<joint>_link`` per joint and
     ``tool_link`` (a suffix ``_1`` ... is added to a name already taken).
     Unlimited revolute joints are written as ``continuous``; infinite bounds of
-    other joints are left out of ``<limit>`` (``effort`` and ``velocity`` are 0:
-    the file is a kinematic model).  Atomic write; ``"-"`` writes to stdout.
+    other joints are left out of ``<limit>``; ``effort`` and ``velocity`` are written
+    when the robot came from a URDF that gave them, else left out with a comment saying
+    they are unknown (the file is a kinematic model).  Atomic write; ``"-"`` writes to stdout.
 
     Returns:
         ``(base_link, tip_link)`` of the written file: ``load_urdf(path, base_link,

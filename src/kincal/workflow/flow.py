@@ -380,7 +380,7 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
         eb.append(errors_with(nominal, h, xb))
         ea.append(errors_with(calibrated, h, xa))
     return ErrorComparison("validation", "held-out" + _files(holdouts), merge_errors(eb),
-                           merge_errors(ea), "; ".join(notes))
+                           merge_errors(ea), BEFORE.format(how="; ".join(notes)))
 
 
 def _explicit_name(block: Any) -> bool:
@@ -439,33 +439,52 @@ def _files(blocks: Sequence[Any]) -> str:
 
 
 # --------------------------------------------------------------------------- validation
+#: What "before" means for held-out data, in every table and JSON (calibrate and validate).
+BEFORE = ("before: the nominal robot with the instrument registered to it the way the "
+          "calibrated robot's is ({how}); after: the calibrated robot")
+
+
 def validate_blocks(robot: Any, blocks: Sequence[Any], before: Any = None,
                     extras: Mapping[str, float] | None = None,
-                    protocol: str | None = None) -> list[Any]:
+                    protocol: str | None = None,
+                    before_extras: Mapping[str, float] | None = None) -> list[Any]:
     """Errors of ``robot`` (and of ``before``) on held-out blocks, one comparison each.
 
-    With ``extras`` (``{parameter: value}`` from a result JSON) every block parameter
-    is taken as it is (same session, no refit); without, each block's instrument
-    parameters are re-registered to the robot evaluated.  Returns
-    :class:`~kincal.report.html.ErrorComparison` (``before`` = ``after`` without ``before``).
+    One definition of "before" (:data:`BEFORE`), the same as ``kincal calibrate
+    --validate``: the nominal robot with the instrument registered to it the way the
+    calibrated robot's is.  With ``extras`` (``{parameter: value}`` of a result JSON: the
+    frames and markers fitted with the calibrated robot) every block parameter is taken
+    as it is (same session, no refit) and ``before`` takes ``before_extras`` (the frames
+    fitted with the nominal robot on the same training data, also in the result JSON);
+    without them, each robot gets its instrument re-registered on the held-out file.
+    Returns :class:`~kincal.report.metrics.ErrorComparison` (``before`` = ``after``
+    without ``before``).
     """
     from kincal.identify.validation import validate
     from kincal.report.metrics import ErrorComparison
 
-    how = protocol or ("frames from the result file" if extras is not None
-                       else "instrument re-registered on this file")
+    if extras is not None:
+        how = protocol or "training frames from the result file, no refit"
+        if before is not None and before_extras is None:
+            how += ("; the result file has no frames fitted with the nominal robot, so the "
+                    "nominal one is re-registered on this file")
+    else:
+        how = protocol or "instrument re-registered on this file for each robot"
 
-    def frames(r: Any, b: Any) -> Array:
-        if extras is not None:
-            return block_values(validate(r, [b], extras=dict(extras))["extras"][b.name], b)
+    def frames(r: Any, b: Any, values: Mapping[str, float] | None) -> Array:
+        if values is not None:
+            return block_values(validate(r, [b], extras=dict(values))["extras"][b.name], b)
         return reregister(r, b, None, None)
 
     comps = []
     for b in blocks:
-        ea = errors_with(robot, b, frames(robot, b))
-        eb = errors_with(before, b, frames(before, b)) if before is not None else ea
+        ea = errors_with(robot, b, frames(robot, b, extras))
+        eb = (errors_with(before, b, frames(before, b, before_extras if extras is not None
+                                                 else None))
+              if before is not None else ea)
         comps.append(ErrorComparison("validation", Path(getattr(b, "source_path", b.name)
-                                                         ).name, eb, ea, how))
+                                                         ).name, eb, ea,
+                                     BEFORE.format(how=how) if before is not None else how))
     return comps
 
 
@@ -487,15 +506,29 @@ def truth_values(path: str | Path) -> dict[str, float]:
     return vals
 
 
-def extras_from_result(path: str | Path) -> dict[str, float]:
-    """``{parameter: estimate}`` of a result JSON written by ``kincal calibrate``."""
+def extras_from_result(path: str | Path, which: str = "estimate") -> dict[str, float]:
+    """``{parameter: value}`` of a result JSON written by ``kincal calibrate``.
+
+    ``which="estimate"``: every parameter's estimate (the calibrated robot and its
+    instrument frames); ``"before"``: the instrument parameters fitted with the nominal
+    robot on the training data (``before_parameters``; ``{}`` in older files).
+    """
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        if which == "before":
+            return {str(k): float(v) for k, v in dict(doc.get("before_parameters") or {}
+                                                      ).items()}
         return {p["name"]: float(p["estimate"]) for p in doc["parameters"]}
     except FileNotFoundError:
         raise KincalError("no such result file", source=str(path)) from None
-    except (ValueError, KeyError, TypeError) as exc:
-        raise KincalError(f"not a kincal result JSON ({exc.__class__.__name__}: {exc})",
+    except IsADirectoryError:
+        raise KincalError("is a folder, not a result JSON", source=str(path)) from None
+    except UnicodeDecodeError:
+        raise KincalError("not a kincal result JSON (not UTF-8 text)", source=str(path)) \
+            from None
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise KincalError(f"not a kincal result JSON ({exc.__class__.__name__}: "
+                          f"{str(exc).splitlines()[0] if str(exc) else ''})",
                           source=str(path)) from None
 
 
@@ -589,6 +622,9 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
             doc["accuracy_model"] = model
         if flow.selection is not None:
             doc["selection"] = flow.selection.to_dict()
+        doc["before_parameters"] = {
+            n: float(v) for b in flow.train if b.name in flow.before
+            for n, v in zip(b.parameters().names, flow.before[b.name], strict=True)}
         doc["outputs"] = dict(planned)
         if withheld:
             doc["not_written"] = withheld

@@ -157,6 +157,7 @@ def read_artifact(path: str | Path, robot: Any, units: Mapping[str, str] | None 
     t = read_table(path, robot, (), units, ignore)
     tags = t.tags
     text = _text_columns(path, t.lines)
+    t.ignored = [c for c in t.ignored if c not in text]       # read, as labels
     point = text.get("point", text.get("socket"))
     if point is None:
         raise t.error("no 'point' column (the socket of each row: A, B, C, D ...)")
