@@ -187,3 +187,17 @@ def test_only_the_fleet_package_imports_dask_or_sqlalchemy_at_module_level():
             if any(n.split(".")[0] in ("dask", "distributed", "sqlalchemy") for n in names):
                 bad.append(str(path.relative_to(src)))
     assert not bad, bad
+
+
+def test_calibrate_runs_its_cross_validation_folds_on_a_local_cluster(small, tmp_path):
+    """`kincal calibrate --cross-validate K --workers 2`: the fold fits run on a real
+    LocalCluster and give exactly the in-process numbers."""
+    r = small.robots[0]
+    data = small.root / r["serial"] / r["dates"][0] / "tracker.csv"
+    docs = []
+    for extra in ([], ["--workers", "2"]):
+        out = tmp_path / f"r{len(docs)}.json"
+        assert invoke("calibrate", "puma560", "--data", data, "--cross-validate", "4",
+                      "--json", out, *extra) == 0
+        docs.append(json.loads(out.read_text())["metrics"]["cross_validation"])
+    assert docs[0] == docs[1]

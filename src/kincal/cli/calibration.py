@@ -30,8 +30,11 @@ from kincal.cli.calibration_common import (
     OptionalRobotArg,
     Progress,
     RobotArg,
+    SchedulerOpt,
     TipLink,
     UnitsOpt,
+    WorkersOpt,
+    fold_engine,
     is_fivebar,
     joint_masses,
     load,
@@ -192,6 +195,7 @@ def calibrate_cmd(
         "it. none (default): fit the model as given.")] = "none",
     folds: Annotated[int, typer.Option("--folds", min=2, help="K of --select auto "
                                        "(permutation seed 0).")] = 10,
+    scheduler: SchedulerOpt = None, workers: WorkersOpt = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     validation_frames: Annotated[str, typer.Option(
         "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
@@ -271,14 +275,14 @@ def calibrate_cmd(
     if urdf is None and output and r.meta.get("convention") == "urdf":
         urdf = str(Path(output).with_suffix(".urdf"))
     bar_total = max_iter or (20 if procedure == "patent" else 100)
-    with Progress(bar_total, json_out != "-") as bar:
+    with Progress(bar_total, json_out != "-") as bar, fold_engine(scheduler, workers) as eng:
         flow = run_flow(r, blocks, holdouts, free=free, fix=fix, stages=parse_stages(stages),
                         method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
                         validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
                         tolerance=tolerance, prior=prior, cross_validate=cross_validate,
                         progress=bar, select=select, folds=folds, masses=masses,
-                        joint_models=models, mapper=bar.mapper)
+                        joint_models=models, mapper=bar.mapper_on(eng))
     res = flow.result
     if flow.selection is not None:
         terms = flow.selection.choice.terms if flow.selection.choice else ()
