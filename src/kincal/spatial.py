@@ -225,3 +225,8 @@ def matrix_to_angles(R: ArrayLike, representation: str) -> Array:
         return matrix_to_zyz(R)
     raise KincalError(f"unknown orientation representation {representation!r}; "
                       "use 'rpy' or 'zyz'")
+
+
+def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
+    """Angles wrapped to (-pi, pi]: ``pi - ((pi - a) mod 2 pi)`` [rad]."""
+    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)

@@ -129,6 +129,7 @@ from kincal.identify.identifiability import IdentifiabilityReport, analyze
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
 from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
 from kincal.robots.chain import Robot
+from kincal.spatial import wrap_angle
 
 Array = NDArray[np.float64]
 
@@ -1101,6 +1102,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         data_std[est] = _data_only_std(_columns(end_c, est).R, cov_scale)
         held_by_prior = [names[i] for i in est
                          if names[i] in pri and not data_std[i] <= pri[names[i]]]
+    # an encoder offset c and c + 2 pi k are the same robot: report it in (-pi, pi]
+    for i, (role, unit) in enumerate(zip(prob.roles, prob.units, strict=True)):
+        if role == "offset" and unit == "rad":
+            theta[i] = float(wrap_angle(theta[i]))
     robot_cal, _ = prob.split(theta)
     return CalibrationResult(
         robot=robot_cal, robot_initial=robot, problem=prob, theta0=theta0, theta=theta,

@@ -43,7 +43,7 @@ from kincal.errors import KincalError
 from kincal.motion.trajectory import CartesianMotion, LinePath, TimingLaw, sample_times
 from kincal.robots.chain import Robot
 from kincal.robots.dh import DHLink, from_dh
-from kincal.spatial import log_so3, matrix_to_angles, rate_matrix
+from kincal.spatial import log_so3, matrix_to_angles, rate_matrix, wrap_angle
 
 Array = NDArray[np.float64]
 Method = Literal["inverse", "transpose", "pinv", "dls", "adaptive"]
@@ -221,8 +221,7 @@ def _gain(gain: float | ArrayLike, m: int) -> Array:
     return K
 
 
-def _wrap(a: Array) -> Array:
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+_wrap = wrap_angle   # (-pi, pi]
 
 
 def clik(robot: Robot, motion: CartesianMotion | Callable[[Array], tuple[Array, Array, Array]],

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
 from kincal.robots.dh import DHLink, dh_links, frame_values
-from kincal.spatial import inverse, rotx, xyzrpy_to_matrix
+from kincal.spatial import inverse, rotx, wrap_angle, xyzrpy_to_matrix
 
 Array = NDArray[np.float64]
 _ANGLE_TOL = 1e-9
@@ -62,9 +62,7 @@ class ClosedFormSolutions:
 # helpers
 
 
-def _wrap(a: Array) -> Array:
-    """Angles wrapped to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+_wrap = wrap_angle   # (-pi, pi]
 
 
 def _is(angle: float, value_deg: float) -> bool:

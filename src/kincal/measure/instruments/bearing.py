@@ -44,13 +44,12 @@ from kincal.measure.instruments.common import (
 )
 from kincal.measure.instruments.pointblock import PointBlock
 from kincal.robots.chain import Robot
+from kincal.spatial import wrap_angle
 
 Array = NDArray[np.float64]
 
 
-def wrap(a: Array) -> Array:
-    """Angles wrapped to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+wrap = wrap_angle   # (-pi, pi]
 
 
 def bearing_angles(x: Array, jacobian: bool) -> tuple[Array, Array | None]:
