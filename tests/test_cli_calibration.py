@@ -135,7 +135,14 @@ def test_validate_command_with_training_frames_and_before(flow, capsys, tmp_path
     assert doc["overall"]["rms_position_m"] == pytest.approx(
         res["metrics"]["validation"]["rms_position_m"], rel=1e-9)
     assert doc["overall_before"]["rms_position_m"] > 20 * doc["overall"]["rms_position_m"]
-    assert "Errors before -> after" in stdout
+    # one definition of "before" (the nominal robot, frames registered to it on the
+    # training data): the same number as calibrate --validate's
+    assert doc["overall_before"]["rms_position_m"] == pytest.approx(
+        res["metrics"]["validation"]["before"]["rms_position_m"], rel=1e-9)
+    assert doc["before_definition"] == res["metrics"]["validation"]["before_definition"]
+    text = " ".join(stdout.split())
+    assert "errors before -> after, one row per file" in text
+    assert "before = the nominal robot under the same protocol" in text
     # without --result the tracker is re-registered on the file: still at the noise level
     code, stdout, _ = run(capsys, "validate", flow["cal"], "--data", flow["hold"])
     assert code == 0 and "re-registered" in stdout
@@ -158,7 +165,8 @@ def test_moved_instrument_is_flagged_and_reregistered(flow, capsys, tmp_path):
     """A held-out file tagged like the training session but measured from another tracker
     placement (the held-out file seen from a frame moved by 0.3 m and 25 deg): the training
     frames give nonsense and kincal says so; --validation-frames register refits the
-    tracker frame only (the marker stays from training) and is back at the noise level."""
+    tracker frame and marker on the file and is back at the noise level; the nominal
+    robot ("before") gets the same refit."""
     from kincal.measure.registry import write_measurements
     from kincal.measure.standard_instruments import _frame_T
 
@@ -178,10 +186,15 @@ def test_moved_instrument_is_flagged_and_reregistered(flow, capsys, tmp_path):
                             "--validate", moved, "--json", j, "--validation-frames",
                             "register")
     assert code == 0 and "probably moved" not in stdout
-    v = json.loads(j.read_text())["metrics"]["validation"]
+    m = json.loads(j.read_text())["metrics"]
+    v = m["validation"]
     assert v["rms_position_m"] < 1.5 * NOISE * math.sqrt(3)
     assert v["before"]["rms_position_m"] > 20 * v["rms_position_m"]
-    assert "re-registered" in v["note"] and "marker/target from training" in v["note"]
+    assert "re-registered" in v["note"] and "frame and marker fitted" in v["note"]
+    assert "before = the nominal robot under the same protocol" in v["before_definition"]
+    (f,) = m["validation_files"]
+    assert f["file"] == "moved.csv" and f["protocol"] == "register"
+    assert f["rms_position_m"] == pytest.approx(v["rms_position_m"])
 
 
 def test_calibrate_with_a_prior(flow, capsys, tmp_path):

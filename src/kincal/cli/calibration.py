@@ -41,6 +41,7 @@ from kincal.cli.calibration_common import (
     out_console,
     print_cross_validation,
     print_errors,
+    print_heldout,
     print_identifiability,
     print_ignored,
     print_parameters,
@@ -48,10 +49,9 @@ from kincal.cli.calibration_common import (
     print_selection,
     print_weak,
     read_blocks,
-    scaled,
     serial,
 )
-from kincal.cli.options import SiOpt, console_quantity, length_option, use_si
+from kincal.cli.options import SiOpt, length_option, use_si
 from kincal.cli.setupfile import (
     ConfigOpt,
     HoldOpt,
@@ -322,7 +322,9 @@ def calibrate_cmd(
                          "[rad, m] and {block}.k[joint] [rad/(N m), m/N] in the table and the "
                          "JSON; the robot file holds the geometry only)"))
     print_parameters(out, res, all_parameters)
-    print_errors(out, flow.comparisons)
+    print_errors(out, [c for c in flow.comparisons if c.label != "validation"]
+                 if flow.heldout else flow.comparisons)
+    print_heldout(out, flow.heldout)
     if flow.cross_validation is not None:
         print_cross_validation(out, flow.cross_validation)
     print_identifiability(out, res)
@@ -348,12 +350,18 @@ def calibrate_cmd(
 def validate_cmd(
     robot: RobotArg, data: DataOpt,
     result: Annotated[str | None, typer.Option("--result", help="Result JSON of `kincal "
-                                               "calibrate`: use its instrument frames and "
-                                               "markers as they are (same session, no refit)."
+                                               "calibrate`: its instrument frames and markers "
+                                               "(same session), the nominal robot's "
+                                               "registration and the predicted accuracy."
                                                )] = None,
-    nominal: Annotated[str | None, typer.Option("--before", help="Also evaluate this robot "
-                                                "(e.g. the nominal one) the same way, for a "
-                                                "before/after table.")] = None,
+    nominal: Annotated[str | None, typer.Option("--before", help="The nominal robot, "
+                                                "evaluated by the same protocol: the 'before' "
+                                                "column.")] = None,
+    validation_frames: Annotated[str, typer.Option(
+        "--validation-frames", help="'training' (same session: the result's frames and "
+        "markers, no refit), 'register' (the instrument moved: frame and marker refitted on "
+        "each file, as far as it can identify them), 'auto' (training with --result, else "
+        "register).")] = "auto",
     joint_model: JointModelOpt = None,
     iso9283: Annotated[bool, typer.Option("--iso9283", help="Also the ISO 9283 figures per "
                                           "position: pose accuracy AP, repeatability RP, "
@@ -363,18 +371,32 @@ def validate_cmd(
     base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
     json_out: JsonOpt = None,
 ) -> None:
-    """Errors of ROBOT on held-out measurements: RMS, mean and max of every measured kind
-    (position, orientation, range ...).
+    """Errors of ROBOT on held-out measurements, one row per file and pooled: RMS before
+    (the nominal robot, --before) and after, and, with --result, the predicted accuracy
+    and the poses outside the calibrated region.
 
     Without --result each file's instrument parameters (frame and marker) are re-registered
-    to the robot: they absorb a little of any robot error."""
+    to each robot: they absorb a little of any robot error."""
+    from kincal.identify.accuracy import AccuracyModel
     from kincal.io import write_json
     from kincal.measure.joints.terms import parse_joint_model, with_joint_model
-    from kincal.report.metrics import error_keys, error_metrics, merge_errors
-    from kincal.workflow.flow import check_options_used, extras_from_result, validate_blocks
+    from kincal.report.metrics import error_metrics, merge_errors
+    from kincal.workflow.flow import (
+        check_options_used,
+        extras_from_result,
+        result_document,
+        validate_blocks,
+    )
+    from kincal.workflow.heldout import BEFORE_DEFINITION
 
     out = out_console(json_out)
     use_si(si)
+    if validation_frames not in ("auto", "training", "register"):
+        raise KincalError(f"option --validation-frames: {validation_frames!r} is not auto, "
+                          "training or register")
+    if validation_frames == "training" and not result:
+        raise KincalError("--validation-frames training needs --result (the frames come from "
+                          "the calibration)")
     r = serial(load(robot, base_link, tip_link), "validate")
     before = serial(load(nominal, base_link, tip_link), "validate") if nominal else None
     terms = parse_joint_model(joint_model)
@@ -385,40 +407,30 @@ def validate_cmd(
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
     extras = extras_from_result(result) if result else None
-    before_extras = (extras_from_result(result, "before") or None) if result and before \
-        else None
-    comps = validate_blocks(r, blocks, before, extras,
-                            "training frames from " + result if result else None,
-                            before_extras=before_extras)
-    files: dict[str, Any] = {}
-    for b, c in zip(blocks, comps, strict=True):
-        files[b.source_path] = {**error_metrics(c.after), "protocol": c.note}
-        if before is not None:
-            files[b.source_path]["before"] = error_metrics(c.before)
-    if before is not None:
-        print_errors(out, comps)            # states what "before" means under the table
-    else:
-        t = Table(title=f"Errors of {escape(r.name)} on held-out data")
-        for c in ("file", "quantity", "n", "RMS", "mean", "max"):
-            t.add_column(c, justify="left" if c in ("file", "quantity") else "right")
-        for c in comps:
-            for k, key in enumerate(error_keys(c.after)):
-                name, f, unit = console_quantity(key)
-                m = error_metrics({key: c.after[key]})
-                t.add_row(escape(c.title) if k == 0 else "", escape(f"{name} [{unit}]"),
-                          str(m["n"]),
-                          *(scaled(m.get(f"{s}_{key}"), f) for s in ("rms", "mean", "max")))
-        out.print(t)
-    if before is None:
-        out.print(f"[dim]protocol: {escape(comps[0].note)}[/dim]")
+    doc_in = result_document(result) if result else {}
+    accuracy = None
+    if isinstance(doc_in.get("accuracy_model"), dict):
+        accuracy = AccuracyModel.from_dict(doc_in["accuracy_model"], str(result))
+    files = validate_blocks(r, blocks, before, extras, validation_frames,
+                            extras_from_result(result, "before") if result else None,
+                            accuracy)
+    print_heldout(out, files, f"Errors of {r.name} on held-out data")
     iso_doc = _iso9283(out, r, before, blocks, extras) if iso9283 else None
     if json_out:
-        overall = error_metrics(merge_errors([c.after for c in comps]))
-        doc: dict[str, Any] = {"robot": r.name, "overall": overall, "files": files}
+        overall = error_metrics(merge_errors([f.after for f in files]))
+        doc: dict[str, Any] = {"robot": r.name, "overall": overall,
+                               "files": {f.block.source_path: f.metrics() for f in files},
+                               "before_definition": BEFORE_DEFINITION}
         if iso_doc is not None:
             doc["iso9283"] = iso_doc
         if before is not None:
-            doc["overall_before"] = error_metrics(merge_errors([c.before for c in comps]))
+            doc["overall_before"] = error_metrics(merge_errors([f.before for f in files]))
+        if accuracy is not None:
+            doc["predicted"] = {f.block.source_path: {"outside_joint_ranges":
+                                                      f.prediction.outside_joint_ranges,
+                                                      "outside_hull": f.prediction.outside_hull,
+                                                      **f.prediction.to_dict()}
+                                for f in files if f.prediction is not None}
         write_json(json_out, doc)
 
 

@@ -252,6 +252,69 @@ def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
             out.print(f"[dim]{escape(c.title.split(' (')[0])}: {escape(c.note)}[/dim]")
 
 
+def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out files") -> None:
+    """One row per held-out file and error kind, then the pooled row: RMS before and
+    after, max after, and for measured points the predicted RMS and how many poses lie
+    outside the training region; then each file's protocol, extrapolation warnings and,
+    for artifacts, the per-socket spread and the signed distance errors."""
+    from kincal.report.metrics import error_keys, error_metrics, merge_errors
+    from kincal.workflow.heldout import BEFORE_DEFINITION
+
+    if not files:
+        return
+    t = Table(title=f"{title}: errors before -> after, one row per file",
+              caption=BEFORE_DEFINITION)
+    for c in ("file", "quantity", "n", "RMS before", "RMS after", "max after",
+              "predicted RMS", "outside region"):
+        t.add_column(c, justify="left" if c in ("file", "quantity") else "right",
+                     overflow="fold")
+    rows = [(f.file, f.before, f.after, f.prediction_metrics()) for f in files]
+    if len(files) > 1:
+        rows.append(("pooled", merge_errors([f.before for f in files]),
+                     merge_errors([f.after for f in files]), None))
+    for label, before, after, pm in rows:
+        for k, key in enumerate(error_keys(before, after)):
+            name, f, unit = console_quantity(key)
+            b = error_metrics({key: before[key]}) if key in before else {}
+            a = error_metrics({key: after[key]}) if key in after else {}
+            pred = out_n = ""
+            if pm is not None and key == "position_m":
+                pred = scaled(pm["predicted_rms_m"], f)
+                out_n = f"{pm['outside_n']} of {pm['n']}"
+            t.add_row(escape(label) if k == 0 else "", escape(f"{name} [{unit}]"),
+                      str(a.get("n", b.get("n", ""))), scaled(b.get(f"rms_{key}"), f),
+                      f"[bold]{scaled(a.get(f'rms_{key}'), f)}[/bold]",
+                      scaled(a.get(f"max_{key}"), f), pred, out_n)
+    out.print(t)
+    for f in files:
+        out.print(f"[dim]{escape(f.file)}: {escape(f.note)}[/dim]")
+        if f.prediction is not None:
+            pm = f.prediction_metrics()
+            for sentence in f.prediction.summary():
+                out.print(f"  {escape(sentence)}")
+            if pm is not None and pm["outside_n"]:
+                out.print(f"  measured RMS inside {scaled(pm['measured_rms_inside_m'], 1e3)} "
+                          f"mm (predicted {scaled(pm['predicted_rms_inside_m'], 1e3)}), "
+                          f"outside {scaled(pm['measured_rms_outside_m'], 1e3)} mm "
+                          f"(predicted {scaled(pm['predicted_rms_outside_m'], 1e3)})")
+        if f.artifact is not None:
+            _print_artifact(out, f)
+
+
+def _print_artifact(out: Console, f: Any) -> None:
+    a = f.artifact
+    t = Table(title=f"{f.file}: artifact metrics (before = the plain nominal robot)")
+    for c in ("socket / distance", "before [mm]", "after [mm]"):
+        t.add_column(c, justify="left" if c.startswith("socket") else "right")
+    for site, v in a["after"]["spread_m"].items():
+        t.add_row(escape(f"spread {site}"), f"{a['before']['spread_m'][site] * 1e3:.3f}",
+                  f"{v * 1e3:.3f}")
+    for db, da in zip(a["before"]["distances"], a["after"]["distances"], strict=True):
+        t.add_row(escape(f"distance error {da['placement']} {da['label']}"),
+                  f"{db['error_m'] * 1e3:+.3f}", f"{da['error_m'] * 1e3:+.3f}")
+    out.print(t)
+
+
 def CONSOLE_UNITS() -> Any:  # noqa: N802  (reads like the constant it returns)
     """The running command's console units (``--si``)."""
     return _options.CONSOLE

@@ -93,6 +93,16 @@ def compensate_cmd(
                                                  "here: FK_nominal(q_cmd), to send to a "
                                                  "controller that only knows the nominal "
                                                  "model.")] = None,
+    result: Annotated[str | None, typer.Option(
+        "--result", help="Result JSON of `kincal calibrate`: the predicted accuracy at every "
+        "target (the calibration's covariance and unmodelled floor), the targets outside "
+        "the calibrated region, and where the calibrated model is predicted worse than the "
+        "nominal one.")] = None,
+    fallback: Annotated[str, typer.Option(
+        "--fallback", metavar="none|nominal", help="nominal: where the calibrated model is "
+        "predicted worse than the nominal one (needs --result and --nominal), send the "
+        "target uncompensated (the nominal IK's joints; the target itself as filtered "
+        "target). none (default): compensate every target, warn.")] = "none",
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     length_unit: Annotated[str | None, typer.Option(
         "--length-unit", help="Length unit of the written files: m, mm, um (default: the "
@@ -127,11 +137,25 @@ def compensate_cmd(
         check_unit(length_unit, "length", "--length-unit")
     if angle_unit is not None:
         check_unit(angle_unit, "angle", "--angle-unit")
+    if fallback not in ("none", "nominal"):
+        raise KincalError(f"option --fallback: {fallback!r} is not none or nominal")
+    if fallback == "nominal" and (nom is None or result is None):
+        raise KincalError("--fallback nominal needs --nominal (the controller's model) and "
+                          "--result (the predicted accuracy)")
+    accuracy = _accuracy(result, cal) if result else None
     T, seeds, table = read_targets(targets, cal, units, ignore)
     length_unit = length_unit or table.units.get("x", "m")
     angle_unit = angle_unit or table.units.get("rx", "rad" if length_unit == "m" else "deg")
     comp = compensate(cal, T, nominal=nom, q0=seeds)
     require_all(comp, targets, table.lines)
+    pred = None
+    if accuracy is not None:
+        from kincal.compensation.compensate import fall_back_to_nominal
+        from kincal.identify.accuracy import predict
+
+        pred = predict(accuracy, cal, comp.q, nominal=nom, point=np.zeros(3))
+        if fallback == "nominal" and nom is not None:
+            comp = fall_back_to_nominal(comp, cal, nom, T, pred.worse_than_nominal)
     cols = [(name, comp.q[:, k] * f) for k, (name, f) in
             enumerate(joint_columns(cal, cal.n, angle_unit, length_unit))]
     jtext = format_table(cols, comments=[f"joint commands for {cal.name} from {targets}: "
@@ -164,6 +188,8 @@ def compensate_cmd(
         out.print(f"compensation size |filtered - target|: RMS "
                   f"{cu.value(math.sqrt(np.mean(comp.correction**2)), 'm')}, max "
                   f"{cu.value(float(np.max(comp.correction)), 'm')}")
+    if pred is not None:
+        _print_prediction(out, pred, comp, table, cu)
     out.print(f"joint commands ({angle_unit} / {length_unit}) -> {escape(output)}"
               + (f"; filtered targets -> {escape(filtered)}" if ftext else ""))
     if json_out:
@@ -175,4 +201,50 @@ def compensate_cmd(
         if comp.filtered is not None:
             doc["filtered"] = comp.filtered
             doc["correction_m"] = comp.correction
+        if pred is not None:
+            doc["predicted"] = pred.to_dict()
+            doc["fallback_nominal"] = (comp.fallback if comp.fallback is not None
+                                       else np.zeros(len(comp), dtype=bool))
         write_json(json_out, doc)
+
+
+def _accuracy(result: str, robot: Any) -> Any:
+    """The :class:`~kincal.identify.accuracy.AccuracyModel` of a result JSON."""
+    from kincal.identify.accuracy import AccuracyModel
+    from kincal.workflow.flow import result_document
+
+    doc = result_document(result)
+    if not isinstance(doc.get("accuracy_model"), dict):
+        raise KincalError("has no accuracy_model (written by `kincal calibrate --json`)",
+                          source=result)
+    model = AccuracyModel.from_dict(doc["accuracy_model"], result)
+    missing = [n for n in model.parameters if n not in robot.param_names]
+    if missing:
+        raise KincalError(f"its accuracy model is for another robot (no parameter "
+                          f"{missing[0]!r} in {robot.name!r})", source=result)
+    return model
+
+
+def _print_prediction(out: Any, pred: Any, comp: Any, table: Any, cu: Any) -> None:
+    """The predicted accuracy at the targets: the region summary, the targets where the
+    calibrated model is predicted worse than the nominal one, the fallback."""
+    import numpy as np
+
+    for sentence in pred.summary("targets"):
+        out.print(f"predicted: {escape(sentence)}")
+    worse = np.flatnonzero(pred.worse_than_nominal)
+    if worse.size:
+        lines = ", ".join(str(int(table.lines[i])) for i in worse[:10])
+        more = f" and {worse.size - 10} more" if worse.size > 10 else ""
+        if comp.fallback is not None and comp.fallback.any():
+            out.print(f"[yellow]fallback[/yellow]: {worse.size} target(s) (lines {lines}{more}) "
+                      "sent uncompensated (nominal IK, target as filtered target): the "
+                      "calibrated model is predicted worse than the nominal one there")
+        else:
+            i = int(worse[0])
+            out.print(f"[yellow]warning[/yellow]: {worse.size} target(s) (lines "
+                      f"{lines}{more}): the calibrated model is predicted worse than the "
+                      f"nominal one there (e.g. line {int(table.lines[i])}: correction "
+                      f"{cu.value(float(pred.correction_m[i]), 'm')} within its uncertainty "
+                      f"{cu.value(float(pred.std_position_m[i]), 'm')}); --fallback nominal "
+                      "sends them uncompensated")

@@ -17,7 +17,7 @@ compensated commands stay on the controller's branch.  Units: metres and radians
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,6 +47,9 @@ class Compensation:
         jump: (N,) ``max_j |q_j - q0_j|`` [rad / m] between the command and its seed (the
             nominal IK solution): large values mean the calibrated IK left the controller's
             configuration branch (near a singularity or a joint limit).
+        q_nominal: (N, n) the nominal IK solutions (what an uncompensated controller
+            commands), when the nominal model was given.
+        fallback: (N,) targets sent uncompensated (:func:`fall_back_to_nominal`).
     """
 
     q: Array
@@ -58,6 +61,8 @@ class Compensation:
     correction: Array | None
     mask: str
     jump: Array
+    q_nominal: Array | None = None
+    fallback: NDArray[np.bool_] | None = None
 
     #: A seed-to-command distance [rad or m] above which a target changed branch.
     BRANCH_JUMP = 0.5
@@ -112,7 +117,8 @@ def compensate(calibrated: Robot, targets: ArrayLike, nominal: Robot | None = No
             raise KincalError(f"position targets must have shape (N, 3); got {T.shape}")
     if nominal is not None:
         _check_compatible(calibrated, nominal)
-    if q0 is None and nominal is not None:
+    from_nominal = q0 is None and nominal is not None
+    if from_nominal:
         q0 = solve_ik(nominal, T, mask=mask, tol_position=tol_position,
                       tol_orientation=tol_orientation, max_iter=max_iter, restarts=restarts,
                       rng=rng).q
@@ -128,8 +134,45 @@ def compensate(calibrated: Robot, targets: ArrayLike, nominal: Robot | None = No
         p_t = T[:, :3, 3] if mask == "pose" else T
         correction = np.linalg.norm(filtered[:, :3, 3] - p_t, axis=1)
     jump = np.zeros(len(T)) if seeds is None else np.max(np.abs(sol.q - seeds), axis=1)
+    q_nom = np.asarray(q0, dtype=float) if from_nominal else None
     return Compensation(sol.q, np.asarray(sol.success, bool), list(sol.reason), ep, eo,
-                        filtered, correction, mask, jump)
+                        filtered, correction, mask, jump, q_nom)
+
+
+def fall_back_to_nominal(comp: Compensation, calibrated: Robot, nominal: Robot,
+                         targets: ArrayLike, where: ArrayLike) -> Compensation:
+    """``comp`` with the targets ``where`` (N,) sent uncompensated: the nominal IK solution
+    as the joint command and the target itself as the filtered target (the controller's
+    nominal model puts the robot where it would without a calibration).
+
+    Used where the calibrated model is predicted worse than the nominal one
+    (:func:`kincal.identify.accuracy.predict`).  ``position_error`` /
+    ``orientation_error`` of those targets become the calibrated model's estimate of
+    the nominal command's error.
+    """
+    where = np.asarray(where, dtype=bool)
+    T = np.asarray(targets, dtype=float)
+    if T.ndim == 2 and T.shape == (4, 4):
+        T = T[None]
+    if comp.mask == "position" and T.ndim == 3:
+        T = T[:, :3, 3]
+    if not where.any():
+        return replace(comp, fallback=where)
+    qn = comp.q_nominal
+    if qn is None:
+        qn = solve_ik(nominal, T, mask=comp.mask, q0=comp.q).q
+    q = comp.q.copy()
+    q[where] = qn[where]
+    ep, eo = check_solutions(calibrated, T, q, mask=comp.mask)
+    filtered = comp.filtered
+    correction = comp.correction
+    if filtered is not None:
+        filtered = filtered.copy()
+        filtered[where] = nominal.fk(q[where])
+        p_t = T[:, :3, 3] if comp.mask == "pose" else T
+        correction = np.linalg.norm(filtered[:, :3, 3] - p_t, axis=1)
+    return replace(comp, q=q, position_error=ep, orientation_error=eo, filtered=filtered,
+                   correction=correction, fallback=where)
 
 
 def require_all(comp: Compensation, source: str | None = None,

@@ -1,13 +1,44 @@
 """Accuracy of a calibrated model where it is used: the parameter covariance propagated
-to predicted positions.
+to predicted positions, the unmodelled floor, and where the model extrapolates.
 
 A predicted quantity ``y(theta)`` with Jacobian ``G = dy/dtheta`` has
 ``Cov(y) = G Cov(theta) G^T``; for a predicted position this gives the standard
 deviation of its error, ``sqrt(trace Cov(p))`` [m] (the RMS length of the 3-D error).
+
+:class:`AccuracyModel` is what a calibration knows about its own accuracy, stored in the
+result JSON (``accuracy_model``) so that ``validate``, ``compensate`` and ``filter`` can
+use it later; :func:`predict` evaluates it at any configurations:
+
+* the **measured point** ``P(q) = p_e(q) + R_e(q) m`` (``m`` the marker / probe / target
+  in the flange frame, or a given TCP): position rows ``G = [J_v - [R m]x J_w | R]`` over
+  the estimated robot parameters and ``m``'s estimated coordinates; the covariance is
+  the calibration's, marginal over those (the instrument frame is a nuisance of the
+  training session).  ``std_position = sqrt(trace(G C G^T))`` [m]; the orientation's
+  ``sqrt(trace(J_w C J_w^T))`` [rad] over the robot parameters;
+* the **floor**: what no parameter explains (noise, unmodelled effects), from the
+  cross-validation residuals of ``--select auto`` / ``--cross-validate``,
+  ``floor^2 = max(0, CV_RMS^2 - mean_i std_i^2)`` over the training configurations;
+  without them, from the training residuals, ``floor^2 = RMS_train^2 M / (M - p)`` (the
+  leverage correction, ``M`` residuals, ``p`` estimated parameters).  The predicted RMS
+  error at a configuration is ``sqrt(std^2 + floor^2)``;
+* the **training region**: the joint ranges of the training data and the convex hull of
+  the measured point's training positions; outside it the model extrapolates
+  (``outside_joint_ranges``, ``outside_hull``);
+* against the **nominal model**: the calibration's correction ``d = P_cal(q) - P_nom(q)``
+  estimates the nominal model's error, ``E|d_hat|^2 = |d|^2 + std^2``, so the nominal
+  model's predicted squared error is ``|d_hat|^2 - std^2`` (+ floor) and the calibrated
+  model is predicted *worse than nominal* where ``std^2 > |d_hat|^2 - std^2``, i.e.
+  ``|d_hat| < sqrt(2) std``: the correction is no larger than its own uncertainty.
+
+:func:`predicted_position_std` (through a measurement block, the instrument frame
+included) and :func:`predicted_rms` are the older, block-level forms.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -16,10 +47,13 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.identify.solver import CalibrationResult
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
+from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["predicted_position_std", "predicted_rms"]
+__all__ = ["predicted_position_std", "predicted_rms", "TrainingRegion", "AccuracyModel",
+           "Prediction", "accuracy_model", "predict", "floor_from_training",
+           "floor_from_cross_validation"]
 
 
 def _position_block(result: CalibrationResult, block: str | None) -> Any:
@@ -111,3 +145,352 @@ def predicted_rms(result: CalibrationResult, q_eval: ArrayLike, block: str | Non
         s = getattr(b, "sigma", getattr(b, "sigma_position", None))
         noise_std = float(np.sqrt(np.mean(np.asarray(s) ** 2))) * result.sigma0
     return float(np.sqrt(np.mean(std**2) + 3.0 * noise_std**2))
+
+
+# --------------------------------------------------------------------------- the model
+@dataclass(frozen=True)
+class TrainingRegion:
+    """Where the training data put the robot.
+
+    Attributes:
+        joint_names: the robot's joints.
+        joint_min, joint_max: (n,) the training joint ranges [rad / m].
+        hull: (H, 3) vertices of the convex hull of the measured point's training
+            positions in the base frame [m], or None (fewer than 4 points off a plane).
+    """
+
+    joint_names: tuple[str, ...]
+    joint_min: Array
+    joint_max: Array
+    hull: Array | None = None
+
+    def outside_joint_ranges(self, q: ArrayLike) -> NDArray[np.bool_]:
+        """(N,) True where some joint lies outside its training range."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return np.any((q < self.joint_min - 1e-9) | (q > self.joint_max + 1e-9), axis=1)
+
+    def outside_hull(self, p: ArrayLike) -> NDArray[np.bool_]:
+        """(N,) True where a point lies outside the training hull (False without one)."""
+        p = np.atleast_2d(np.asarray(p, dtype=float))
+        if self.hull is None:
+            return np.zeros(len(p), dtype=bool)
+        from scipy.spatial import Delaunay
+
+        return np.asarray(Delaunay(self.hull).find_simplex(p) < 0)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"joint_names": list(self.joint_names), "joint_min": self.joint_min.tolist(),
+                "joint_max": self.joint_max.tolist(),
+                "hull": None if self.hull is None else self.hull.tolist()}
+
+    @staticmethod
+    def from_points(joint_names: Sequence[str], q: ArrayLike, p: ArrayLike
+                    ) -> TrainingRegion:
+        """The region of configurations ``q`` (N, n) whose measured points are ``p``."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        p = np.atleast_2d(np.asarray(p, dtype=float))
+        hull = None
+        if len(p) >= 4:
+            from scipy.spatial import ConvexHull, QhullError
+
+            try:
+                hull = p[ConvexHull(p).vertices]
+            except (QhullError, ValueError):
+                hull = None
+        return TrainingRegion(tuple(joint_names), q.min(axis=0), q.max(axis=0), hull)
+
+
+@dataclass(frozen=True)
+class AccuracyModel:
+    """What a calibration knows about its own accuracy (module docstring).
+
+    Attributes:
+        parameters: the estimated robot parameters the covariance is over.
+        covariance: (p, p) their covariance [m, rad].
+        point: (3,) the measured point in the flange (robot tool) frame [m].
+        point_parameters: names of the point's estimated coordinates (``x y z`` order,
+            None for a coordinate that was not estimated).
+        point_covariance: (3, 3) covariance of the point's coordinates (0 where fixed).
+        cross_covariance: (p, 3) covariance of the robot parameters with the point.
+        floor_m: the unmodelled floor (RMS length of the 3-D error) [m].
+        floor_source: ``"cross-validation"`` or ``"training residuals"``.
+        region: the :class:`TrainingRegion`.
+    """
+
+    parameters: tuple[str, ...]
+    covariance: Array
+    point: Array
+    point_parameters: tuple[str | None, ...] = (None, None, None)
+    point_covariance: Array = field(default_factory=lambda: np.zeros((3, 3)))
+    cross_covariance: Array | None = None
+    floor_m: float = 0.0
+    floor_source: str = "training residuals"
+    region: TrainingRegion | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The result JSON's ``accuracy_model`` (SI).  ``parameters`` / ``covariance`` /
+        ``joint_*`` are the robot parameters alone (what ``kincal filter`` reads)."""
+        reg = self.region
+        cross = (np.zeros((len(self.parameters), 3)) if self.cross_covariance is None
+                 else self.cross_covariance)
+        return {"parameters": list(self.parameters), "covariance": self.covariance.tolist(),
+                "joint_names": list(reg.joint_names) if reg else [],
+                "joint_min": reg.joint_min.tolist() if reg else [],
+                "joint_max": reg.joint_max.tolist() if reg else [],
+                "hull_m": None if reg is None or reg.hull is None else reg.hull.tolist(),
+                "point_m": self.point.tolist(), "point_parameters": list(self.point_parameters),
+                "point_covariance": self.point_covariance.tolist(),
+                "cross_covariance": cross.tolist(), "floor_m": self.floor_m,
+                "floor_source": self.floor_source,
+                "note": "covariance of the estimated robot parameters and of the measured "
+                        "point in the flange frame (m, rad); joint ranges (rad, m) and hull "
+                        "(m, base frame) of the training data; floor: the unmodelled RMS "
+                        "error (m)"}
+
+    @staticmethod
+    def from_dict(doc: Mapping[str, Any], source: str = "result") -> AccuracyModel:
+        """Back from :meth:`to_dict` (one-line errors naming ``source``)."""
+        try:
+            names = tuple(doc["parameters"])
+            C = np.asarray(doc["covariance"], dtype=float).reshape(len(names), len(names))
+            hull = doc.get("hull_m")
+            region = TrainingRegion(tuple(doc["joint_names"]),
+                                    np.asarray(doc["joint_min"], dtype=float),
+                                    np.asarray(doc["joint_max"], dtype=float),
+                                    None if hull is None else np.asarray(hull, dtype=float))
+            cross = doc.get("cross_covariance")
+            return AccuracyModel(
+                names, C, np.asarray(doc.get("point_m", [0.0, 0.0, 0.0]), dtype=float),
+                tuple(doc.get("point_parameters", (None, None, None))),
+                np.asarray(doc.get("point_covariance", np.zeros((3, 3))), dtype=float),
+                None if cross is None else np.asarray(cross, dtype=float).reshape(-1, 3),
+                float(doc.get("floor_m", 0.0)), str(doc.get("floor_source", "")), region)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise KincalError(f"its accuracy_model is not readable ({exc.__class__.__name__}: "
+                              f"{exc})", source=source) from None
+
+    def with_floor(self, floor_m: float, source: str) -> AccuracyModel:
+        import dataclasses
+
+        return dataclasses.replace(self, floor_m=float(floor_m), floor_source=source)
+
+
+@dataclass
+class Prediction:
+    """The calibrated model's predicted accuracy at N configurations (module docstring).
+
+    Attributes:
+        std_position_m: (N,) from the parameter covariance [m].
+        std_orientation_rad: (N,) of the flange orientation [rad].
+        predicted_m: (N,) ``sqrt(std^2 + floor^2)``: the expected RMS error [m].
+        outside_joint_ranges, outside_hull: (N,) where the model extrapolates.
+        correction_m: (N,) ``|P_cal - P_nom|`` [m] (None without a nominal robot).
+        nominal_predicted_m: (N,) the nominal model's expected error [m] (or None).
+        worse_than_nominal: (N,) ``|d_hat| < sqrt(2) std`` (False without a nominal).
+        position_m: (N, 3) the measured point predicted by the calibrated model [m].
+    """
+
+    std_position_m: Array
+    std_orientation_rad: Array
+    predicted_m: Array
+    outside_joint_ranges: NDArray[np.bool_]
+    outside_hull: NDArray[np.bool_]
+    position_m: Array
+    correction_m: Array | None = None
+    nominal_predicted_m: Array | None = None
+    worse_than_nominal: NDArray[np.bool_] = field(
+        default_factory=lambda: np.zeros(0, dtype=bool))
+
+    @property
+    def outside(self) -> NDArray[np.bool_]:
+        """Outside the joint ranges or the hull."""
+        return self.outside_joint_ranges | self.outside_hull
+
+    def summary(self, what: str = "poses") -> list[str]:
+        """Sentences: how many configurations lie outside the training region and the
+        predicted errors there (mm), e.g. the issue's "412 of 587 poses lie outside ..."."""
+        n = len(self.predicted_m)
+        out = []
+        for mask, where in ((self.outside_joint_ranges, "outside the training joint ranges"),
+                            (self.outside_hull & ~self.outside_joint_ranges,
+                             "inside the joint ranges but outside the training workspace "
+                             "hull")):
+            k = int(mask.sum())
+            if not k:
+                continue
+            text = (f"{k} of {n} {what} lie {where}; predicted error there up to "
+                    f"{self.predicted_m[mask].max() * 1e3:.3g} mm")
+            if self.nominal_predicted_m is not None:
+                text += f", nominal {self.nominal_predicted_m[mask].max() * 1e3:.3g} mm"
+            out.append(text)
+        inside = ~self.outside
+        if inside.any():
+            out.append(f"{int(inside.sum())} of {n} {what} inside the training region: "
+                       f"predicted error up to {self.predicted_m[inside].max() * 1e3:.3g} mm")
+        worse = int(np.sum(self.worse_than_nominal))
+        if worse:
+            out.append(f"{worse} of {n} {what}: the calibrated model is predicted worse than "
+                       "the nominal one (its correction is no larger than its uncertainty)")
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {
+            "std_position_m": self.std_position_m, "std_orientation_rad":
+            self.std_orientation_rad, "predicted_m": self.predicted_m,
+            "outside_joint_ranges": self.outside_joint_ranges,
+            "outside_hull": self.outside_hull}
+        if self.correction_m is not None:
+            d.update({"correction_m": self.correction_m,
+                      "nominal_predicted_m": self.nominal_predicted_m,
+                      "worse_than_nominal": self.worse_than_nominal})
+        return d
+
+
+def _point_of(result: CalibrationResult) -> tuple[Array, list[int | None]]:
+    """The measured point in the flange frame and the indices (into ``result.names``) of
+    its coordinates: the first block's marker / probe / target ``x y z``."""
+    names = list(result.names)
+    for b in result.problem.blocks:
+        spec = b.parameters()
+        for n, role in zip(spec.names, spec.roles, strict=True):
+            if role in ("tool_point", "target") and n.endswith(".x"):
+                prefix = n[:-2]
+                idx = [names.index(f"{prefix}.{c}") if f"{prefix}.{c}" in names else None
+                       for c in "xyz"]
+                value = np.array([result.theta[i] if i is not None else 0.0 for i in idx])
+                return value, idx
+            if role == "tool_point" and n.endswith(".l"):
+                i = names.index(n)
+                return np.array([0.0, 0.0, result.theta[i]]), [None, None, i]
+        probe = getattr(b, "probe", None)
+        if probe is not None and getattr(probe, "mode", "") == "vector" and probe.value:
+            return np.asarray(probe.value, dtype=float), [None, None, None]
+        if probe is not None and getattr(probe, "mode", "") == "length" and probe.value:
+            return np.array([0.0, 0.0, probe.value[0]]), [None, None, None]
+    return np.zeros(3), [None, None, None]
+
+
+def floor_from_training(result: CalibrationResult) -> float:
+    """``RMS_train^2 M / (M - p)`` (square root) [m]: the training position error with
+    the leverage correction (module docstring); 0 when there is no redundancy."""
+    errs = result.errors()
+    pooled = [np.ravel(e[k]) for e in errs.values() for k in ("position_m", "coincidence_m")
+              if k in e]
+    if not pooled:
+        return 0.0
+    e = np.concatenate(pooled)
+    M = result.residuals.size
+    p = len(result.estimated)
+    if M <= p:
+        return float(np.sqrt(np.mean(e**2)))
+    return float(np.sqrt(np.mean(e**2) * M / (M - p)))
+
+
+def floor_from_cross_validation(model: AccuracyModel, robot: Robot, q_train: ArrayLike,
+                                cv_rms: float) -> float:
+    """``sqrt(max(0, CV_RMS^2 - mean std^2))`` [m] over the training configurations."""
+    std = predict(model, robot, q_train).std_position_m
+    return float(np.sqrt(max(0.0, cv_rms**2 - float(np.mean(std**2)))))
+
+
+def accuracy_model(result: CalibrationResult, point: ArrayLike | None = None) -> AccuracyModel:
+    """The :class:`AccuracyModel` of a calibration: covariance of the estimated robot
+    parameters and of the measured point (``point`` given: that TCP, known), the training
+    region of the measured point, and the floor from the training residuals (replace it
+    with :func:`floor_from_cross_validation` when cross-validation ran)."""
+    names = list(result.names)
+    robot = result.robot
+    est = list(result.estimated)
+    pos = {n: k for k, n in enumerate(est)}
+    rob = [n for n in est if n in robot.param_names]
+    C = np.asarray(result.covariance, dtype=float)
+    ri = [pos[n] for n in rob]
+    if point is None:
+        m, idx = _point_of(result)
+    else:
+        m, idx = np.asarray(point, dtype=float).reshape(3), [None, None, None]
+    pk = [pos.get(names[i]) if i is not None else None for i in idx]
+    Cpp = np.zeros((3, 3))
+    Crp = np.zeros((len(rob), 3))
+    for a, ka in enumerate(pk):
+        if ka is None:
+            continue
+        Crp[:, a] = C[ri, ka] if ri else 0.0
+        for b, kb in enumerate(pk):
+            if kb is not None:
+                Cpp[a, b] = C[ka, kb]
+    qs = [np.asarray(b.q, dtype=float) for b in result.problem.blocks
+          if np.ndim(getattr(b, "q", None)) == 2 and np.shape(b.q)[1] == robot.n]
+    q = np.vstack(qs) if qs else np.zeros((0, robot.n))
+    model = AccuracyModel(tuple(rob), C[np.ix_(ri, ri)] if ri else np.zeros((0, 0)), m,
+                          tuple(names[i] if i is not None and pk[k] is not None else None
+                                for k, i in enumerate(idx)), Cpp, Crp,
+                          floor_from_training(result), "training residuals")
+    if len(q):
+        P = _points(robot, q, m)
+        model = AccuracyModel(model.parameters, model.covariance, m, model.point_parameters,
+                              Cpp, Crp, model.floor_m, model.floor_source,
+                              TrainingRegion.from_points(robot.joint_names, q, P))
+    return model
+
+
+def _points(robot: Robot, q: Array, m: Array) -> Array:
+    T = robot.fk(np.atleast_2d(q))
+    return T[:, :3, 3] + T[:, :3, :3] @ m
+
+
+def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | None = None,
+            point: ArrayLike | None = None) -> Prediction:
+    """The calibrated ``robot``'s predicted accuracy at configurations ``q`` (N, n).
+
+    Args:
+        model: the calibration's :class:`AccuracyModel` (:func:`accuracy_model`, or
+            :meth:`AccuracyModel.from_dict` of a result JSON).
+        robot: the calibrated robot (its parameters hold the estimates).
+        q: (N, n) or (n,) joint values [rad / m].
+        nominal: the nominal robot, for the comparison with it.
+        point: a TCP in the flange frame [m] instead of the measured point (its
+            coordinates then count as known).
+
+    Returns a :class:`Prediction` (module docstring for the formulas).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if q.shape[1] != robot.n:
+        raise KincalError(f"predicted accuracy: {q.shape[1]} joint values per configuration, "
+                          f"robot {robot.name!r} has {robot.n}")
+    missing = [n for n in model.parameters if n not in robot.param_names]
+    if missing:
+        raise KincalError(f"predicted accuracy: robot {robot.name!r} has no parameter "
+                          f"{missing[0]!r} of the accuracy model")
+    known = point is not None
+    m = np.asarray(point, dtype=float).reshape(3) if known else model.point
+    T, _, Jp = robot.fk_with_jacobians(q, joints=False, params=True)
+    J = Jp[:, :, robot.param_indices(list(model.parameters))] if model.parameters else \
+        np.zeros((len(q), 6, 0))
+    R = T[:, :3, :3]
+    a = R @ m
+    G = J[:, :3, :] - np.cross(a[:, :, None], J[:, 3:, :], axis=1)
+    C = model.covariance
+    var = np.einsum("nip,pq,niq->n", G, C, G)
+    if not known:
+        Cpp = model.point_covariance
+        Crp = model.cross_covariance if model.cross_covariance is not None else \
+            np.zeros((len(model.parameters), 3))
+        var = var + np.einsum("nij,jk,nik->n", R, Cpp, R) \
+            + 2.0 * np.einsum("nip,pk,nik->n", G, Crp, R)
+    std = np.sqrt(np.clip(var, 0.0, None))
+    Jw = J[:, 3:, :]
+    std_w = np.sqrt(np.clip(np.einsum("nip,pq,niq->n", Jw, C, Jw), 0.0, None))
+    P = T[:, :3, 3] + a
+    floor = float(model.floor_m)
+    reg = model.region
+    out_j = reg.outside_joint_ranges(q) if reg is not None else np.zeros(len(q), bool)
+    out_h = reg.outside_hull(P) if reg is not None else np.zeros(len(q), bool)
+    pred = Prediction(std, std_w, np.sqrt(std**2 + floor**2), out_j, out_h, P,
+                      worse_than_nominal=np.zeros(len(q), dtype=bool))
+    if nominal is not None:
+        d = np.linalg.norm(_points(nominal, q, m) - P, axis=1)
+        pred.correction_m = d
+        pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - std**2, 0.0, None) + floor**2)
+        pred.worse_than_nominal = d < math.sqrt(2.0) * std
+    return pred

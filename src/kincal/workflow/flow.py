@@ -272,16 +272,37 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         merge_errors([errors_with(res.robot, b, after[b.name]) for b in train]),
         "before: nominal robot, instrument frames and markers fitted to it; after: "
         "calibrated robot and frames")]
+    accuracy = _accuracy(res, cv) if procedure == "lm" else None
+    heldout: list[Any] = []
     if holdouts:
-        comps.append(_holdout_comparison(robot, res.robot, train, list(holdouts), before,
-                                         after, validation_frames, warnings))
+        comp, heldout = _holdout_comparison(robot, res.robot, train, list(holdouts), before,
+                                            after, validation_frames, warnings, accuracy)
+        comps.append(comp)
     from kincal.identify.checks import judge
     from kincal.identify.weak import weak_parameters
 
     warnings += offset_warnings(res, tols.sigma)
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=judge(res, tols.sigma),
-                      weak=weak_parameters(res), selection=selection)
+                      weak=weak_parameters(res), selection=selection, accuracy=accuracy,
+                      heldout=heldout)
+
+
+def _accuracy(res: Any, cv: Mapping[str, Any] | None) -> Any:
+    """The calibration's :class:`~kincal.identify.accuracy.AccuracyModel`; its floor from
+    the cross-validated position RMS when cross-validation ran."""
+    from kincal.identify.accuracy import accuracy_model, floor_from_cross_validation
+
+    try:
+        model = accuracy_model(res)
+    except (KincalError, ValueError, IndexError):
+        return None
+    rms = (cv or {}).get("rms_position_m")
+    if rms is not None and model.region is not None:
+        q = np.vstack([np.asarray(b.q, dtype=float) for b in res.problem.blocks])
+        model = model.with_floor(floor_from_cross_validation(model, res.robot, q, rms),
+                                 "cross-validation")
+    return model
 
 
 def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
@@ -366,17 +387,14 @@ def tolerances_of(robot: Any, prob: Any, prior: str | None = None) -> Any:
 
 def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdouts: list[Any],
                         before: dict[str, Array], after: dict[str, Array], frames: str,
-                        warnings: list[str]) -> Any:
-    """The ``validation`` comparison of :func:`run_flow` (appends to ``warnings``)."""
-    from kincal.report.metrics import (
-        ErrorComparison,
-        error_keys,
-        error_metrics,
-        merge_errors,
-        quantity,
-    )
+                        warnings: list[str], accuracy: Any = None) -> tuple[Any, list[Any]]:
+    """The pooled ``validation`` comparison of :func:`run_flow` and one
+    :class:`~kincal.workflow.heldout.HeldOutFile` per held-out block (appends to
+    ``warnings``)."""
+    from kincal.report.metrics import ErrorComparison, merge_errors
+    from kincal.workflow.heldout import BEFORE_DEFINITION, evaluate_file, map_values
 
-    eb, ea, notes = [], [], []
+    files = []
     default = frames
     for h in holdouts:
         frames = getattr(getattr(h, "source", None), "frames", None) or default
@@ -386,33 +404,20 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
                               "kind to take frames from")
         same = twin is not None and (frames == "training" or (
             frames == "auto" and twin.name == h.name and _explicit_name(h)))
-        if same:
-            xb, xa = before[twin.name], after[twin.name]
-            notes.append(f"{h.name}: same session, frames and markers from training "
-                         "(no refit)")
-            check = reregister(calibrated, h, twin, after[twin.name])
-            e1, e2 = errors_with(calibrated, h, xa), errors_with(calibrated, h, check)
-            key = error_keys(e1)[0]
-            reused = error_metrics(e1)[f"rms_{key}"]
-            fresh = error_metrics(e2)[f"rms_{key}"]
-            if reused > 5 * fresh and reused > 1e-4:
-                _, f, unit = quantity(key)
-                warnings.append(
-                    f"{Path(getattr(h, 'source_path', h.name)).name}: with the training "
-                    f"frames the held-out RMS is {reused * f:.3g} {unit}, after "
-                    f"re-registering the instrument frame {fresh * f:.3g} {unit}: the "
-                    "instrument probably moved; use --validation-frames register")
-        else:
-            xb = reregister(nominal, h, twin, before[twin.name] if twin else None)
-            xa = reregister(calibrated, h, twin, after[twin.name] if twin else None)
-            what = f"marker/target from training block {twin.name!r}" if twin else \
-                "all its parameters"
-            notes.append(f"{h.name}: instrument frame re-registered on the held-out "
-                         f"data ({what})")
-        eb.append(errors_with(nominal, h, xb))
-        ea.append(errors_with(calibrated, h, xa))
-    return ErrorComparison("validation", "held-out" + _files(holdouts), merge_errors(eb),
-                           merge_errors(ea), BEFORE.format(how="; ".join(notes)))
+        tb = before.get(twin.name) if twin is not None else None
+        ta = after.get(twin.name) if twin is not None else None
+        got = evaluate_file(nominal, calibrated, h, "training" if same else "register",
+                            known_before=map_values(h, twin, tb),
+                            known_after=map_values(h, twin, ta), accuracy=accuracy)
+        if got.warning:
+            warnings.append(got.warning)
+        files.append(got)
+    notes = "; ".join(f"{f.file}: {f.note}" for f in files)
+    comp = ErrorComparison("validation", "held-out" + _files(holdouts),
+                           merge_errors([f.before for f in files]),
+                           merge_errors([f.after for f in files]),
+                           f"{notes}; {BEFORE_DEFINITION}")
+    return comp, files
 
 
 def _explicit_name(block: Any) -> bool:
@@ -471,53 +476,41 @@ def _files(blocks: Sequence[Any]) -> str:
 
 
 # --------------------------------------------------------------------------- validation
-#: What "before" means for held-out data, in every table and JSON (calibrate and validate).
-BEFORE = ("before: the nominal robot with the instrument registered to it the way the "
-          "calibrated robot's is ({how}); after: the calibrated robot")
 
 
 def validate_blocks(robot: Any, blocks: Sequence[Any], before: Any = None,
                     extras: Mapping[str, float] | None = None,
                     protocol: str | None = None,
-                    before_extras: Mapping[str, float] | None = None) -> list[Any]:
-    """Errors of ``robot`` (and of ``before``) on held-out blocks, one comparison each.
+                    before_extras: Mapping[str, float] | None = None,
+                    accuracy: Any = None) -> list[Any]:
+    """Errors of ``robot`` (and of the nominal robot ``before``) on held-out blocks, one
+    :class:`~kincal.workflow.heldout.HeldOutFile` each (``.before``, ``.after``, ``.note``).
 
-    One definition of "before" (:data:`BEFORE`), the same as ``kincal calibrate
-    --validate``: the nominal robot with the instrument registered to it the way the
-    calibrated robot's is.  With ``extras`` (``{parameter: value}`` of a result JSON: the
-    frames and markers fitted with the calibrated robot) every block parameter is taken
-    as it is (same session, no refit) and ``before`` takes ``before_extras`` (the frames
-    fitted with the nominal robot on the same training data, also in the result JSON);
-    without them, each robot gets its instrument re-registered on the held-out file.
-    Returns :class:`~kincal.report.metrics.ErrorComparison` (``before`` = ``after``
-    without ``before``).
+    The same protocols and the same "before" as ``calibrate --validate``
+    (:mod:`kincal.workflow.heldout`): with ``extras`` (``{parameter: value}`` from a
+    result JSON) the same session, every block parameter as estimated (``protocol``
+    ``"register"`` refits frame and marker from them instead); the nominal robot then
+    gets the frames of ``before_extras`` (the JSON's ``before_parameters``; refitted
+    on the file when absent).  Without ``extras``, each block's frame and marker are
+    re-registered to each robot on the file.  ``accuracy``: the calibration's
+    :class:`~kincal.identify.accuracy.AccuracyModel`, for the predicted accuracy.
     """
-    from kincal.identify.validation import validate
-    from kincal.report.metrics import ErrorComparison
+    from kincal.workflow.heldout import evaluate_file, known_by_name
 
-    if extras is not None:
-        how = protocol or "training frames from the result file, no refit"
-        if before is not None and before_extras is None:
-            how += ("; the result file has no frames fitted with the nominal robot, so the "
-                    "nominal one is re-registered on this file")
-    else:
-        how = protocol or "instrument re-registered on this file for each robot"
-
-    def frames(r: Any, b: Any, values: Mapping[str, float] | None) -> Array:
-        if values is not None:
-            return block_values(validate(r, [b], extras=dict(values))["extras"][b.name], b)
-        return reregister(r, b, None, None)
-
-    comps = []
+    if protocol is None or protocol == "auto":
+        protocol = "training" if extras is not None else "register"
+    out = []
     for b in blocks:
-        ea = errors_with(robot, b, frames(robot, b, extras))
-        eb = (errors_with(before, b, frames(before, b, before_extras if extras is not None
-                                                 else None))
-              if before is not None else ea)
-        comps.append(ErrorComparison("validation", Path(getattr(b, "source_path", b.name)
-                                                         ).name, eb, ea,
-                                     BEFORE.format(how=how) if before is not None else how))
-    return comps
+        after = known_by_name(b, extras)
+        proto = protocol if after or protocol != "training" else "register"
+        got = evaluate_file(before, robot, b, proto, known_before=known_by_name(
+            b, before_extras), known_after=after, accuracy=accuracy)
+        if protocol == "training" and not before_extras and before is not None and \
+                got.protocol == "training":
+            got.note += ("; the result has no nominal registration: the nominal robot's "
+                         "frames were fitted on this file")
+        out.append(got)
+    return out
 
 
 def truth_values(path: str | Path) -> dict[str, float]:
@@ -536,6 +529,19 @@ def truth_values(path: str | Path) -> dict[str, float]:
                 except ValueError:
                     pass
     return vals
+
+
+def result_document(path: str | Path) -> dict[str, Any]:
+    """A result JSON written by ``kincal calibrate`` (one-line errors)."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise KincalError("no such result file", source=str(path)) from None
+    except ValueError as exc:
+        raise KincalError(f"not a kincal result JSON ({exc})", source=str(path)) from None
+    if not isinstance(doc, dict):
+        raise KincalError("not a kincal result JSON", source=str(path))
+    return doc
 
 
 def extras_from_result(path: str | Path, which: str = "estimate") -> dict[str, float]:
@@ -647,11 +653,14 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         if flow.tolerances is not None:
             doc["tolerances"] = flow.tolerances.to_dict()
         doc["held_by_prior"] = [w.to_dict() for w in flow.weak]
-        from kincal.compensation.accuracy_model import accuracy_document
+        if flow.accuracy is not None:
+            doc["accuracy_model"] = flow.accuracy.to_dict()
+        if flow.heldout:
+            from kincal.workflow.heldout import BEFORE_DEFINITION
 
-        model = accuracy_document(res)
-        if model is not None:
-            doc["accuracy_model"] = model
+            doc["metrics"]["validation_files"] = [f.metrics() for f in flow.heldout]
+            doc["metrics"]["validation"]["before_definition"] = BEFORE_DEFINITION
+            doc["metrics"]["validation"]["files"] = len(flow.heldout)
         if flow.selection is not None:
             doc["selection"] = flow.selection.to_dict()
         doc["before_parameters"] = {

@@ -211,6 +211,58 @@ def trust_section_html(flow: FlowResult) -> str:
         parts.append("<h3>Held by the prior (weakly identifiable)</h3><table><tr>"
                      "<th class='l'>parameter</th><th>data alone (1σ)</th><th>prior (1σ)</th>"
                      f"<th class='l'>what would identify it</th></tr>{rows}</table>")
+    acc = flow.accuracy
+    if acc is not None:
+        parts.append(f"<h3>Predicted accuracy</h3><p>Where the calibrated model is used, "
+                     f"its predicted error at the measured point is sqrt(trace(G C G^T) + "
+                     f"floor^2): C the covariance of the estimated parameters, the floor "
+                     f"{acc.floor_m * 1e3:.3g} mm (what no parameter explains, from the "
+                     f"{e(acc.floor_source)}). Outside the training joint ranges or the "
+                     "convex hull of the training positions the model extrapolates.</p>")
+    if flow.heldout:
+        from kincal.workflow.heldout import BEFORE_DEFINITION
+
+        rows = []
+        for f in flow.heldout:
+            pm = f.prediction_metrics() or {}
+
+            def mm(v: float | None) -> str:
+                return "-" if v is None else f"{v * 1e3:.4f}"
+
+            rows.append(
+                f"<tr><td class='l'>{e(f.file)}</td><td class='l'>{e(f.protocol)}</td>"
+                f"<td>{pm.get('n', '')}</td><td>{pm.get('outside_n', '')}</td>"
+                f"<td>{mm(pm.get('measured_rms_inside_m'))}</td>"
+                f"<td>{mm(pm.get('predicted_rms_inside_m'))}</td>"
+                f"<td>{mm(pm.get('measured_rms_outside_m'))}</td>"
+                f"<td>{mm(pm.get('predicted_rms_outside_m'))}</td>"
+                f"<td>{pm.get('worse_than_nominal', '')}</td>"
+                f"<td class='l'>{e(f.note)}</td></tr>")
+        parts.append("<h3>Held-out files: measured against predicted</h3><table><tr>"
+                     "<th class='l'>file</th><th class='l'>protocol</th><th>poses</th>"
+                     "<th>outside region</th><th>measured RMS inside [mm]</th>"
+                     "<th>predicted inside</th><th>measured RMS outside [mm]</th>"
+                     "<th>predicted outside</th><th>predicted worse than nominal</th>"
+                     f"<th class='l'>protocol note</th></tr>{''.join(rows)}</table>"
+                     f"<p class='small'>{e(BEFORE_DEFINITION)}</p>")
+        for f in flow.heldout:
+            if f.prediction is not None:
+                parts.append("<ul>" + "".join(f"<li>{e(f.file)}: {e(x)}</li>"
+                                              for x in f.prediction.summary()) + "</ul>")
+            if f.artifact is not None:
+                a = f.artifact
+                rows = [f"<tr><td class='l'>spread {e(k)}</td>"
+                        f"<td>{a['before']['spread_m'][k] * 1e3:.3f}</td><td>{v * 1e3:.3f}</td>"
+                        "</tr>" for k, v in a["after"]["spread_m"].items()]
+                rows += [f"<tr><td class='l'>distance error {e(da['placement'])} "
+                         f"{e(da['label'])}</td><td>{db['error_m'] * 1e3:+.3f}</td>"
+                         f"<td>{da['error_m'] * 1e3:+.3f}</td></tr>"
+                         for db, da in zip(a["before"]["distances"], a["after"]["distances"],
+                                           strict=True)]
+                parts.append(f"<h4>{e(f.file)}: artifact metrics (before = the plain nominal "
+                             "robot)</h4><table><tr><th class='l'>socket / distance</th>"
+                             f"<th>before [mm]</th><th>after [mm]</th></tr>{''.join(rows)}"
+                             "</table>")
     sel = flow.selection
     if sel is not None:
         from kincal.identify.selection import RULE

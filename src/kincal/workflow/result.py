@@ -44,6 +44,9 @@ class FlowResult:
             (:class:`~kincal.identify.weak.WeakParameter`).
         selection: with ``select="auto"``, the cross-validation of every candidate model
             and the choice (:class:`~kincal.identify.selection.Selection`).
+        accuracy: the calibration's predicted accuracy
+            (:class:`~kincal.identify.accuracy.AccuracyModel`).
+        heldout: one :class:`~kincal.workflow.heldout.HeldOutFile` per held-out block.
     """
 
     result: Any
@@ -59,6 +62,8 @@ class FlowResult:
     verdict: Any = None
     weak: list[Any] = dataclasses.field(default_factory=list)
     selection: Any = None
+    accuracy: Any = None
+    heldout: list[Any] = dataclasses.field(default_factory=list)
 
     @property
     def trusted(self) -> bool:
