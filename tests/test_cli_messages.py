@@ -36,7 +36,7 @@ def test_one_definition_of_before_for_held_out_data(tmp_path, capsys):
                          "--json", d / "r.json")
     assert code == 0, err
     cal = json.loads((d / "r.json").read_text())["metrics"]["validation"]
-    assert "before: the nominal robot with the instrument registered" in " ".join(out.split())
+    assert "before = the nominal robot under the same protocol" in " ".join(out.split())
     code, out, err = run(capsys, "validate", d / "c.yaml", "--data", d / "h.csv", "--result",
                          d / "r.json", "--before", "puma560", "--json", d / "v.json")
     assert code == 0, err
@@ -44,7 +44,7 @@ def test_one_definition_of_before_for_held_out_data(tmp_path, capsys):
     assert val["overall"]["rms_position_m"] == pytest.approx(cal["rms_position_m"], rel=1e-9)
     assert val["overall_before"]["rms_position_m"] == pytest.approx(
         cal["before"]["rms_position_m"], rel=1e-9)
-    assert "registered to it the way the calibrated robot's is" in " ".join(out.split())
+    assert "frames and markers registered to it on the training data" in " ".join(out.split())
 
 
 def test_ik_all_branches_with_a_position_says_what_to_give(capsys):

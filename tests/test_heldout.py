@@ -89,7 +89,7 @@ def calibrated(files):
     return json.loads((files / "res.json").read_text())
 
 
-def test_one_row_per_file_and_the_protocol_of_each(calibrated):
+def test_one_row_per_file_and_the_protocol_of_each(files, calibrated):
     rows = {f["file"]: f for f in calibrated["metrics"]["validation_files"]}
     assert list(rows) == ["one_marker.csv", "moved.csv", "fixed_wrist.csv"]
     # a one-marker file against the four-marker fit: same session, at the noise level
