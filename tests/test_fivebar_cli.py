@@ -77,7 +77,8 @@ def test_simulate_then_calibrate_a_measurement_file(tmp_path) -> None:
     assert res.exit_code == 0, res.output
     robot = load_fivebar("fivebar_thesis")
     result = calibrate_fivebar_file(robot, data, tmp_path / "cal.yaml", str(tmp_path / "c.json"),
-                                    tmp_path / "c.md", "lm", console=Console(file=io.StringIO()))
+                                    tmp_path / "c.html", "lm",
+                                    console=Console(file=io.StringIO(), width=120))
     truth = robot.with_params({"l1": 1.86, "l2": 2.2, "l3": 2.8, "l4": 3.3, "offset1": 0.01})
     # the file stores 17 significant digits of deg and mm: recovery to ~1e-12
     assert np.max(np.abs(result.robot.param_values - truth.param_values)) < 1e-9
@@ -85,7 +86,25 @@ def test_simulate_then_calibrate_a_measurement_file(tmp_path) -> None:
     assert calibrated.name == "fivebar_thesis_calibrated"
     assert np.allclose(calibrated.param_values, result.robot.param_values, atol=1e-15)
     assert json.loads((tmp_path / "c.json").read_text())["converged"] is True
-    assert "| l1 |" in (tmp_path / "c.md").read_text()
+    # the report is the serial robots' page: before/after table, parameters in mm / deg
+    page = (tmp_path / "c.html").read_text()
+    assert "Errors before and after calibration" in page and ">l1</td><td>mm</td>" in page
+    assert "<h2>Estimated parameters against the iteration</h2>" in page
+
+
+def test_fivebar_calibrate_prints_like_a_serial_robot(tmp_path, capsys) -> None:
+    from cli_helpers import run
+
+    data = tmp_path / "d.csv"
+    assert runner.invoke(app, ["fivebar-simulate", "fivebar_thesis", "-o", str(data),
+                               "--set", "l1=1.86m", "-n", "30"]).exit_code == 0
+    code, out, err = run(capsys, "calibrate", "fivebar_thesis", "--data", data, "--report",
+                         tmp_path / "r.html")
+    assert code == 0, err
+    assert "Errors before -> after calibration" in out and "position [mm]" in out
+    assert "Estimated parameters (mm, deg)" in out
+    l1 = next(ln for ln in out.splitlines() if ln.startswith("│ l1 "))
+    assert "1860.0000" in l1 and "2000.0000" in l1           # mm, 4 decimals, not 12 digits
 
 
 def test_user_errors_exit_with_code_2_and_one_line(tmp_path) -> None:

@@ -179,9 +179,9 @@ def calibrate_fivebar_file(
     """Calibrate a five-bar from a measurement CSV (joint readings + measured J3).
 
     Writes the calibrated robot YAML (``out_path``), the result with its
-    iteration history as JSON (``json_path``, ``-`` for stdout) and a Markdown
-    report (``report_path``); each is optional.  ``free`` defaults to all ten
-    robot parameters (plus the measurement frame when ``frame_free``).
+    iteration history as JSON (``json_path``, ``-`` for stdout) and an
+    HTML report like every serial robot's (``report_path``); each is optional.  ``free``
+    defaults to all ten robot parameters (plus the measurement frame when ``frame_free``).
     """
     from kincal.parallel.calibration import ROBOT_FREE, calibrate
     from kincal.parallel.data import read_fivebar_csv
@@ -197,8 +197,11 @@ def calibrate_fivebar_file(
     labels = [f"{Path(data_path).name} line {n}" for n in data.lines]
     result = calibrate(robot, data.q, data.x, free=names, residual=residual,
                        method=_METHODS[key], labels=labels)
+    from kincal.parallel.report import fivebar_comparison
+
     console = console or _console(json_path)
-    _print_result(console, result)
+    comparison = fivebar_comparison(result, data.q, data.x, f"train ({Path(data_path).name})")
+    _print_result(console, result, comparison)
     if out_path:
         from dataclasses import replace
 
@@ -211,22 +214,39 @@ def calibrate_fivebar_file(
         _write_json(json_path, result.to_dict())
     if report_path:
         from kincal.io import atomic_write_text
+        from kincal.parallel.report import fivebar_report
 
-        atomic_write_text(report_path, result.report())
+        atomic_write_text(report_path, fivebar_report(
+            result, data.q, data.x, Path(data_path).name,
+            inputs={"robot": robot.name, "data": str(data_path), "method": result.method,
+                    "residual": result.residual, "free": ", ".join(result.free)}))
     return result
 
 
-def _print_result(console: Console, result: FiveBarCalibration) -> None:
-    unit = "rad" if result.residual == "ik" else "m"
-    t = Table(title=f"five-bar calibration ({result.residual} residual, {result.method}): "
-              f"{result.iterations} iterations, converged {result.converged}, "
-              f"rms {result.rms:.3g} {unit}")
-    for c in ("parameter", "start", "estimate", "std error"):
+def _print_result(console: Console, result: FiveBarCalibration, comparison: Any = None
+                  ) -> None:
+    """Like every serial robot: parameters in mm / deg with standard errors, the
+    before/after table of the end-point error, what is not identifiable."""
+    from kincal.cli.calibration_common import print_errors, scaled
+    from kincal.cli.options import CONSOLE
+    from kincal.parallel.residuals import ALL_NAMES, ALL_UNITS
+
+    units = dict(zip(ALL_NAMES, ALL_UNITS, strict=True))
+    conv = "[green]converged[/green]" if result.converged else "[red]did not converge[/red]"
+    console.print(f"five-bar calibration ({result.residual} residual, {result.method}): "
+                  f"{conv} in {result.iterations} iterations, {len(result.free)} parameters "
+                  "estimated")
+    t = Table(title=f"Estimated parameters ({CONSOLE.length_unit}, {CONSOLE.angle_unit})")
+    for c in ("parameter", "nominal", "estimate", "change", "std (1σ)"):
         t.add_column(c, justify="left" if c == "parameter" else "right")
     start = dict(zip(result.names, result.start.tolist(), strict=True))
     for n in result.free:
-        t.add_row(n, f"{start[n]:.9g}", f"{result.params[n]:.12g}", f"{result.std_errors[n]:.3g}")
+        f, _ = CONSOLE.scale(units[n])
+        t.add_row(escape(n), scaled(start[n], f), scaled(result.params[n], f),
+                  scaled(result.params[n] - start[n], f), scaled(result.std_errors[n], f))
     console.print(t)
+    if comparison is not None:
+        print_errors(console, [comparison])
     for line in result.identifiability.describe():
         console.print(f"[yellow]{escape(line)}[/yellow]")
 

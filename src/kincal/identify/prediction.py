@@ -234,7 +234,7 @@ def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike,
 
 def prediction_figure(pred: AccuracyPrediction, baseline: AccuracyPrediction | None = None,
                       singular_values: Sequence[Array] | None = None,
-                      labels: Sequence[str] = ("design", "random"), dpi: int = 80) -> bytes:
+                      labels: Sequence[str] = ("design", "random"), dpi: int = 100) -> bytes:
     """PNG of the predicted accuracy: error over the workspace, its histogram, spectra.
 
     Panels: (1) top view of the evaluation points coloured by the predicted std [mm];
@@ -249,14 +249,14 @@ def prediction_figure(pred: AccuracyPrediction, baseline: AccuracyPrediction | N
     import matplotlib.pyplot as plt
 
     panels = 3 if singular_values else 2
-    fig, axes = plt.subplots(1, panels, figsize=(4.6 * panels, 4.0))
+    fig, axes = plt.subplots(1, panels, figsize=(min(4.6 * panels, 11.6), 4.0))
     ax = axes[0]
     sc = ax.scatter(pred.points[:, 0] * 1e3, pred.points[:, 1] * 1e3,
                     c=pred.position_std * 1e3, s=10, cmap="viridis")
     fig.colorbar(sc, ax=ax, label="predicted error std [mm]")
     ax.set_xlabel("x [mm]")
     ax.set_ylabel("y [mm]")
-    ax.set_title("predicted error over the workspace (top view)", fontsize=9)
+    ax.set_title("predicted error over the workspace (top view)", fontsize=10)
     ax.set_aspect("equal", adjustable="datalim")
     ax = axes[1]
     vals = [pred.position_std * 1e3] + ([baseline.position_std * 1e3] if baseline else [])
@@ -266,8 +266,8 @@ def prediction_figure(pred: AccuracyPrediction, baseline: AccuracyPrediction | N
                 label=f"{lab}: RMS {np.sqrt(np.mean(v ** 2)):.4g} mm")
     ax.set_xlabel("predicted error std [mm]")
     ax.set_ylabel("configurations")
-    ax.legend(fontsize=8)
-    ax.set_title(f"after calibration with {pred.poses} poses", fontsize=9)
+    ax.legend(fontsize=9)
+    ax.set_title(f"after calibration with {pred.poses} poses", fontsize=10)
     if singular_values:
         ax = axes[2]
         for s, lab, col in zip(singular_values, labels, ("#1f77b4", "#c0504d"), strict=False):
@@ -275,8 +275,8 @@ def prediction_figure(pred: AccuracyPrediction, baseline: AccuracyPrediction | N
             ax.semilogy(np.arange(1, s.size + 1), s, "o-", ms=3, color=col, label=lab)
         ax.set_xlabel("index i")
         ax.set_ylabel("scaled singular value s_i")
-        ax.legend(fontsize=8)
-        ax.set_title("singular values of the scaled Jacobian", fontsize=9)
+        ax.legend(fontsize=9)
+        ax.set_title("singular values of the scaled Jacobian", fontsize=10)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)

@@ -2,7 +2,8 @@
 
 The numbers it shows come from :mod:`kincal.report.metrics`.
 
-* :func:`identifiability_sentences` - what the data can and cannot identify, in words.
+* :func:`identifiability_summary` / :func:`identifiability_details` - what the data can
+  and cannot identify, in words: a short summary, then every fact (folded).
 * :func:`render_html` / :func:`write_html_report` - one HTML file, images embedded as
   base64 PNG: summary, before/after table, identifiability, parameter table
   (nominal, estimate, std, identifiable), convergence, one plot per parameter of its
@@ -44,29 +45,43 @@ def _disp_unit(unit: str) -> str:
     return {"m": "mm", "rad": "deg"}.get(unit, unit)
 
 
-def identifiability_sentences(result: Any) -> list[str]:
-    """Plain sentences on what the data identifies (from the result's analysis)."""
+def identifiability_summary(result: Any) -> list[str]:
+    """The identifiability facts in a few lines, for the top of the section: how many
+    parameters the data identifies, which were left out by choice, and what absorbs the
+    rest (grouped, one line per group)."""
     d = result.to_dict()
     params = d.get("parameters", [])
-    est = [p for p in params if p.get("estimated")]
-    ident = d.get("identifiability") or {}
-    out = [f"{d.get('identifiable_count', len(est))} of {len(params)} parameters are "
-           f"identifiable from these measurements; {len(est)} were estimated and the "
-           "others kept their nominal (or initial) values."]
     rep = getattr(result, "identifiability", None)
     problem = getattr(result, "problem", None)
+    candidates = set(getattr(rep, "names", []) or [p["name"] for p in params])
+    by_choice = [p["name"] for p in params if p["name"] not in candidates]
+    est = [p for p in params if p.get("estimated")]
+    ident = d.get("identifiability") or {}
+    out = [f"{d.get('identifiable_count', len(est))} of {len(candidates)} candidate "
+           f"parameters are identifiable from these measurements; {len(est)} were "
+           "estimated, the others kept their nominal (or initial) values."]
+    if by_choice:
+        out.append(f"{len(by_choice)} parameter(s) were not candidates (left out by "
+                   f"--free / --fix, by choice): {_short_list(by_choice)}.")
     if rep is not None and problem is not None:
-        out += [g + "; held at the initial value(s)." for g in
-                identifiability_groups(rep, problem.names, problem.roles)]
+        out += identifiability_groups(rep, problem.names, problem.roles)
     cs, cu = ident.get("cond_scaled"), ident.get("cond_unscaled")
     if cs is not None:
         out.append(f"Condition number of the column-scaled identification Jacobian: {cs:.3g}"
                    + (f" (unscaled {cu:.3g})" if cu is not None else "") + ".")
+    return out
+
+
+def identifiability_details(result: Any) -> list[str]:
+    """Every fact of the identifiability analysis, one sentence each (folded in the
+    report under the summary)."""
     describe = getattr(getattr(result, "identifiability", None), "describe", None)
     if callable(describe):
         told = describe()
         lines = told.splitlines() if isinstance(told, str) else list(told)
-        return out + [str(ln).strip() for ln in lines if str(ln).strip()]
+        return [str(ln).strip() for ln in lines if str(ln).strip()]
+    ident = result.to_dict().get("identifiability") or {}
+    out = []
     unobs = list(ident.get("unobservable", []))
     if unobs:
         out.append(f"{len(unobs)} parameter(s) have no effect on any measurement and cannot "
@@ -75,6 +90,17 @@ def identifiability_sentences(result: Any) -> list[str]:
         out.append(f"{name} cannot be told apart from {', '.join(others)}: the data sees only "
                    "a combination of them, so it was held fixed.")
     return out
+
+
+def identifiability_sentences(result: Any) -> list[str]:
+    """Summary then details (:func:`identifiability_summary`,
+    :func:`identifiability_details`), as one list."""
+    return identifiability_summary(result) + identifiability_details(result)
+
+
+def _short_list(names: Sequence[str], limit: int = 12) -> str:
+    more = len(names) - limit
+    return ", ".join(names[:limit]) + (f" and {more} more" if more > 0 else "")
 
 
 _ROBOT_ROLES = ("base", "tool", "offset", "length", "angle")
@@ -120,7 +146,9 @@ table{border-collapse:collapse;font-size:.88em;margin:.6em 0}
 th,td{border:1px solid #ddd;padding:3px 8px;text-align:right}
 th{background:#f3f3f3}td.l,th.l{text-align:left}
 tr.no td{color:#999}img{max-width:100%}
-.ok{color:#1a7f37}.bad{color:#c0504d}.small{font-size:.85em;color:#555}
+.ok{color:#1a7f37}.bad{color:#c0504d}.warn{color:#9a6700}.muted{color:#777}
+.small{font-size:.85em;color:#555}
+details{margin:.6em 0}summary{cursor:pointer;color:#333}
 """
 
 
@@ -155,10 +183,31 @@ def _num(v: float | None, factor: float) -> str:
     return "-" if v is None or not np.isfinite(v) else f"{v * factor:.4f}"
 
 
+def _param_status(p: Mapping[str, Any], candidates: set[str], held: set[str]
+                  ) -> tuple[str, str]:
+    """(text, css class) of a parameter's status in the report's table."""
+    if p.get("estimated"):
+        if p["name"] in held:
+            return "estimated, held by the prior (weakly identifiable)", "warn"
+        return "estimated", "ok"
+    if p["name"] not in candidates:
+        return "not estimated (by choice)", "muted"
+    status = str(p.get("status", ""))
+    if status == "unobservable":
+        return "not identifiable: no effect on the data", "bad"
+    if status.startswith("dependent"):
+        return f"not identifiable: {status}", "bad"
+    if p.get("identifiable"):
+        return "identifiable, not estimated (stage)", "muted"
+    return "not identifiable", "bad"
+
+
 def _param_table(result: Any, truth: Mapping[str, float] | None) -> str:
     params = result.to_dict()["parameters"]
-    head = ["parameter", "unit", "nominal", "estimate", "change", "std (1σ)", "identifiable",
-            "estimated"]
+    rep = getattr(result, "identifiability", None)
+    candidates = set(getattr(rep, "names", []) or [p["name"] for p in params])
+    held = set(getattr(result, "held_by_prior", []) or [])
+    head = ["parameter", "unit", "nominal", "estimate", "change", "std (1σ)", "status"]
     if truth:
         head.insert(5, "true")
     rows = []
@@ -166,16 +215,15 @@ def _param_table(result: Any, truth: Mapping[str, float] | None) -> str:
         u = p.get("unit", "")
         nom, est, std = p.get("nominal"), p.get("estimate"), p.get("std")
         change = None if nom is None or est is None else est - nom
+        text, cls = _param_status(p, candidates, held)
         cells = [html.escape(p["name"]), _disp_unit(u), _fmt(nom, u), _fmt(est, u),
                  _fmt(change, u), _fmt(std, u) if p.get("estimated") else "-",
-                 '<span class="ok">yes</span>' if p.get("identifiable")
-                 else '<span class="bad">no</span>',
-                 "yes" if p.get("estimated") else "fixed"]
+                 f'<span class="{cls}">{html.escape(text)}</span>']
         if truth:
             cells.insert(5, _fmt(truth.get(p["name"]), u))
-        cls = "" if p.get("estimated") else ' class="no"'
-        rows.append(f"<tr{cls}>" + "".join(
-            f'<td class="l">{x}</td>' if i == 0 else f"<td>{x}</td>"
+        row_cls = "" if p.get("estimated") else ' class="no"'
+        rows.append(f"<tr{row_cls}>" + "".join(
+            f'<td class="l">{x}</td>' if i in (0, len(cells) - 1) else f"<td>{x}</td>"
             for i, x in enumerate(cells)) + "</tr>")
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows)
             + "</table>")
@@ -221,7 +269,7 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
     parts.append(f"<p>{conv} after {d.get('iterations')} iterations; "
                  f"{int(est_mask.sum())} parameters estimated; "
                  f"a-posteriori sigma0 = {d.get('sigma0', float('nan')):.3g} (1 = residuals at "
-                 f"the stated noise). {html.escape(str(getattr(result, 'message', '')))}</p>")
+                 "the stated noise).</p>")
     if inputs:
         parts.append("<table>" + "".join(
             f'<tr><th class="l">{html.escape(k)}</th><td class="l">{html.escape(str(v))}</td>'
@@ -229,11 +277,17 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
     if comparisons:
         parts.append("<h2>Errors before and after calibration</h2>")
         parts.append(_metric_table(comparisons))
+    details = identifiability_details(result)
     parts.append("<h2>What the data can identify</h2><ul>" + "".join(
-        f"<li>{html.escape(s)}</li>" for s in identifiability_sentences(result)) + "</ul>")
+        f"<li>{html.escape(s)}</li>" for s in identifiability_summary(result)) + "</ul>"
+        + (f"<details><summary>every fact of the analysis ({len(details)})</summary><ul>"
+           + "".join(f"<li>{html.escape(s)}</li>" for s in details) + "</ul></details>"
+           if details else ""))
     parts.append("<h2>Parameters</h2><p class='small'>lengths in mm, angles in degrees; "
                  "std is the 1-sigma uncertainty of the estimate (scaled by sigma0); grey "
-                 "rows were held fixed.</p>")
+                 "rows were held at their nominal values: <i>not estimated (by choice)</i> "
+                 "for parameters left out by --free / --fix, <i>not identifiable</i> for "
+                 "those the data cannot see.</p>")
     parts.append(_param_table(result, truth))
     if plots:
         H, stages, cost, rms = _history(result)
@@ -264,9 +318,22 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
                 parts.append("<h2>Correlation of the estimates</h2>" + _img(
                     rp.correlation(C, [names[i] for i in idx]), "correlation"))
     parts.extend(extra_sections)
+    parts.append(_solver_details(result, d))
     parts.append(f"<p class='small'>kincal {__version__}, {now}. Units inside kincal are SI "
                  "(m, rad); the result JSON and robot files are SI.</p></body></html>")
     return "\n".join(parts)
+
+
+def _solver_details(result: Any, d: Mapping[str, Any]) -> str:
+    """The solver's own account (stopping rule, stages, method), folded at the end."""
+    rows = [("method", d.get("method")), ("loss", d.get("loss")),
+            ("iterations", d.get("iterations")),
+            ("stages", "; ".join(f"{s['stage']}: {len(s['estimated'])} parameters"
+                                 for s in d.get("stages", [])) or "-"),
+            ("stopping", getattr(result, "message", "") or "-")]
+    return ("<details><summary>Solver details</summary><table>" + "".join(
+        f'<tr><th class="l">{html.escape(str(k))}</th><td class="l">{html.escape(str(v))}'
+        "</td></tr>" for k, v in rows) + "</table></details>")
 
 
 def write_html_report(path: str | Path, result: Any, comparisons: Sequence[ErrorComparison],

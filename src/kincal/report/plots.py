@@ -3,6 +3,10 @@
 Every function returns PNG images as ``bytes`` so the HTML report can embed them
 (base64) and the caller never touches a display.  Values are shown for people:
 lengths in mm, angles in degrees; the data passed in is SI (m, rad).
+
+Readable at a glance: figures are at most :data:`MAX_WIDTH_IN` inches wide at
+:data:`DPI`, so the report (1168 px of content in a 1280 px window) shows them at their
+own size, and no text is smaller than :data:`MIN_TEXT_PT` points (11 px at 100 dpi).
 """
 
 from __future__ import annotations
@@ -20,12 +24,24 @@ Array = NDArray[np.float64]
 _BEFORE, _AFTER, _TRUTH = "#c0504d", "#1f77b4", "#2ca02c"
 
 
+#: Resolution of the report's figures [dots per inch].
+DPI = 100
+#: Widest figure [in]: DPI * MAX_WIDTH_IN fits the report's 1168 px of content.
+MAX_WIDTH_IN = 11.6
+#: Smallest text [pt]: 8 pt at 100 dpi is 11.1 px.
+MIN_TEXT_PT = 8.0
+_TEXT = {"font.size": 9.5, "axes.titlesize": 10.5, "axes.labelsize": 9.5,
+         "xtick.labelsize": 9.0, "ytick.labelsize": 9.0, "legend.fontsize": 9.0,
+         "figure.titlesize": 11.0, "figure.labelsize": 10.0}
+
+
 def _plt() -> Any:
     import matplotlib
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
 
+    plt.rcParams.update(_TEXT)
     return plt
 
 
@@ -35,7 +51,7 @@ def MaxNLocator(n: int, integer: bool = False) -> Any:  # noqa: N802 - matplotli
     return _Max(n, integer=integer)
 
 
-def _png(fig: Any, dpi: int = 80) -> bytes:
+def _png(fig: Any, dpi: int = DPI) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     _plt().close(fig)
@@ -59,12 +75,12 @@ def display_scale(unit: str) -> tuple[float, str]:
 def parameter_history(history: Array, names: Sequence[str], units: Sequence[str],
                       stages: Sequence[str] | None = None,
                       truth: Mapping[str, float] | None = None,
-                      per_figure: int = 24, columns: int = 4) -> list[bytes]:
+                      per_figure: int = 24, columns: int = 3) -> list[bytes]:
     """One small plot per parameter: its value [mm / deg] against the iteration.
 
-    Like the thesis's figures 4.1-4.4: the estimate at iteration 0 (nominal / initial
-    guess) and after every accepted step; a dotted line marks the true value when
-    known (simulations), vertical lines the start of each stage.
+    The estimate at iteration 0 (nominal / initial guess) and after every accepted step;
+    a dotted line marks the true value when known (simulations), vertical lines the
+    start of each stage.
 
     Args:
         history: (iterations + 1, P) parameter values [SI], row 0 the start.
@@ -82,10 +98,11 @@ def parameter_history(history: Array, names: Sequence[str], units: Sequence[str]
     for start in range(0, P, per_figure):
         idx = list(range(start, min(P, start + per_figure)))
         rows = math.ceil(len(idx) / columns)
-        fig, axes = plt.subplots(rows, columns, figsize=(3.2 * columns, 1.9 * rows + 0.4),
-                                 squeeze=False)
-        fig.subplots_adjust(left=0.07, right=0.98, bottom=0.4 / (1.9 * rows + 0.4) + 0.02,
-                            top=1 - 0.25 / (1.9 * rows + 0.4), hspace=0.55, wspace=0.42)
+        height = 2.2 * rows + 0.5
+        fig, axes = plt.subplots(rows, columns, figsize=(min(3.8 * columns, MAX_WIDTH_IN),
+                                                         height), squeeze=False)
+        fig.subplots_adjust(left=0.08, right=0.98, bottom=0.5 / height + 0.02,
+                            top=1 - 0.3 / height, hspace=0.65, wspace=0.45)
         for ax in axes.flat[len(idx):]:
             ax.axis("off")
         for ax, k in zip(axes.flat, idx, strict=False):
@@ -95,13 +112,19 @@ def parameter_history(history: Array, names: Sequence[str], units: Sequence[str]
                 ax.axhline(truth[names[k]] * s, ls=":", color=_TRUTH, lw=1.5)
             for b in bounds:
                 ax.axvline(b - 0.5, color="0.6", lw=0.8, ls="--")
-            ax.set_title(names[k], fontsize=9)
-            ax.set_ylabel(lab, fontsize=8)
-            ax.tick_params(labelsize=7)
+            ax.set_title(names[k])
+            ax.set_ylabel(lab)
             ax.ticklabel_format(axis="y", useOffset=False)
-            ax.yaxis.set_major_locator(MaxNLocator(3))
+            v = H[:, k] * s
+            span, mid = float(np.ptp(v)), float(np.mean(v))
+            if span <= 1e-9 * max(1.0, abs(mid)):   # a constant: no 12-digit tick labels
+                half = max(1e-6 * abs(mid), 1e-6)
+                ax.set_ylim(mid - half, mid + half)
+                ax.set_yticks([mid], [f"{mid:.6g}" if abs(mid) > 1e-9 else "0"])
+            else:
+                ax.yaxis.set_major_locator(MaxNLocator(3))
             ax.xaxis.set_major_locator(MaxNLocator(5, integer=True))
-        fig.supxlabel("iteration", fontsize=9)
+        fig.supxlabel("iteration")
         out.append(_png(fig))
     return out
 
@@ -109,16 +132,15 @@ def parameter_history(history: Array, names: Sequence[str], units: Sequence[str]
 def convergence(cost: Array, rms: Array, stages: Sequence[str]) -> bytes:
     """Cost (log scale) and RMS of the whitened residuals against the iteration."""
     plt = _plt()
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.4))
     it = np.arange(len(cost))
     a1.semilogy(it, np.maximum(cost, 1e-300), "o-", ms=3, color=_AFTER)
-    a1.set_title("cost 0.5 |r|^2 (whitened)", fontsize=9)
+    a1.set_title("cost 0.5 |r|^2 (whitened)")
     a2.semilogy(it, np.maximum(rms, 1e-300), "o-", ms=3, color=_AFTER)
     a2.axhline(1.0, color=_TRUTH, ls=":", lw=1.2)
-    a2.set_title("RMS of whitened residuals (1 = at the noise level)", fontsize=9)
+    a2.set_title("RMS of whitened residuals (1 = at the noise level)")
     for ax in (a1, a2):
-        ax.set_xlabel("iteration", fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.set_xlabel("iteration")
         for i in range(1, len(stages)):
             if stages[i] != stages[i - 1]:
                 ax.axvline(i - 0.5, color="0.6", lw=0.8, ls="--")
@@ -156,8 +178,8 @@ def error_histograms(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[str,
         ax.hist(np.maximum(b, lo), bins=bins, alpha=0.55, color=_BEFORE, label="before")
         ax.hist(np.maximum(a, lo), bins=bins, alpha=0.75, color=_AFTER, label="after")
         ax.set_xscale("log")
-        ax.set_xlabel(lab, fontsize=8)
-        ax.set_ylabel("count", fontsize=8)
+        ax.set_xlabel(lab)
+        ax.set_ylabel("count")
 
     return _before_after_grid(sets, draw, np.ravel)
 
@@ -169,8 +191,8 @@ def per_pose_errors(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[str, 
         i = np.arange(len(b))
         ax.semilogy(i, np.maximum(b, 1e-9), ".", color=_BEFORE, label="before", ms=4)
         ax.semilogy(i, np.maximum(a, 1e-9), ".", color=_AFTER, label="after", ms=4)
-        ax.set_xlabel("measurement (row)", fontsize=8)
-        ax.set_ylabel(lab, fontsize=8)
+        ax.set_xlabel("measurement (row)")
+        ax.set_ylabel(lab)
 
     return _before_after_grid(sets, draw, _per_row)
 
@@ -182,8 +204,8 @@ def _before_after_grid(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[st
     ``reduce(|error|)`` in display units (mm, deg ...); kinds missing from a set stay blank."""
     plt = _plt()
     keys = _quantities(sets)
-    fig, axes = plt.subplots(len(keys), len(sets), figsize=(4.2 * len(sets), 2.8 * len(keys)),
-                             squeeze=False)
+    fig, axes = plt.subplots(len(keys), len(sets), squeeze=False,
+                             figsize=(min(4.6 * len(sets), MAX_WIDTH_IN), 3.1 * len(keys)))
     for r, key in enumerate(keys):
         scale, lab = _label(key)
         for c, (name, before, after) in enumerate(sets):
@@ -193,9 +215,8 @@ def _before_after_grid(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[st
                 continue
             draw(ax, reduce(np.abs(before[key])) * scale, reduce(np.abs(after[key])) * scale,
                  lab)
-            ax.set_title(name, fontsize=9)
-            ax.tick_params(labelsize=7)
-            ax.legend(fontsize=7)
+            ax.set_title(name)
+            ax.legend()
     _layout(fig)
     return _png(fig)
 
@@ -207,15 +228,20 @@ def _per_row(e: Array) -> Array:
 
 
 def correlation(C: Array, names: Sequence[str]) -> bytes:
-    """Heat map of the estimated parameters' correlation matrix."""
+    """Heat map of the estimated parameters' correlation matrix (every name labelled
+    while they fit at the smallest text size, else every k-th)."""
     plt = _plt()
     n = len(names)
-    size = min(3 + 0.22 * n, 14)
-    fig, ax = plt.subplots(figsize=(size + 1, size))
+    row_in = MIN_TEXT_PT * 1.35 / 72                       # one label's height [in]
+    size = min(max(5.0, 2.8 + row_in * n), MAX_WIDTH_IN - 1.2)
+    step = max(1, math.ceil(n * row_in / (size - 2.8)))
+    fig, ax = plt.subplots(figsize=(size + 1.2, size))
     im = ax.imshow(np.asarray(C), vmin=-1, vmax=1, cmap="RdBu_r")
-    ax.set_xticks(range(n), names, rotation=90, fontsize=6)
-    ax.set_yticks(range(n), names, fontsize=6)
+    ticks = list(range(0, n, step))
+    ax.set_xticks(ticks, [names[i] for i in ticks], rotation=90, fontsize=MIN_TEXT_PT)
+    ax.set_yticks(ticks, [names[i] for i in ticks], fontsize=MIN_TEXT_PT)
     fig.colorbar(im, ax=ax, shrink=0.8)
-    ax.set_title("correlation of the estimates", fontsize=9)
-    _layout(fig)
+    ax.set_title("correlation of the estimates" + (f" (every {step}th name)" if step > 1
+                                                   else ""))
+    fig.subplots_adjust(left=0.3, right=0.95, bottom=0.3, top=0.93)
     return _png(fig)
