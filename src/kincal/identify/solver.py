@@ -694,6 +694,9 @@ class _StageEnd(NamedTuple):
     iterations: int
     message: str
     r: Array
+    #: the triangle at ``theta`` over the stage's columns, when the last step built it
+    #: (prior rows included, as the stage used it); None otherwise
+    C: CompressedSystem | None = None
 
 
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
@@ -728,7 +731,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         return r
 
     def done(converged: bool, iterations: int, message: str) -> _StageEnd:
-        return _StageEnd(theta, converged, iterations, message, current())
+        return _StageEnd(theta, converged, iterations, message, current(), C)
 
     cost_of = _half_weighted_ss
 
@@ -958,10 +961,17 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                           tol_step, tol_cost, ids, dims, history, progress, aug.rows,
                           aug.extend(_columns(at, idx), theta_start))
 
-    def ended(stage: _StageEnd, columns: Iterable[int]) -> CompressedSystem:
+    def ended(stage: _StageEnd, stage_est: Sequence[int], columns: Iterable[int]
+              ) -> CompressedSystem:
         """The measurements' triangle (robust weights, no prior rows) where ``stage``
-        ended, over ``columns``."""
-        return prob.compressed(stage.theta, weights_of(stage.r[:M]), sorted(set(columns)),
+        ended, over ``columns``: the stage's own last triangle when it is that one
+        (uniform weights, no prior rows among ``stage_est``, the same columns)."""
+        cols = sorted(set(columns))
+        C = stage.C
+        if (C is not None and loss == "linear" and not any(i in prior_s for i in stage_est)
+                and [int(j) for j in C.columns] == cols):
+            return dataclasses.replace(C, r=None)
+        return prob.compressed(stage.theta, weights_of(stage.r[:M]), cols,
                                keep_residuals=False)
 
     all_cand = [[i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
@@ -984,7 +994,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                          tol=tol_rank, roles=[prob.roles[i] for i in stage_cand])
         est = sorted(names.index(n) for n in report.identifiable)
         last = solve(est, start, label, at_start)
-        end_c = ended(last, [*est, *after])
+        end_c = ended(last, est, [*est, *after])
         total_it += last.iterations
         # The base set was chosen at the stage's start; check it where the stage ended
         # and, if it fails there, solve the stage again from its start with a smaller
@@ -1009,7 +1019,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                                 f"again from its start with {len(kept)} parameters")
                 report = _drop_from_report(report, check, lost)
                 est, last = kept, again
-                end_c = ended(last, [*est, *after])
+                end_c = ended(last, est, [*est, *after])
                 total_it += again.iterations
                 reselected = accepted = True
                 break
@@ -1033,7 +1043,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                 break
             scale[0] = new
             last = solve(est, theta, label, end_c)
-            theta, end_c = last.theta, ended(last, est)
+            theta, end_c = last.theta, ended(last, est, est)
             total_it += last.iterations
             converged = earlier_ok and last.converged
             messages[-1] = last.message
