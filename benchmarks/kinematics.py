@@ -248,7 +248,7 @@ def report(rows: list[Row], agree: list[tuple[str, float]], have_rtb: bool,
                   f"{r.cpu_per_config * r.n * 1e3:,.2f} ms{star}", cpu_ratio)
     console.print(t)
     if any(r.timed_on < r.n for r in rows):
-        cap = min(r.timed_on for r in rows)
+        cap = min(r.timed_on for r in rows if r.timed_on < r.n)
         console.print(f"* looped peer timed on the first {cap:,} configurations, time scaled to N")
     console.print("Wall time is what a user waits; CPU time (process time) leaves out the time "
                   "the process was descheduled, which matters on a busy machine.")
