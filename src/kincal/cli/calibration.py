@@ -195,6 +195,10 @@ def calibrate_cmd(
         "it. none (default): fit the model as given.")] = "none",
     folds: Annotated[int, typer.Option("--folds", min=2, help="K of --select auto "
                                        "(permutation seed 0).")] = 10,
+    shared_marker: Annotated[bool, typer.Option(
+        "--shared-marker", help="The --data (and --validate) files see one physical tool "
+        "point (the same reflector, the same ball): estimate it once, as the robot's tool "
+        "origin (tool.x/y/z), instead of one marker or probe per file.")] = False,
     scheduler: SchedulerOpt = None, workers: WorkersOpt = None,
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     validation_frames: Annotated[str, typer.Option(
@@ -282,8 +286,11 @@ def calibrate_cmd(
                         condition_growth=condition_growth, cycles=cycles,
                         tolerance=tolerance, prior=prior, cross_validate=cross_validate,
                         progress=bar, select=select, folds=folds, masses=masses,
-                        joint_models=models, mapper=bar.mapper_on(eng))
+                        joint_models=models, mapper=bar.mapper_on(eng),
+                        shared_marker=shared_marker)
     res = flow.result
+    for n in flow.notes:
+        out.print(f"[dim]{escape(n)}[/dim]")
     if flow.selection is not None:
         terms = flow.selection.choice.terms if flow.selection.choice else ()
         print_selection(out, flow.selection)

@@ -146,6 +146,8 @@ def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE
     for n in result.estimated:
         i = names.index(n)
         change = float(result.theta[i] - result.theta0[i])
+        if result.problem.roles[i] == "offset" and units[i] == "rad":
+            change = math.remainder(change, 2 * math.pi)     # c and c + 2 pi k: one robot
         std = float(result.std[i])
         tol = tolerances.get(n)
         if tol is not None and abs(change) > bound * tol:

@@ -125,7 +125,7 @@ from numpy.typing import NDArray
 from scipy.special import gammaincinv
 
 from kincal.errors import IdentifiabilityError, KincalError
-from kincal.identify.identifiability import IdentifiabilityReport, analyze
+from kincal.identify.identifiability import IdentifiabilityReport, analyze, default_priority
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
 from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
 from kincal.robots.chain import Robot
@@ -871,7 +871,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
               trust_sigma: bool = False, tol_rank: float | None = None,
               initial: dict[str, float] | None = None,
               prior: Mapping[str, float] | None = None,
-              noise_scale: float | None = None) -> CalibrationResult:
+              noise_scale: float | None = None,
+              prefer: Sequence[str] | str = ()) -> CalibrationResult:
     """Calibrate ``robot`` from measurement ``blocks``.
 
     Args:
@@ -899,6 +900,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         noise_scale: with a prior, the factor ``sigma0`` of the stated measurement
             sigmas used to weigh it; None (default) estimates it (module docstring,
             "Prior"), 1 under ``trust_sigma``.
+        prefer: names / patterns kept first when the base set is chosen (before every
+            role's default priority): of a dependent group, these are estimated and the
+            others held, e.g. a shared tool point as ``tool.x/y/z`` rather than the last
+            link's lengths, which carry a prior.
 
     Returns:
         A :class:`CalibrationResult`.  Parameters that cannot be identified are never
@@ -933,6 +938,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             theta0[prob.index(k)] = float(v)
     names = prob.names
     cand = list(range(len(names))) if free is None else match_names(names, free)
+    preferred = set(match_names(names, prefer)) if prefer else set()
     fixed_idx = set(match_names(names, fixed)) if fixed else set()
     cand = [i for i in cand if i not in fixed_idx]
     specs: list[str | Sequence[str]] = list(stages) if stages else ["all"]
@@ -990,8 +996,11 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             at_start = prob.compressed(start, w0, stage_cand, keep_residuals=False)
         else:
             at_start = _columns(end_c, stage_cand)
+        cand_roles = [prob.roles[i] for i in stage_cand]
+        priority = default_priority([names[i] for i in stage_cand], cand_roles)
+        priority[[k for k, i in enumerate(stage_cand) if i in preferred]] = -1
         report = analyze(at_start.R, [names[i] for i in stage_cand],
-                         tol=tol_rank, roles=[prob.roles[i] for i in stage_cand])
+                         tol=tol_rank, roles=cand_roles, priority=priority)
         est = sorted(names.index(n) for n in report.identifiable)
         last = solve(est, start, label, at_start)
         end_c = ended(last, est, [*est, *after])

@@ -92,6 +92,7 @@ def _calibration_keys() -> dict[str, Key]:
         "select": Key("choice", "choose the joint model and prior scale by cross-validation "
                                 "on the training files", ("auto", "none")),
         "folds": Key("int", "folds of select: auto"),
+        "shared_marker": Key("bool", "the data files see one tool point: estimate it once"),
         "validation_frames": Key("choice", "instrument frames on held-out files",
                                  ("auto", "training", "register")),
         "condition_growth": Key("float", "patent: data selection factor"),

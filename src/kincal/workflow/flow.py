@@ -121,7 +121,8 @@ def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixe
     return calibrate(robot, blocks, free=free_names, fixed=fixed, method=options["method"],
                      stages=options.get("stages"), loss=options["loss"],
                      loss_scale=options["loss_scale"], max_iter=options.get("max_iter") or 100,
-                     progress=progress, prior=options.get("prior") or None)
+                     progress=progress, prior=options.get("prior") or None,
+                     prefer=options.get("prefer") or ())
 
 
 def _with_origin(kept: Sequence[Any], original: Sequence[Any]) -> list[Any]:
@@ -147,7 +148,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              progress: Callable[[Any], Any] | None = None, select: str | None = None,
              folds: int = 10, masses: Sequence[Any] | None = None,
              joint_models: Sequence[Sequence[str]] | None = None,
-             mapper: Callable[..., Any] = map) -> FlowResult:
+             mapper: Callable[..., Any] = map, shared_marker: bool = False) -> FlowResult:
     """Calibrate, then compute the errors before/after on the training and held-out data.
 
     Args:
@@ -187,6 +188,9 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             compliance candidates; ``joint_models`` restricts the joint models tried; a
             ``--prior`` with ``none`` or ``scale=K`` pins the prior scale.
         folds: K of ``select`` (default 10).
+        shared_marker: the training (and held-out) files see one physical tool point:
+            it becomes the robot's tool origin, one set of parameters
+            (:func:`~kincal.workflow.shared.share_tool_point`).
         mapper: runs the selection's and the cross-validation's fold tasks
             (:func:`~kincal.identify.selection.run_fold`): the builtin ``map``, an
             executor's ``map`` or a Dask client's ``map``.
@@ -224,11 +228,19 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                               f"{cross_validate})")
     if select not in (None, "none", "auto"):
         raise KincalError(f"option --select: {select!r} is not auto or none")
+    notes: list[str] = []
+    if shared_marker:
+        from kincal.workflow.shared import share_tool_point
+
+        robot, blocks, holdouts, note = share_tool_point(robot, blocks, list(holdouts))
+        notes.append(note)
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
     tols = tolerances_of(robot, prob, prior)
+    prefer = [f"tool.{c}" for c in "xyz"] if shared_marker else []
     solver_options = {"free": free_names, "fixed": fixed, "method": method, "stages": stages,
-                      "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100}
+                      "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100,
+                      "prefer": prefer}
     selection = None
     warnings: list[str] = []
     if select == "auto":
@@ -240,7 +252,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     prior_s = tols.prior() if procedure == "lm" else {}
     options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
                "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
-               "tolerance": tolerance, "prior": prior_s}
+               "tolerance": tolerance, "prior": prior_s, "prefer": prefer}
     t0 = time.perf_counter()
     res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
     seconds = time.perf_counter() - t0
@@ -285,7 +297,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=judge(res, tols.sigma),
                       weak=weak_parameters(res), selection=selection, accuracy=accuracy,
-                      heldout=heldout)
+                      heldout=heldout, notes=notes)
 
 
 def _accuracy(res: Any, cv: Mapping[str, Any] | None) -> Any:

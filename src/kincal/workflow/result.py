@@ -47,6 +47,7 @@ class FlowResult:
         accuracy: the calibration's predicted accuracy
             (:class:`~kincal.identify.accuracy.AccuracyModel`).
         heldout: one :class:`~kincal.workflow.heldout.HeldOutFile` per held-out block.
+        notes: sentences on what the run did (e.g. a shared tool point).
     """
 
     result: Any
@@ -64,6 +65,7 @@ class FlowResult:
     selection: Any = None
     accuracy: Any = None
     heldout: list[Any] = dataclasses.field(default_factory=list)
+    notes: list[str] = dataclasses.field(default_factory=list)
 
     @property
     def trusted(self) -> bool:
