@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 from kincal.errors import KincalError
 
-__all__ = ["UNITS", "DIMENSIONS", "units_of", "factor", "to_si", "from_si", "unit_list",
+__all__ = ["UNITS", "DIMENSIONS", "MAX_SI", "units_of", "factor", "to_si", "from_si", "unit_list",
            "split_value", "parse_quantity", "parse_quantities"]
 
 #: Every unit kincal reads or writes: ``{suffix: (dimension, factor to SI)}``.
@@ -50,6 +50,10 @@ UNITS: dict[str, tuple[str, float]] = {
 #: The SI unit of each dimension (what kincal computes in).
 DIMENSIONS: dict[str, str] = {"length": "m", "angle": "rad", "time": "s", "pixel": "px",
                               "dimensionless": "1"}
+
+#: Largest magnitude of a value in SI (m, rad, s, px): beyond it a number is a typo or a
+#: unit error (1000 km, 160 000 turns), and it would overflow the linear algebra.
+MAX_SI = 1e6
 
 #: Spellings people type, read as the unit on the right.
 _ALIASES = {"µm": "um", "μm": "um", "°": "deg", "degree": "deg", "degrees": "deg",
@@ -148,6 +152,9 @@ def parse_quantity(text: str, dimension: str | Sequence[str], option: str, *,
         raise KincalError(f"option {option}: {text.strip()!r} is {_a(dim)}; {option} takes "
                           f"{_dims_text(dims)}")
     value = number * f
+    if abs(value) > MAX_SI:
+        raise KincalError(f"option {option}: {text.strip()} is out of any robot's range (more "
+                          f"than {MAX_SI:g} {DIMENSIONS[dim]})")
     if positive and not value > 0:
         raise KincalError(f"option {option}: must be > 0 (got {text.strip()})")
     if minimum is not None and value < minimum:

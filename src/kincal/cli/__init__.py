@@ -45,11 +45,42 @@ def _one_command(argv: list[str]) -> typer.Typer:
     return app
 
 
+def _click_exceptions() -> tuple[type, type]:
+    """(ClickException, Abort) of the click that typer uses (vendored since typer 0.26)."""
+    try:
+        from typer._click.exceptions import ClickException
+    except ImportError:                                  # typer < 0.26: click itself
+        from click.exceptions import ClickException  # type: ignore[no-redef]
+    return ClickException, typer.Abort
+
+
+def _run(argv: list[str]) -> int:
+    """Run the command line; a usage error (an unknown option, a value out of range) is
+    one line too, naming the command whose --help explains it."""
+    click_error, abort = _click_exceptions()
+    command = typer.main.get_command(_one_command(argv))
+    try:
+        rv = command.main(args=argv, prog_name="kincal", standalone_mode=False)
+    except click_error as exc:
+        ctx = getattr(exc, "ctx", None)
+        if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:
+            print(ctx.get_help())
+            return 0
+        where = ctx.command_path if ctx is not None else "kincal"
+        message = " ".join(exc.format_message().split())
+        print(f"error: {message} (see `{where} --help`)", file=sys.stderr)
+        return exc.exit_code if exc.exit_code else 2
+    except abort:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    return rv if isinstance(rv, int) else 0
+
+
 def main() -> None:
     """Entry point of the ``kincal`` console script: one line on stderr and exit code 2
     for bad input (1 for a result that failed its checks), never a traceback."""
     try:
-        _one_command(sys.argv[1:])(prog_name="kincal")
+        code = _run(sys.argv[1:])
     except KincalError as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(exc.exit_code)
@@ -67,3 +98,5 @@ def main() -> None:
               f"{str(exc).splitlines()[0] if str(exc) else 'no message'}); please report it "
               "with the command line (KINCAL_DEBUG=1 shows the traceback)", file=sys.stderr)
         sys.exit(3)
+    if code:
+        sys.exit(code)

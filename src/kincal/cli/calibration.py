@@ -261,9 +261,15 @@ def calibrate_cmd(
                        prior=prior)
     train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
                                      instrument=instrument, options=option)
+    if urdf is None and output and r.meta.get("convention") == "urdf":
+        urdf = str(Path(output).with_suffix(".urdf"))
+        if Path(robot).is_file() and Path(urdf).resolve() == Path(robot).resolve():
+            urdf = str(Path(output).with_name(Path(output).stem + "_calibrated.urdf"))
     check_outputs({"-o": output, "--urdf": urdf, "--json": json_out, "--report": report},
                   {"--data": [s.path for s in train_src],
-                   "--validate": [s.path for s in held_src]})
+                   "--validate": [s.path for s in held_src],
+                   "ROBOT": [robot] if Path(robot).is_file() else [],
+                   "--truth": [truth] if truth else [], "--config": [config] if config else []})
     auto = select == "auto"
     if select not in ("auto", "none"):
         raise KincalError(f"option --select: {select!r} is not auto or none")
@@ -276,8 +282,6 @@ def calibrate_cmd(
         models = [parse_joint_model(joint_model)] if joint_model else None
         masses = available_masses(robot, base_link, tip_link)
     truth_vals = truth_values(truth) if truth else None
-    if urdf is None and output and r.meta.get("convention") == "urdf":
-        urdf = str(Path(output).with_suffix(".urdf"))
     bar_total = max_iter or (20 if procedure == "patent" else 100)
     with Progress(bar_total, json_out != "-") as bar, fold_engine(scheduler, workers) as eng:
         flow = run_flow(r, blocks, holdouts, free=free, fix=fix, stages=parse_stages(stages),

@@ -165,7 +165,7 @@ class Progress:
         self.progress = RichProgress(TextColumn("[bold]{task.description}"), BarColumn(),
                                      TextColumn("{task.fields[info]}"), TimeElapsedColumn(),
                                      console=err_console, transient=True,
-                                     disable=not enabled)
+                                     disable=not enabled or not err_console.is_terminal)
         self.task: Any = None
         self.stage: Any = None
 

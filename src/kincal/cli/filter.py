@@ -101,6 +101,9 @@ def filter_cmd(
             raise KincalError(f"cannot read the result JSON ({exc})", source=result) from None
         accuracy = accuracy_from_document(doc, cal, result)
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
+    if not res.reports:
+        raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
+                          "written)", source=program)
     targets = _outputs(program, output, res.texts)
     for f, o in targets.items():
         atomic_write_bytes(o, res.texts[f].encode("latin-1"))

@@ -143,7 +143,8 @@ class _Bar:
         self.progress = Progress(TextColumn("[bold]calibrating"), BarColumn(),
                                  MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
                                  TimeElapsedColumn(), TimeRemainingColumn(),
-                                 console=err_console, transient=True, disable=not enabled)
+                                 console=err_console, transient=True,
+                                 disable=not enabled or not err_console.is_terminal)
         self.task: Any = None
         self.failed = 0
 
@@ -205,7 +206,7 @@ def simulate_cmd(
                                        "YYYY-MM-DD.")] = "2026-01-05",
     interval: Annotated[int, typer.Option("--interval", min=1, help="Days between "
                                           "sessions.")] = 91,
-    seed: Annotated[int, typer.Option("--seed", help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Random seed.")] = 0,
     json_out: JsonOpt = None,
 ) -> None:
     """Write a simulated fleet of ROBOT: each robot with its own errors, measured by a

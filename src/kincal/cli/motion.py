@@ -384,7 +384,8 @@ def clik_command(
     quiet = json_out == "-"
     with Progress(TextColumn("{task.description}"), BarColumn(),
                   TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(),
-                  console=err_console, disable=quiet, transient=True) as bar:
+                  console=err_console, disable=quiet or not err_console.is_terminal,
+                  transient=True) as bar:
         for m in methods:
             task = bar.add_task(f"CLIK {m}", total=1.0)
             res = clik(r, motion, q0, step, g if g.size == 3 else float(g[0]), m,  # type: ignore[arg-type]

@@ -24,8 +24,8 @@ SiOpt = Annotated[bool, typer.Option("--si", help="Print lengths in m and angles
 DegOpt = Annotated[bool, typer.Option("--deg", help="Revolute joint values in degrees, in "
                                       "what is read and what is printed (default: rad; "
                                       "prismatic joints stay in m).")]
-SeedOpt = Annotated[int, typer.Option("--seed", help="Seed of every random draw: the same "
-                                      "command gives the same numbers.")]
+SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of every random draw: the "
+                                      "same command gives the same numbers.")]
 
 
 def quantity(text: str | None, dimension: str | tuple[str, ...], option: str, *,

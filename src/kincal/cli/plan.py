@@ -273,7 +273,8 @@ class _Bar:
 
         self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(),
                                  TextColumn("{task.completed}/{task.total}"),
-                                 TimeElapsedColumn(), console=err_console, transient=True)
+                                 TimeElapsedColumn(), console=err_console, transient=True,
+                                 disable=not err_console.is_terminal)
         self.task: Any = None
         self.phase: str | None = None
 

@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text
 from kincal.robots.hold import held_joints
-from kincal.units import UNITS
+from kincal.units import DIMENSIONS, MAX_SI, UNITS
 
 Array = NDArray[np.float64]
 
@@ -468,6 +468,13 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
                    "number", line=int(linenos[i]))
     scale = np.array([UNITS[u][1] for _, _, u, _ in used])
     arr = arr * scale
+    big = np.abs(arr) > MAX_SI
+    if big.any():
+        i, k = np.argwhere(big)[0]
+        c = idx[k]
+        raise fail(f"column {c + 1} ({names[c]}): {cells[i][k].strip()} is out of any "
+                   f"robot's range (more than {MAX_SI:g} {DIMENSIONS[UNITS[used[k][2]][0]]})",
+                   line=int(linenos[i]))
     pos = {b: k for k, (_, b, _, _) in enumerate(used)}
     q = (np.stack([arr[:, pos[j]] for j in jnames], axis=1) if jnames
          else np.zeros((len(rows), 0)))
@@ -533,6 +540,9 @@ def _unexpected(base: str, jnames: Sequence[str], lower_j: Mapping[str, str],
         near = f" (closest joint: {close[0]})" if close else ""
         return (f"looks like a joint column, but the robot has no joint {base!r}{near}; "
                 f"its joints are {', '.join(jnames) or 'none'} (or list it in --ignore)")
+    if not fields:
+        return ("looks like a measurement, but this file holds joint values only; list it "
+                "in --ignore to drop it")
     expected = "; ".join(f.description or f.pattern for f in fields)
     return (f"looks like a measurement, but this instrument reads only: {expected}; list it "
             "in --ignore to drop it")

@@ -172,10 +172,19 @@ def polyval(c: Array, t: ArrayLike) -> tuple[Array, Array, Array]:
     return p, v, a
 
 
+#: Most samples of one trajectory (10 million: 1 h at 1 kHz, a few hundred MB).
+MAX_SAMPLES = 10_000_000
+
+
 def sample_times(duration: float, dt: float) -> Array:
     """``0, dt, 2 dt, ...`` up to and including ``duration`` [s]."""
     if not (dt > 0):
         raise KincalError(f"the time step must be positive, got {dt}")
+    if not math.isfinite(duration) or duration < 0:
+        raise KincalError(f"the duration must be finite and >= 0, got {duration}")
+    if duration / dt > MAX_SAMPLES:
+        raise KincalError(f"{duration:g} s at {dt:g} s steps are {duration / dt:.3g} samples, "
+                          f"more than {MAX_SAMPLES:,}: take a longer time step")
     n = int(math.floor(duration / dt + 1e-9))
     t = np.arange(n + 1) * dt
     if duration - t[-1] > 1e-9 * max(dt, 1.0):

@@ -94,7 +94,13 @@ def read_fivebar_csv(path: str | Path) -> FiveBarMeasurements:
     path = Path(path)
     name = path.name
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise MeasurementFileError(f"not a UTF-8 text file (byte {exc.start})",
+                                   source=str(path)) from None
+    except IsADirectoryError:
+        raise MeasurementFileError("is a folder, not a measurement file", source=str(path)) \
+            from None
     except OSError as exc:
         raise MeasurementFileError(f"cannot read: {exc.strerror}", source=str(path)) from None
     numbered = [

@@ -92,9 +92,15 @@ class ProgramTarget:
 def read_program_text(path: str | os.PathLike[str]) -> str:
     """The file's bytes as Latin-1 text (one character per byte, nothing translated)."""
     try:
-        return Path(path).read_bytes().decode("latin-1")
+        data = Path(path).read_bytes()
+    except IsADirectoryError:
+        raise ProgramError("is a folder, not a program", source=str(path)) from None
     except OSError as exc:
         raise ProgramError(f"cannot read: {exc.strerror}", source=str(path)) from None
+    if b"\x00" in data:
+        line = data[:data.index(b"\x00")].count(b"\n") + 1
+        raise ProgramError(f"line {line}: a NUL byte: not a text program", source=str(path))
+    return data.decode("latin-1")
 
 
 @lru_cache(maxsize=8)

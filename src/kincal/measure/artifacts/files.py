@@ -64,7 +64,7 @@ from kincal.measure.files import (
     tag_quantities,
     tag_quantity,
 )
-from kincal.units import UNITS
+from kincal.units import MAX_SI, UNITS
 
 Array = NDArray[np.float64]
 
@@ -382,19 +382,34 @@ def read_socket_files(source: str | Path | Sequence[str | Path], angle_unit: str
             text = f.read_text(encoding="utf-8-sig")
         except FileNotFoundError:
             raise MeasurementFileError("no such socket file", source=str(f)) from None
-        rows = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+        except UnicodeDecodeError as exc:
+            raise MeasurementFileError(f"not a UTF-8 text file (byte {exc.start})",
+                                       source=str(f)) from None
+        except OSError as exc:
+            raise MeasurementFileError(f"cannot read: {exc.strerror or exc}", source=str(f)) \
+                from None
+        rows = [(k + 1, ln) for k, ln in enumerate(text.splitlines())
+                if ln.strip() and not ln.lstrip().startswith("#")]
         if not rows:
             raise MeasurementFileError("line 1: no data", source=str(f))
-        try:
-            q = np.array([[float(v) for v in r.split(",")] for r in rows])
-        except ValueError:
-            bad = next(i for i, r in enumerate(rows)
-                       if not all(_is_float(v) for v in r.split(",")))
-            raise MeasurementFileError(f"line {bad + 1}: not comma-separated numbers",
-                                       source=str(f)) from None
-        if q.ndim != 2 or not np.all(np.isfinite(q)):
-            raise MeasurementFileError("rows differ in length or hold non-finite values",
-                                       source=str(f))
+        values = []
+        for line, row in rows:
+            cells = [c.strip() for c in row.split(",")]
+            try:
+                v = [float(c) for c in cells]
+            except ValueError:
+                bad = next(c for c in cells if not _is_float(c))
+                raise MeasurementFileError(f"line {line}: {bad!r} is not a number (joint "
+                                           "values, comma separated)", source=str(f)) from None
+            if values and len(v) != len(values[0]):
+                raise MeasurementFileError(f"line {line}: {len(v)} values, the rows before "
+                                           f"have {len(values[0])}", source=str(f))
+            if not all(np.isfinite(v)) or max(abs(x) for x in v) * UNITS[angle_unit][1] > \
+                    MAX_SI:
+                raise MeasurementFileError(f"line {line}: a value is not a finite joint "
+                                           "value", source=str(f))
+            values.append(v)
+        q = np.array(values)
         if width is not None and q.shape[1] != width:
             raise MeasurementFileError(f"{q.shape[1]} joint values per row; the other files "
                                        f"have {width}", source=str(f))
