@@ -358,7 +358,8 @@ def test_option_values(tmp_path_factory, value, which):
          "--noise", value],
         ["calibrate", "puma560", "--data", out, "--prior", value],
         ["calibrate", "puma560", "--data", out, "--hold", f"q6={value}"],
-        ["fk", "puma560", "--q", "0,0,0,0,0,0", "--si", "--json", value or "-"],
+        ["fk", "puma560", "--q", "0,0,0,0,0,0", "--si", "--json",
+         str(d / ("j" + value.replace("/", "_").replace(os.sep, "_")))],   # stays in tmp
     ][which]
     if which in (9, 10):
         assert invoke("simulate", "puma560", "-o", out, "-n", "12", "--seed", "3") == 0
