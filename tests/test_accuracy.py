@@ -2,9 +2,11 @@
 
 A simulated PUMA 560 is measured in a small box of its joint space (each joint over the
 middle 25 % of its range) and its calibrated model is used inside the box and all
-over the workspace.  Over many simulated calibrations the RMS error of the predicted
-measured point (calibrated model vs the true robot, base frame) must match the
-predicted ``sqrt(trace(G C G^T))`` within 15 %, inside and outside the training region:
+over the workspace.  Over many simulated calibrations the RMS error of the prediction
+must match the predicted ``sqrt(trace(G C G^T))`` within 15 %, inside and outside the
+training region, for both things kincal predicts: what the tracker would measure
+(calibrated robot, frame and marker against the true ones: the default) and a TCP in
+the robot's base frame (``point=``, the robot parameters alone):
 
 * least squares: one true robot, new noise each time (the covariance is the estimator's);
 * MAP (the default): the true robot drawn from the prior (the tolerances) each time,
@@ -66,8 +68,9 @@ def monte_carlo(setup, prior: bool):
     rng = np.random.default_rng(7 if prior else 8)
     base = nominal.params()
     fixed_truth = {n: base[n] + rng.normal() * tol.sigma[n] for n in robot_est}
-    err = {"in": [], "out": []}
-    var = {"in": [], "out": []}
+    err = {k: [] for k in ("in", "out", "tcp in", "tcp out")}
+    var = {k: [] for k in err}
+    tcp = np.array([0.0, 0.02, 0.15])
     for _ in range(REPS):
         truth = {n: base[n] + rng.normal() * tol.sigma[n] for n in robot_est} if prior \
             else fixed_truth
@@ -76,13 +79,16 @@ def monte_carlo(setup, prior: bool):
         res = calibrate(nominal, [data], prior=tol.prior() if prior else None)
         assert res.converged and set(res.estimated) >= set(robot_est)
         model = accuracy_model(res)
-        m_true = MARKER[0]
         for key, q in (("in", q_in), ("out", q_out)):
             p = predict(model, res.robot, q)
-            T = true.fk(q)
-            P_true = T[:, :3, 3] + T[:, :3, :3] @ m_true
-            err[key].append(np.sum((p.position_m - P_true) ** 2, axis=1))
+            y_true = simulate_positions(true, q, rng, 0.0, INSTRUMENT, MARKER).positions
+            err[key].append(np.sum((p.position_m - y_true) ** 2, axis=1))
             var[key].append(p.std_position_m**2)
+            t = predict(model, res.robot, q, point=tcp)
+            T = true.fk(q)
+            P_true = T[:, :3, 3] + T[:, :3, :3] @ tcp
+            err[f"tcp {key}"].append(np.sum((t.position_m - P_true) ** 2, axis=1))
+            var[f"tcp {key}"].append(t.std_position_m**2)
     return ({k: math.sqrt(np.mean(v)) for k, v in err.items()},
             {k: math.sqrt(np.mean(v)) for k, v in var.items()}, model)
 
@@ -90,14 +96,14 @@ def monte_carlo(setup, prior: bool):
 @pytest.mark.parametrize("prior", [False, True], ids=["least squares", "MAP"])
 def test_predicted_std_matches_monte_carlo_inside_and_outside(setup, prior):
     actual, predicted, model = monte_carlo(setup, prior)
-    print(f"\n{'MAP' if prior else 'least squares'}: RMS error of the measured point over "
-          f"{REPS} calibrations, inside / outside the training box: "
-          f"{actual['in'] * 1e3:.4f} / {actual['out'] * 1e3:.4f} mm; predicted "
-          f"{predicted['in'] * 1e3:.4f} / {predicted['out'] * 1e3:.4f} mm")
-    for key in ("in", "out"):
+    print(f"\n{'MAP' if prior else 'least squares'}, {REPS} calibrations, RMS error [mm] "
+          "actual / predicted: " + ", ".join(f"{k} {actual[k] * 1e3:.4f} / "
+                                             f"{predicted[k] * 1e3:.4f}" for k in actual))
+    for key in actual:
         assert predicted[key] == pytest.approx(actual[key], rel=0.15), key
     # extrapolation is where the model is worse, and the prediction says so
     assert predicted["out"] > 2 * predicted["in"]
+    assert predicted["tcp out"] > 2 * predicted["tcp in"]
 
 
 def test_region_flags_floor_and_the_json_round_trip(setup):

@@ -292,11 +292,11 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
             pm = f.prediction_metrics()
             for sentence in f.prediction.summary():
                 out.print(f"  {escape(sentence)}")
-            if pm is not None and pm["outside_n"]:
-                out.print(f"  measured RMS inside {scaled(pm['measured_rms_inside_m'], 1e3)} "
-                          f"mm (predicted {scaled(pm['predicted_rms_inside_m'], 1e3)}), "
-                          f"outside {scaled(pm['measured_rms_outside_m'], 1e3)} mm "
-                          f"(predicted {scaled(pm['predicted_rms_outside_m'], 1e3)})")
+            if pm is not None:
+                parts = [f"{where} {scaled(pm[f'measured_rms_{where}_m'], 1e3)} mm (predicted "
+                         f"{scaled(pm[f'predicted_rms_{where}_m'], 1e3)})"
+                         for where in ("inside", "outside") if pm[f"{where}_n"]]
+                out.print("  measured RMS " + ", ".join(parts))
         if f.artifact is not None:
             _print_artifact(out, f)
 

@@ -9,12 +9,18 @@ deviation of its error, ``sqrt(trace Cov(p))`` [m] (the RMS length of the 3-D er
 result JSON (``accuracy_model``) so that ``validate``, ``compensate`` and ``filter`` can
 use it later; :func:`predict` evaluates it at any configurations:
 
-* the **measured point** ``P(q) = p_e(q) + R_e(q) m`` (``m`` the marker / probe / target
-  in the flange frame, or a given TCP): position rows ``G = [J_v - [R m]x J_w | R]`` over
-  the estimated robot parameters and ``m``'s estimated coordinates; the covariance is
-  the calibration's, marginal over those (the instrument frame is a nuisance of the
-  training session).  ``std_position = sqrt(trace(G C G^T))`` [m]; the orientation's
-  ``sqrt(trace(J_w C J_w^T))`` [rad] over the robot parameters;
+* **what the training instrument would measure** (default, when the calibration had a
+  position block): ``y(q) = R_I^T (p_e(q) + R_e(q) m - t_I)`` with the estimated frame
+  ``(R_I, t_I)`` and first marker ``m``; ``G = dy/dtheta`` over the estimated robot,
+  frame and marker parameters (the block's own analytic Jacobian), ``C`` their
+  covariance, ``std_position = sqrt(trace(G C G^T))`` [m].  In the robot's base frame a
+  marker that the data tie only to the instrument frame is uncertain by centimetres
+  (Motoman: the hand barely turns), while what the instrument sees is known to microns:
+  the instrument's view is the one held-out measurements check;
+* a **TCP** ``P(q) = p_e(q) + R_e(q) m`` in the base frame (``point=`` given; without an
+  instrument, the marker / probe / target): ``G = [J_v - [R m]x J_w | R]`` over the
+  estimated robot parameters (and ``m``'s estimated coordinates), marginal covariance;
+  the orientation's ``sqrt(trace(J_w C J_w^T))`` [rad] over the robot parameters;
 * the **floor**: what no parameter explains (noise, unmodelled effects), from the
   cross-validation residuals of ``--select auto`` / ``--cross-validate``,
   ``floor^2 = max(0, CV_RMS^2 - mean_i std_i^2)`` over the training configurations;
@@ -24,9 +30,12 @@ use it later; :func:`predict` evaluates it at any configurations:
 * the **training region**: the joint ranges of the training data and the convex hull of
   the measured point's training positions; outside it the model extrapolates
   (``outside_joint_ranges``, ``outside_hull``);
-* against the **nominal model**: the calibration's correction ``d = P_cal(q) - P_nom(q)``
-  estimates the nominal model's error, ``E|d_hat|^2 = |d|^2 + std^2``, so the nominal
-  model's predicted squared error is ``|d_hat|^2 - std^2`` (+ floor) and the calibrated
+* against the **nominal model**: in the instrument's view, each robot with the
+  instrument registered to it (``d = y_cal(q) - y_nom(q)``, when the model has the
+  nominal registration), else at the TCP in the base frame (``d = P_cal(q) - P_nom(q)``,
+  robot parameters): the calibration's correction ``d`` estimates the nominal model's
+  error, ``E|d_hat|^2 = |d|^2 + std^2``, so the nominal model's predicted squared error
+  is ``|d_hat|^2 - std^2`` (+ floor) and the calibrated
   model is predicted *worse than nominal* where ``std^2 > |d_hat|^2 - std^2``, i.e.
   ``|d_hat| < sqrt(2) std``: the correction is no larger than its own uncertainty.
 
@@ -215,6 +224,12 @@ class AccuracyModel:
         floor_m: the unmodelled floor (RMS length of the 3-D error) [m].
         floor_source: ``"cross-validation"`` or ``"training residuals"``.
         region: the :class:`TrainingRegion`.
+        instrument: the training session's instrument, for predictions of what it would
+            measure: ``{"block": name, "values": its frame and marker (9) [m, rad],
+            "nine": their names, "parameters": the estimated robot and block parameters,
+            "covariance": over them, "nominal_values": the frame and marker registered to
+            the nominal robot (for the comparison with it)}``; None when the calibration
+            had no position block.
     """
 
     parameters: tuple[str, ...]
@@ -226,6 +241,7 @@ class AccuracyModel:
     floor_m: float = 0.0
     floor_source: str = "training residuals"
     region: TrainingRegion | None = None
+    instrument: Mapping[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The result JSON's ``accuracy_model`` (SI).  ``parameters`` / ``covariance`` /
@@ -242,6 +258,14 @@ class AccuracyModel:
                 "point_covariance": self.point_covariance.tolist(),
                 "cross_covariance": cross.tolist(), "floor_m": self.floor_m,
                 "floor_source": self.floor_source,
+                "instrument": None if self.instrument is None else {
+                    "block": self.instrument["block"],
+                    "values": list(map(float, self.instrument["values"])),
+                    "nine": list(self.instrument["nine"]),
+                    "nominal_values": None if self.instrument.get("nominal_values") is None
+                    else list(map(float, self.instrument["nominal_values"])),
+                    "parameters": list(self.instrument["parameters"]),
+                    "covariance": np.asarray(self.instrument["covariance"]).tolist()},
                 "note": "covariance of the estimated robot parameters and of the measured "
                         "point in the flange frame (m, rad); joint ranges (rad, m) and hull "
                         "(m, base frame) of the training data; floor: the unmodelled RMS "
@@ -264,7 +288,8 @@ class AccuracyModel:
                 tuple(doc.get("point_parameters", (None, None, None))),
                 np.asarray(doc.get("point_covariance", np.zeros((3, 3))), dtype=float),
                 None if cross is None else np.asarray(cross, dtype=float).reshape(-1, 3),
-                float(doc.get("floor_m", 0.0)), str(doc.get("floor_source", "")), region)
+                float(doc.get("floor_m", 0.0)), str(doc.get("floor_source", "")), region,
+                doc.get("instrument"))
         except (KeyError, TypeError, ValueError) as exc:
             raise KincalError(f"its accuracy_model is not readable ({exc.__class__.__name__}: "
                               f"{exc})", source=source) from None
@@ -273,6 +298,11 @@ class AccuracyModel:
         import dataclasses
 
         return dataclasses.replace(self, floor_m=float(floor_m), floor_source=source)
+
+    def with_region(self, region: TrainingRegion | None) -> AccuracyModel:
+        import dataclasses
+
+        return dataclasses.replace(self, region=region)
 
 
 @dataclass
@@ -425,13 +455,36 @@ def accuracy_model(result: CalibrationResult, point: ArrayLike | None = None) ->
     model = AccuracyModel(tuple(rob), C[np.ix_(ri, ri)] if ri else np.zeros((0, 0)), m,
                           tuple(names[i] if i is not None and pk[k] is not None else None
                                 for k, i in enumerate(idx)), Cpp, Crp,
-                          floor_from_training(result), "training residuals")
+                          floor_from_training(result), "training residuals",
+                          instrument=_instrument_of(result) if point is None else None)
     if len(q):
-        P = _points(robot, q, m)
-        model = AccuracyModel(model.parameters, model.covariance, m, model.point_parameters,
-                              Cpp, Crp, model.floor_m, model.floor_source,
-                              TrainingRegion.from_points(robot.joint_names, q, P))
+        model = model.with_region(TrainingRegion.from_points(robot.joint_names, q,
+                                                             _points(robot, q, m)))
     return model
+
+
+def _instrument_of(result: CalibrationResult) -> dict[str, Any] | None:
+    """The first position block's frame and first marker, and the covariance of the
+    estimated robot parameters with the estimated ones of those (:class:`AccuracyModel`)."""
+    names = list(result.names)
+    pos = {n: k for k, n in enumerate(result.estimated)}
+    for b in result.problem.blocks:
+        inner = b
+        while not isinstance(inner, PositionMeasurement) and hasattr(inner, "inner"):
+            inner = inner.inner
+        if not isinstance(inner, PositionMeasurement):
+            continue
+        spec = inner.parameters()
+        nine = list(spec.names[:9])                      # frame (6) and the first marker
+        if any(n not in names for n in nine):
+            continue
+        values = [float(result.theta[names.index(n)]) for n in nine]
+        est = [n for n in result.estimated if n in result.robot.param_names or n in nine]
+        k = [pos[n] for n in est]
+        C = np.asarray(result.covariance, dtype=float)[np.ix_(k, k)]
+        return {"block": inner.name, "values": values, "parameters": est, "covariance": C,
+                "nine": nine}
+    return None
 
 
 def _points(robot: Robot, q: Array, m: Array) -> Array:
@@ -479,6 +532,11 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         var = var + np.einsum("nij,jk,nik->n", R, Cpp, R) \
             + 2.0 * np.einsum("nip,pk,nik->n", G, Crp, R)
     std = np.sqrt(np.clip(var, 0.0, None))
+    std_tcp = std
+    y = None
+    inst = model.instrument
+    if not known and inst is not None:
+        std, y = _instrument_std(inst, robot, q)
     Jw = J[:, 3:, :]
     std_w = np.sqrt(np.clip(np.einsum("nip,pq,niq->n", Jw, C, Jw), 0.0, None))
     P = T[:, :3, 3] + a
@@ -486,11 +544,48 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
     reg = model.region
     out_j = reg.outside_joint_ranges(q) if reg is not None else np.zeros(len(q), bool)
     out_h = reg.outside_hull(P) if reg is not None else np.zeros(len(q), bool)
-    pred = Prediction(std, std_w, np.sqrt(std**2 + floor**2), out_j, out_h, P,
-                      worse_than_nominal=np.zeros(len(q), dtype=bool))
+    pred = Prediction(std, std_w, np.sqrt(std**2 + floor**2), out_j, out_h,
+                      P if y is None else y, worse_than_nominal=np.zeros(len(q), dtype=bool))
     if nominal is not None:
-        d = np.linalg.norm(_points(nominal, q, m) - P, axis=1)
+        if y is not None and inst is not None and inst.get("nominal_values") is not None:
+            # in the instrument's view: each robot with the instrument registered to it
+            y_nom = _instrument_view(inst, nominal, q, inst["nominal_values"])
+            d, s = np.linalg.norm(y - y_nom, axis=1), std
+        else:
+            d, s = np.linalg.norm(_points(nominal, q, m) - P, axis=1), std_tcp
         pred.correction_m = d
-        pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - std**2, 0.0, None) + floor**2)
-        pred.worse_than_nominal = d < math.sqrt(2.0) * std
+        pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - s**2, 0.0, None) + floor**2)
+        pred.worse_than_nominal = d < math.sqrt(2.0) * s
     return pred
+
+
+def _instrument_view(inst: Mapping[str, Any], robot: Robot, q: Array, values: Any) -> Array:
+    """What the instrument of ``inst`` sees of ``robot`` at ``q`` with its frame and marker
+    ``values`` (9): (N, 3) [m]."""
+    block = PositionMeasurement(q, np.zeros((len(q), 3)), 1.0, str(inst["block"]))
+    return block.evaluate(robot, np.asarray(values, dtype=float), jacobian=False)[0
+                                                                               ].reshape(-1, 3)
+
+
+def _instrument_std(inst: Mapping[str, Any], robot: Robot, q: Array) -> tuple[Array, Array]:
+    """The std of what the training instrument would measure at ``q`` [m], through the
+    robot, its frame and its marker (``inst``: :attr:`AccuracyModel.instrument`), and the
+    predicted observations (N, 3) in the instrument frame."""
+    name = str(inst["block"])
+    block = PositionMeasurement(q, np.zeros((len(q), 3)), 1.0, name)
+    values = np.asarray(inst["values"], dtype=float)
+    r, Jr, Je = block.evaluate(robot, values, jacobian=True)
+    nine = list(inst.get("nine") or block.parameters().names)
+    cols = []
+    for n in inst["parameters"]:
+        if n in nine:
+            cols.append(Je[:, nine.index(n)])
+        elif n in robot.param_names:
+            cols.append(Jr[:, robot.param_index(n)])
+        else:
+            raise KincalError(f"predicted accuracy: no parameter {n!r} in robot "
+                              f"{robot.name!r} or instrument {name!r}")
+    G = np.stack(cols, axis=1).reshape(len(q), 3, -1) if cols else np.zeros((len(q), 3, 0))
+    C = np.asarray(inst["covariance"], dtype=float)
+    var = np.einsum("nip,pq,niq->n", G, C, G)
+    return np.sqrt(np.clip(var, 0.0, None)), r.reshape(len(q), 3)

@@ -284,7 +284,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         merge_errors([errors_with(res.robot, b, after[b.name]) for b in train]),
         "before: nominal robot, instrument frames and markers fitted to it; after: "
         "calibrated robot and frames")]
-    accuracy = _accuracy(res, cv) if procedure == "lm" else None
+    accuracy = _accuracy(res, cv, before) if procedure == "lm" else None
     heldout: list[Any] = []
     if holdouts:
         comp, heldout = _holdout_comparison(robot, res.robot, train, list(holdouts), before,
@@ -300,15 +300,20 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                       heldout=heldout, notes=notes)
 
 
-def _accuracy(res: Any, cv: Mapping[str, Any] | None) -> Any:
-    """The calibration's :class:`~kincal.identify.accuracy.AccuracyModel`; its floor from
-    the cross-validated position RMS when cross-validation ran."""
+def _accuracy(res: Any, cv: Mapping[str, Any] | None,
+              before: Mapping[str, Array] | None = None) -> Any:
+    """The calibration's :class:`~kincal.identify.accuracy.AccuracyModel`, with the
+    instrument registered to the nominal robot (``before``); its floor from the
+    cross-validated position RMS when cross-validation ran."""
     from kincal.identify.accuracy import accuracy_model, floor_from_cross_validation
 
     try:
         model = accuracy_model(res)
     except (KincalError, ValueError, IndexError):
         return None
+    inst = model.instrument
+    if inst is not None and before and inst["block"] in before:
+        inst["nominal_values"] = [float(v) for v in np.asarray(before[inst["block"]])[:9]]
     rms = (cv or {}).get("rms_position_m")
     if rms is not None and model.region is not None:
         q = np.vstack([np.asarray(b.q, dtype=float) for b in res.problem.blocks])
