@@ -220,7 +220,22 @@ class Robot:
                 raise KincalError(f"robot {self.name!r} has {self.num_params} parameters, "
                                   f"got a vector of {arr.size}")
             new = arr
-        return replace(self, param_values=new)
+        return self._with_values(new)
+
+    def _with_values(self, values: Array) -> Robot:
+        """This robot with the parameter vector ``values``: the chain's shape, names and
+        checks carried over (only the numbers are new, so only they are checked)."""
+        vals = np.array(values, dtype=float).reshape(-1)
+        if vals.shape != self.param_values.shape:
+            raise ValueError("param_values has the wrong length")
+        if not np.all(np.isfinite(vals)):
+            bad = [n for n, v in zip(self.param_names, vals, strict=True) if not np.isfinite(v)]
+            raise KincalError(f"robot {self.name!r}: parameter {bad[0]} is not finite")
+        vals.setflags(write=False)
+        out = object.__new__(type(self))
+        out.__dict__.update({k: v for k, v in self.__dict__.items() if k != "_plan"})
+        object.__setattr__(out, "param_values", vals)
+        return out
 
     def with_name(self, name: str) -> Robot:
         return replace(self, name=name)
@@ -261,9 +276,14 @@ class Robot:
         return T
 
     @cached_property
+    def _structure(self) -> _Structure:
+        """The chain's shape, compiled (shared with the robots :meth:`with_params` makes)."""
+        return _Structure(self)
+
+    @cached_property
     def _plan(self) -> _Plan:
         """The chain compiled for batched evaluation (built on first use, per robot)."""
-        return _Plan(self)
+        return _Plan(self, self._structure)
 
     def fk(self, q: ArrayLike) -> Array:
         """Forward kinematics ``T(q) = E_1 ... E_K``: (N, n) -> (N, 4, 4); (n,) -> (4, 4)."""
@@ -433,13 +453,131 @@ def elementary_matrix(kind: str, v: float) -> Array:
     return T
 
 
-def _block_step(G: Array) -> tuple[str, Any]:
-    """How to apply the constant block ``G`` (4x4) to the running frame."""
-    if np.array_equal(G, np.eye(4)):
-        return "identity", None
-    if np.array_equal(G[:3, :3], np.eye(3)):
-        return "shift", [(i, float(G[i, 3])) for i in range(3) if G[i, 3] != 0.0]
-    return "matrix", np.ascontiguousarray(G.T)
+class _Structure:
+    """What a compiled chain (:class:`_Plan`) takes from the chain's *shape* alone.
+
+    Which transforms carry joints, which carry parameters, the parameter rows in chain
+    order grouped by the joint frame they follow, and the rows :meth:`_Plan.points`
+    needs per set of columns.  None of it depends on the parameter values, so a robot
+    made by :meth:`Robot.with_params` shares its parent's (a calibration compiles the
+    chain at every trial point; only the numbers are computed again).
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        ets = robot.ets
+        self.carriers = [k for k, et in enumerate(ets) if et.joint >= 0]
+        self.bounds = self.carriers + [len(ets)]
+        self.n, self.P = robot.n, robot.num_params
+        self.J = len(self.carriers)
+        cj = [ets[k] for k in self.carriers]
+        self.axes = np.array([_AXIS[et.kind] for et in cj], dtype=np.intp)
+        self.rot = np.array([et.is_rotation for et in cj], dtype=bool)
+        self.all_rot = bool(self.rot.all())
+        self.joint_of = np.array([et.joint for et in cj], dtype=np.intp)
+        self.scales = np.array([et.scale for et in cj], dtype=float)
+        self.negative = np.flatnonzero(self.scales != 1.0)
+        self.in_joint_order = bool(np.array_equal(self.joint_of, np.arange(self.J)))
+        self.same_axis = bool(self.J and np.all(self.axes == self.axes[0]))
+        # parameter rows: the transforms with a parameter, in chain order, with the frame
+        # they are measured from (-1: the constant prefix, m: joint m's frame)
+        first = self.bounds[0]
+        group = []
+        m = -1
+        for k, et in enumerate(ets):
+            if et.joint >= 0:
+                m += 1
+            if et.param >= 0:
+                group.append(-1 if k < first else m)
+        pk = [k for k, et in enumerate(ets) if et.param >= 0]
+        self.R = len(pk)
+        self.rows_rot = np.array([ets[k].is_rotation for k in pk], dtype=bool)
+        self.rows_tra = np.flatnonzero(~self.rows_rot)
+        self.row_param = np.array([ets[k].param for k in pk], dtype=np.intp)
+        self.rows_are_params = bool(np.array_equal(self.row_param, np.arange(self.P)))
+        self.rows_unique = len(set(self.row_param.tolist())) == self.R
+        g = np.array(group, dtype=np.intp)
+        self.pre = np.flatnonzero(g == -1)
+        self.groups: list[tuple[int, slice, NDArray[np.intp]]] = []
+        for j in range(self.J):
+            idx = np.flatnonzero(g == j)
+            if len(idx):
+                self.groups.append((j, slice(int(idx[0]), int(idx[-1]) + 1), idx))
+        self.rows_rot_idx = np.flatnonzero(self.rows_rot)
+        self.selections: dict[tuple[int, ...], dict[str, Any]] = {}
+        #: the attributes every plan of this shape carries
+        self.shared = {name: getattr(self, name) for name in (
+            "n", "P", "J", "axes", "rot", "all_rot", "joint_of", "scales", "negative",
+            "in_joint_order", "same_axis", "R", "rows_rot", "rows_tra", "row_param",
+            "rows_are_params", "rows_unique")}
+
+    def selection(self, columns: tuple[int, ...]) -> dict[str, Any]:
+        """The rows of the parameters ``columns`` (kept per column set): in chain order,
+        where each one's derivative goes, the constant-prefix rows, and per joint frame
+        the rows that follow it (see :meth:`_Plan.points`)."""
+        sel = self.selections.get(columns)
+        if sel is not None:
+            return sel
+        pos = {c: k for k, c in enumerate(columns)}
+        rows = [r for r in range(self.R) if int(self.row_param[r]) in pos]
+        dest = np.array([pos[int(self.row_param[r])] for r in rows], dtype=np.intp)
+        where = {r: k for k, r in enumerate(rows)}
+        pre = np.array([r for r in self.pre.tolist() if r in where], dtype=np.intp)
+        groups = []
+        for m, rs, _ in self.groups:
+            idx = np.array([r for r in range(rs.start, rs.stop) if r in where], dtype=np.intp)
+            if not idx.size:
+                continue
+            k0 = where[int(idx[0])]
+            groups.append((m, slice(k0, k0 + idx.size), idx))
+        sel = {"n": len(rows), "dest": dest,
+               "direct": bool(np.array_equal(dest, np.arange(len(columns)))),
+               "pre": pre, "groups": groups}
+        self.selections[columns] = sel
+        return sel
+
+
+def _constant_run(ets: Sequence[ElementaryTransform], value: list[float], start: int,
+                  stop: int, axes: list[list[float]], origins: list[list[float]]
+                  ) -> list[list[float]]:
+    """The product ``G`` of the constant transforms ``start .. stop - 1`` as three rows
+    of four floats (the last row of a homogeneous matrix is ``0 0 0 1``), appending the
+    axis and origin (homogeneous 4-vectors in the frame at ``start``) of each one that is
+    a parameter, at the point where it acts.
+
+    Plain floats: a rotation mixes two columns of ``G``, a translation adds a column to
+    its origin, the arithmetic of :meth:`_Plan._sweep` on a single frame (compiling a
+    chain is then a few microseconds per transform, not a 4x4 product each).
+    """
+    G = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]
+    for k in range(start, stop):
+        et = ets[k]
+        ax = _AXIS[et.kind]
+        if et.param >= 0:
+            axes.append([G[0][ax], G[1][ax], G[2][ax], 0.0])
+            origins.append([G[0][3], G[1][3], G[2][3], 1.0])
+        v = value[k]
+        if et.kind in ROTATIONS:
+            c, s = math.cos(v), math.sin(v)
+            i, j = (ax + 1) % 3, (ax + 2) % 3
+            for row in G:
+                a, b = row[i], row[j]
+                row[i] = c * a + s * b
+                row[j] = c * b - s * a
+        else:
+            for row in G:
+                row[3] += v * row[ax]
+    return G
+
+
+def _block_step(G: list[list[float]]) -> tuple[str, Any]:
+    """How to apply the constant block ``G`` (three rows of a 4x4) to the running frame."""
+    rot = [row[:3] for row in G]
+    shift = [row[3] for row in G]
+    if rot == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]:
+        if shift == [0.0, 0.0, 0.0]:
+            return "identity", None
+        return "shift", [(i, v) for i, v in enumerate(shift) if v != 0.0]
+    return "matrix", np.ascontiguousarray(np.array(G + [[0.0, 0.0, 0.0, 1.0]]).T)
 
 
 class _Plan:
@@ -458,83 +596,54 @@ class _Plan:
     ``G_k`` the constant product between them, so its axis and origin are the fixed
     combinations ``S_m G_k[:, axis]`` and ``S_m G_k[:, 3]`` of ``S_m``'s four columns,
     again a matrix product for all the transforms of a block at once.
+
+    The chain's shape (:class:`_Structure`) is shared by the robots that differ only in
+    their parameter values; the numbers are computed here.
     """
 
-    def __init__(self, robot: Robot) -> None:
+    def __init__(self, robot: Robot, structure: _Structure) -> None:
         ets = robot.ets
-        pv = robot.param_values
-        value = [float(pv[et.param]) if et.param >= 0 else float(et.constant) for et in ets]
-        carriers = [k for k, et in enumerate(ets) if et.joint >= 0]
-        bounds = carriers + [len(ets)]
-        self.n, self.P = robot.n, robot.num_params
-        self.J = len(carriers)
-
-        # parameter rows: the transforms with a parameter, in chain order, grouped by the
-        # frame they are measured from (-1: the constant prefix, m: joint m's frame)
-        rows_group: list[int] = []
-        u_ax: list[Array] = []
-        u_org: list[Array] = []
-
-        def constant_run(start: int, stop: int, group: int) -> Array:
-            G = np.eye(4)
-            for k in range(start, stop):
-                if ets[k].param >= 0:
-                    rows_group.append(group)
-                    u_ax.append(G[:, _AXIS[ets[k].kind]].copy())
-                    u_org.append(G[:, 3].copy())
-                G = G @ elementary_matrix(ets[k].kind, value[k])
-            return G
-
-        prefix = constant_run(0, bounds[0], -1)
-        self.prefix = np.ascontiguousarray(prefix[:3, :].T)[:, :, None]      # (4, 3, 1)
+        st = self.st = structure
+        pv = robot.param_values.tolist()
+        value = [pv[et.param] if et.param >= 0 else et.constant for et in ets]
+        self.__dict__.update(st.shared)
+        # rows: axis and origin of every parameter's transform (homogeneous), in the
+        # frame of the constant prefix (prefix rows) or of the joint before it
+        u_ax: list[list[float]] = []
+        u_org: list[list[float]] = []
+        prefix = _constant_run(ets, value, 0, st.bounds[0], u_ax, u_org)
+        self.prefix = np.array(prefix).T[:, :, None].copy()               # (4, 3, 1)
         self.posts: list[tuple[str, Any]] = []
-        axes, kinds, joints, scales, offsets = [], [], [], [], []
-        for m, k in enumerate(carriers):
+        offsets = []
+        for m, k in enumerate(st.carriers):
             et = ets[k]
             if et.param >= 0:
-                rows_group.append(m)
-                u_ax.append(np.eye(4)[:, _AXIS[et.kind]])
-                u_org.append(np.eye(4)[:, 3])
-            G = constant_run(k + 1, bounds[m + 1], m)
-            self.posts.append(_block_step(G))
-            axes.append(_AXIS[et.kind])
-            kinds.append(et.is_rotation)
-            joints.append(et.joint)
-            scales.append(et.scale)
+                ax = _AXIS[et.kind]
+                u_ax.append([1.0 if c == ax else 0.0 for c in range(4)])
+                u_org.append([0.0, 0.0, 0.0, 1.0])
+            self.posts.append(_block_step(_constant_run(ets, value, k + 1, st.bounds[m + 1],
+                                                        u_ax, u_org)))
             offsets.append(value[k])
-        self.axes = np.array(axes, dtype=np.intp)
-        self.rot = np.array(kinds, dtype=bool)
-        self.all_rot = bool(self.rot.all())
-        self.joint_of = np.array(joints, dtype=np.intp)
-        self.scales = np.array(scales, dtype=float)
         self.offsets = np.array(offsets, dtype=float)
-        self.negative = np.flatnonzero(self.scales != 1.0)
         self.identity_q = bool(np.all(self.scales == 1.0) and np.all(self.offsets == 0.0))
-        self.in_joint_order = bool(np.array_equal(self.joint_of, np.arange(self.J)))
-        self.same_axis = bool(self.J and np.all(self.axes == self.axes[0]))
-
-        # parameter rows
-        pk = [k for k, et in enumerate(ets) if et.param >= 0]
-        self.R = len(pk)
-        self.rows_rot = np.array([ets[k].is_rotation for k in pk], dtype=bool)
-        self.rows_tra = np.flatnonzero(~self.rows_rot)
-        self.row_param = np.array([ets[k].param for k in pk], dtype=np.intp)
-        self.rows_are_params = bool(np.array_equal(self.row_param, np.arange(self.P)))
-        self.rows_unique = len(set(self.row_param.tolist())) == self.R
-        g = np.array(rows_group, dtype=np.intp)
-        UA = np.array(u_ax).reshape(-1, 4)
-        UO = np.array(u_org).reshape(-1, 4)
+        UA = np.array(u_ax, dtype=float).reshape(-1, 4)
+        UO = np.array(u_org, dtype=float).reshape(-1, 4)
         # constant prefix rows: axis and origin are fixed vectors
-        pre = np.flatnonzero(g == -1)
-        self.pre_rows = slice(0, len(pre))
-        self.pre_ax = UA[pre, :3][:, :, None]
-        self.pre_org = UO[pre, :3][:, :, None]
-        self.groups: list[tuple[int, slice, Array, Array]] = []
-        for m in range(self.J):
-            idx = np.flatnonzero(g == m)
-            if len(idx):
-                self.groups.append((m, slice(int(idx[0]), int(idx[-1]) + 1),
-                                    np.ascontiguousarray(UA[idx]), np.ascontiguousarray(UO[idx])))
+        self.pre_rows = slice(0, len(st.pre))
+        self.pre_ax = UA[st.pre, :3][:, :, None]
+        self.pre_org = UO[st.pre, :3][:, :, None]
+        self.groups = [(m, rs, np.ascontiguousarray(UA[idx]), np.ascontiguousarray(UO[idx]))
+                       for m, rs, idx in st.groups]
+        # each row's derivative at a point y in its joint's frame (S_0 S_1 S_2 p_m):
+        # a x (y - o) = sum_c A_c [S_c x (y - p_m)] - sum_c (A x O)_c S_c (see points)
+        C6 = self.C6 = np.zeros((self.R, 6))
+        rot, tra = st.rows_rot_idx, self.rows_tra
+        a, o = UA[rot], UO[rot]
+        C6[rot, :3] = a[:, :3]
+        for i in range(3):                          # -(a x o)_i
+            j, k = (i + 1) % 3, (i + 2) % 3
+            C6[rot, 3 + i] = a[:, k] * o[:, j] - a[:, j] * o[:, k]
+        C6[tra, 3:] = UA[tra, :3]
 
     # ------------------------------------------------------------------ sweep
     def _block_size(self, N: int, joints: bool, params: bool) -> int:
@@ -700,39 +809,21 @@ class _Plan:
     def _selection(self, columns: tuple[int, ...]) -> dict[str, Any]:
         """What :meth:`points` needs for the parameters ``columns`` (kept per column set).
 
-        The rows (parameter transforms) of those parameters in chain order, where each
-        one's derivative goes, the constant-prefix rows (axis, origin) and, per joint
-        frame ``S_m``, the coefficients ``C`` (k, 6) that give the rows' derivatives
-        as one matrix product with ``[S_c x (y - p_m) (c = 0, 1, 2); S_c]``
-        (see :meth:`points`).
+        The rows (parameter transforms) of those parameters in chain order and where
+        each one's derivative goes (:meth:`_Structure.selection`), the constant-prefix
+        rows' axes and origins and, per joint frame ``S_m``, the coefficients ``C``
+        (k, 6) that give the rows' derivatives as one matrix product with
+        ``[S_c x (y - p_m) (c = 0, 1, 2); S_c]`` (see :meth:`points`).
         """
         cache = self.__dict__.setdefault("_selections", {})
         sel = cache.get(columns)
         if sel is not None:
             return sel
-        pos = {c: k for k, c in enumerate(columns)}
-        rows = [r for r in range(self.R) if int(self.row_param[r]) in pos]
-        dest = np.array([pos[int(self.row_param[r])] for r in rows], dtype=np.intp)
-        where = {r: k for k, r in enumerate(rows)}
-        pre = [r for r in range(self.pre_rows.stop) if r in where]
-        groups = []
-        for m, rs, UA, UO in self.groups:
-            idx = [r - rs.start for r in range(rs.start, rs.stop) if r in where]
-            if not idx:
-                continue
-            k0 = where[rs.start + idx[0]]
-            a, o = UA[idx, :3], UO[idx, :3]
-            rot = self.rows_rot[np.arange(rs.start, rs.stop)[idx]]
-            C = np.zeros((len(idx), 6))
-            C[rot, :3] = a[rot]
-            C[rot, 3:] = -np.cross(a[rot], o[rot])
-            C[~rot, 3:] = a[~rot]
-            groups.append((m, slice(k0, k0 + len(idx)), C))
-        sel = {"n": len(rows), "dest": dest,
-               "direct": bool(np.array_equal(dest, np.arange(len(columns)))),
-               "pre": len(pre), "pre_ax": self.pre_ax[pre, :, 0],
+        shape = self.st.selection(columns)
+        pre = shape["pre"]
+        sel = {**shape, "pre": len(pre), "pre_ax": self.pre_ax[pre, :, 0],
                "pre_org": self.pre_org[pre, :, 0], "pre_rot": self.rows_rot[pre],
-               "groups": groups}
+               "groups": [(m, rows, self.C6[idx]) for m, rows, idx in shape["groups"]]}
         cache[columns] = sel
         return sel
 
