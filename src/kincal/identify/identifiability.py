@@ -51,6 +51,7 @@ to the marker), and in the middle of the chain the earlier link keeps the parame
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -227,29 +228,46 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
     pri = default_priority(names, roles) if priority is None else np.asarray(priority, float)
     order = sorted(range(P), key=lambda i: (pri[i], i))
     # Greedy selection with an incrementally updated QR factor of the selected columns.
+    # Greedy selection with an incrementally updated QR factor of the selected columns
+    # (rows of Qt: the orthonormal basis so far; Rf (k, k) its triangle).
+    # sigma_min(Rf) >= 1 / ||Rf^-1||_F: while that bound (kept up to date with the
+    # inverse of the growing triangle) is well above tol, no SVD is needed to accept.
     chosen: list[int] = []
-    Q = np.zeros((J.shape[0], 0))
-    Rf = np.zeros((0, 0))
+    m = J.shape[0]
+    Qt = np.zeros((P, m))
+    Rfull = np.zeros((P, P))
+    Ifull = np.zeros((P, P))                    # Rf^-1
+    inv_f2 = 0.0                                # ||Rf^-1||_F^2
+    bound = 0.25 / tol**2
     for i in order:
         if zero[i]:
             continue
-        c = Js[:, i]
-        proj = Q.T @ c
-        res = c - Q @ proj
-        proj2 = Q.T @ res                       # re-orthogonalise once
-        res -= Q @ proj2
-        proj += proj2
-        rho = float(np.linalg.norm(res))
         k = len(chosen)
-        R_new = np.zeros((k + 1, k + 1))
-        R_new[:k, :k] = Rf
-        R_new[:k, k] = proj
-        R_new[k, k] = rho
-        if rho <= tol or _sigma_min(R_new) <= tol:
+        c = Js[:, i]
+        Q = Qt[:k]
+        proj = Q @ c
+        res = c - proj @ Q
+        proj2 = Q @ res                         # re-orthogonalise once
+        res -= proj2 @ Q
+        proj += proj2
+        rho = math.sqrt(float(res @ res))
+        if rho <= tol:
+            continue
+        # [[Rf, proj], [0, rho]]^-1 = [[Rf^-1, -Rf^-1 proj / rho], [0, 1 / rho]]
+        u = Ifull[:k, :k] @ proj / rho
+        f2 = inv_f2 + float(u @ u) + 1.0 / rho**2
+        Rfull[:k, k] = proj
+        Rfull[k, k] = rho
+        if not f2 < bound and _sigma_min(Rfull[:k + 1, :k + 1]) <= tol:
+            Rfull[:k + 1, k] = 0.0
             continue
         chosen.append(i)
-        Q = np.column_stack([Q, res / rho])
-        Rf = R_new
+        Qt[k] = res / rho
+        Ifull[:k, k] = -u
+        Ifull[k, k] = 1.0 / rho
+        inv_f2 = f2
+    r = len(chosen)
+    Q, Rf = Qt[:r].T, Rfull[:r, :r]
     chosen_set = set(chosen)
     identifiable = [names[i] for i in chosen]
     unobservable = [names[i] for i in range(P) if zero[i]]
@@ -257,14 +275,18 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
     combinations: dict[str, dict[str, float]] = {}
     residual: dict[str, float] = {}
     B = Js[:, chosen]
-    Rinv = np.linalg.solve(Rf, np.eye(len(chosen))) if chosen else np.zeros((0, 0))
-    for i in range(P):
-        if zero[i] or i in chosen_set:
-            continue
+    Rinv = np.linalg.solve(Rf, np.eye(r)) if chosen else np.zeros((0, 0))
+    others = [i for i in range(P) if not zero[i] and i not in chosen_set]
+    if chosen and others:
+        # B = Q Rf: least squares B x ~ c by x = Rf^-1 Q^T c, for every other column
+        C = Js[:, others]
+        X = Rinv @ (Q.T @ C)
+        rels = np.linalg.norm(C - B @ X, axis=0) / np.maximum(np.linalg.norm(C, axis=0),
+                                                               1e-300)
+    for n_i, i in enumerate(others):
         if chosen:
-            # B = Q Rf: least squares B x ~ c by x = Rf^-1 Q^T c
-            x = Rinv @ (Q.T @ Js[:, i])
-            rel = float(np.linalg.norm(Js[:, i] - B @ x) / max(np.linalg.norm(Js[:, i]), 1e-300))
+            x = X[:, n_i]
+            rel = float(rels[n_i])
             keep = np.abs(x) > COEF_TOL * max(np.abs(x).max(), 1e-300)
             # coefficient in parameter units: d theta_i ~ sum c_b d theta_b
             col_norm_i = norms[i] if scale else big
