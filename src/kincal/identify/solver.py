@@ -492,6 +492,8 @@ class _WithPrior:
         self.idx = np.asarray(idx, dtype=np.intp)
         self.inv = 1.0 / np.asarray(sigma, dtype=float)
         self.center = center[self.idx]
+        # the measurements' triangles (no prior rows) of the last two builds, by theta
+        self._data: list[tuple[Array, CompressedSystem]] = []
 
     @property
     def rows(self) -> int:
@@ -510,7 +512,22 @@ class _WithPrior:
         compressed piece by piece (:meth:`StackedProblem.compressed`), then the prior
         rows folded in (``weights``: measurements, then prior rows, which have 1)."""
         M = len(weights) - self.rows
-        return self.extend(self.prob.compressed(theta, weights[:M], columns), theta)
+        data = self.prob.compressed(theta, weights[:M], columns)
+        if self.rows:
+            self._data = [*self._data[-1:], (theta.copy(), dataclasses.replace(data, r=None))]
+        return self.extend(data, theta)
+
+    def num_residuals(self) -> int:
+        """Measurement residuals and prior rows."""
+        return self.prob.num_residuals() + self.rows
+
+    def measurements_at(self, theta: Array) -> CompressedSystem | None:
+        """The measurements' own triangle (no prior rows, without ``r``) of a recent
+        :meth:`compressed` at ``theta``, if there was one."""
+        for t, c in self._data:
+            if np.array_equal(t, theta):
+                return c
+        return None
 
     def extend(self, c: CompressedSystem, theta: Array) -> CompressedSystem:
         """The measurements' triangle ``c`` with the prior rows (weight 1) folded in."""
@@ -694,9 +711,11 @@ class _StageEnd(NamedTuple):
     iterations: int
     message: str
     r: Array
-    #: the triangle at ``theta`` over the stage's columns, when the last step built it
-    #: (prior rows included, as the stage used it); None otherwise
+    #: the triangle at ``theta`` over the stage's columns, when the stage has it (prior
+    #: rows included, as the stage used it; without ``r``); None otherwise
     C: CompressedSystem | None = None
+    #: the same without the prior rows (the measurements' own), when the stage has it
+    data: CompressedSystem | None = None
 
 
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
@@ -713,16 +732,22 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     whether it converged, the iterations, a message, and ``r`` (prior rows included)
     at that ``theta``.
     """
-    C = start
-    r: Array | None = prob.residuals(theta) if C is None or C.r is None else C.r
-    w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
     # With weights that do not depend on the residuals (loss "linear"), the triangle at a
     # trial point is the next linearisation if the step is taken: it is built with the
     # trial's residuals in the same pass over the data (no forward kinematics evaluated
     # twice at the same theta).  The current residuals are dropped while a step is tried
-    # (one residual vector in memory) and evaluated again only on the rare exits that
-    # end the stage at the current point.
+    # (one residual vector in memory; the triangle ``here`` at the current point is kept,
+    # and its cost stands for theirs) and evaluated again only on the rare exits that end
+    # the stage at the current point.
     speculate = loss == "linear"
+    C, start = start, None                  # no reference to a residual vector is kept
+    r: Array | None = None if C is None else C.r
+    if r is None and not (speculate and C is not None):
+        r = prob.residuals(theta)
+    w = (np.broadcast_to(np.float64(1.0), (prob.num_residuals(),)) if speculate
+         else _robust_weights(r, ids, dims, loss, loss_scale, n_fixed))  # type: ignore[arg-type]
+    # the triangle at theta without its residual vector, while theta stays
+    here = None if C is None else dataclasses.replace(C, r=None)
 
     def current() -> Array:
         nonlocal r
@@ -731,15 +756,25 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         return r
 
     def done(converged: bool, iterations: int, message: str) -> _StageEnd:
-        return _StageEnd(theta, converged, iterations, message, current(), C)
+        data = prob.measurements_at(theta) if isinstance(prob, _WithPrior) and prob.rows \
+            else here
+        return _StageEnd(theta, converged, iterations, message, current(), here, data)
 
     cost_of = _half_weighted_ss
 
+    def cost_here() -> float:
+        """``1/2 sum w r^2`` at theta: from the residuals, or (uniform weights) the
+        triangle's cost when they were dropped."""
+        if r is None and here is not None and speculate:
+            return float(here.cost)
+        return cost_of(current(), w)
+
     def record(it: int, step: float, lam: float) -> None:
-        res = current()
-        rec = IterationRecord(label, it, theta.copy(), cost_of(res, w),
-                              float(np.sqrt(res @ res / res.size)) if res.size else 0.0,
-                              step, lam)
+        cost = cost_here()
+        size = w.size
+        rms = (float(np.sqrt(2.0 * cost / float(w[0]) / size)) if r is None and size
+               else float(np.sqrt(r @ r / size)) if size else 0.0)  # type: ignore[operator]
+        rec = IterationRecord(label, it, theta.copy(), cost, rms, step, lam)
         history.append(rec)
         if progress is not None:
             progress(rec)
@@ -752,16 +787,16 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     C_new: CompressedSystem | None = None
     r_new: Array | None = None
     for it in range(1, max_iter + 1):
-        if C is None:
+        if here is None:
             C = prob.compressed(theta, w, est)
-            r = C.r
+            r, here = C.r, dataclasses.replace(C, r=None)
         # [W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]: R D^-1 = U S V^T, g = U^T z
-        D = np.linalg.norm(C.R, axis=0)
+        D = np.linalg.norm(here.R, axis=0)
         Dmax = np.maximum(Dmax, D)
         Ds = np.where(Dmax > 0, Dmax, 1.0)
-        U, S, Vt = np.linalg.svd(C.R / Ds)
-        g = U.T @ C.z
-        cost = cost_of(current(), w)
+        U, S, Vt = np.linalg.svd(here.R / Ds)
+        g = U.T @ here.z
+        cost = cost_here()
         if not np.isfinite(cost):
             return done(False, it - 1, f"stage {label!r}: the residuals are not finite")
         C = r = C_new = r_new = None                        # see `speculate` above
@@ -778,7 +813,8 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                 return done(False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
                                             "(non-finite residuals); try method='lm'"))
             step = _scaled_step(dx, theta[est])
-            theta, r, C = new, r_new, C_new
+            theta, r = new, r_new
+            here = None if C_new is None else dataclasses.replace(C_new, r=None)
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
             if step <= tol_step:
@@ -849,7 +885,8 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             return done(True, it, (f"stage {label!r}: no descent step longer than "
                                    "tol_step (at a minimum)"))
         step = _scaled_step(dx, theta[est])
-        theta, r, C = new, r_new, C_new          # C_new: the triangle there, if built
+        theta, r = new, r_new                    # C_new: the triangle there, if built
+        here = None if C_new is None else dataclasses.replace(C_new, r=None)
         w_old = w
         w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
@@ -970,12 +1007,11 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     def ended(stage: _StageEnd, stage_est: Sequence[int], columns: Iterable[int]
               ) -> CompressedSystem:
         """The measurements' triangle (robust weights, no prior rows) where ``stage``
-        ended, over ``columns``: the stage's own last triangle when it is that one
-        (uniform weights, no prior rows among ``stage_est``, the same columns)."""
+        ended, over ``columns``: the one the stage built there when it is that one
+        (uniform weights, the same columns)."""
         cols = sorted(set(columns))
-        C = stage.C
-        if (C is not None and loss == "linear" and not any(i in prior_s for i in stage_est)
-                and [int(j) for j in C.columns] == cols):
+        C = stage.data
+        if C is not None and loss == "linear" and [int(j) for j in C.columns] == cols:
             return dataclasses.replace(C, r=None)
         return prob.compressed(stage.theta, weights_of(stage.r[:M]), cols,
                                keep_residuals=False)
