@@ -25,19 +25,27 @@ from typing import Any
 
 from kincal.identify.tolerances import PLAUSIBLE
 
-__all__ = ["Verdict", "Implausible", "judge", "ABSURD_STD"]
+__all__ = ["Verdict", "Implausible", "judge", "ABSURD_STD", "show_quantity"]
 
 #: A standard error above this (per unit) is absurd whatever the parameter.
 ABSURD_STD = {"m": 1.0, "rad": 1.0}
 
 
-def _show(value: float, unit: str, signed: bool = False) -> str:
+def show_quantity(value: float, unit: str, digits: int = 4, signed: bool = False,
+                  missing: str = "-") -> str:
+    """``(0.0012, "m") -> "1.2 mm"``, ``(0.01, "rad") -> "0.573 deg"``: an SI value for
+    people (``digits`` significant; ``missing`` for a value that is not finite)."""
+    if not math.isfinite(value):
+        return missing
     sign = "+" if signed else ""
     if unit == "m":
-        return f"{value * 1e3:{sign}.4g} mm"
+        return f"{value * 1e3:{sign}.{digits}g} mm"
     if unit == "rad":
-        return f"{math.degrees(value):{sign}.4g} deg"
-    return f"{value:{sign}.4g} {unit}"
+        return f"{math.degrees(value):{sign}.{digits}g} deg"
+    return f"{value:{sign}.{digits}g} {unit}"
+
+
+_show = show_quantity
 
 
 @dataclass(frozen=True)
@@ -61,10 +69,10 @@ class Implausible:
 
     def words(self, bound: float = PLAUSIBLE) -> str:
         if self.reason == "change" and self.tolerance:
-            return (f"{self.name} moved {_show(self.change, self.unit, True)} "
+            return (f"{self.name} moved {_show(self.change, self.unit, signed=True)} "
                     f"({abs(self.change) / self.tolerance:.3g}x its tolerance "
                     f"{_show(self.tolerance, self.unit)})")
-        return f"{self.name} has a standard error of {_show(self.std, self.unit)}"
+        return f"{self.name} has a standard error of {_show(self.std, self.unit, missing='inf')}"
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "unit": self.unit, "change": self.change,

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError
+from kincal.identify.checks import show_quantity
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
 from kincal.measure.base import r_factor
 
@@ -45,13 +46,7 @@ NARROW = 0.5
 
 
 def _show(value: float, unit: str) -> str:
-    if not math.isfinite(value):
-        return "nothing (no effect of its own)"
-    if unit == "m":
-        return f"{value * 1e3:.3g} mm"
-    if unit == "rad":
-        return f"{math.degrees(value):.3g} deg"
-    return f"{value:.3g} {unit}"
+    return show_quantity(value, unit, 3, missing="nothing (no effect of its own)")
 
 
 def _joint_amount(value: float, kind: str) -> str:

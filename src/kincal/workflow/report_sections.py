@@ -165,13 +165,9 @@ def figures_section_html(figures: Mapping[str, tuple[str, bytes]], heading: str 
 
 
 def _si(value: float, unit: str, digits: int = 3) -> str:
-    if not math.isfinite(value):
-        return "-"
-    if unit == "m":
-        return f"{value * 1e3:.{digits}g} mm"
-    if unit == "rad":
-        return f"{math.degrees(value):.{digits}g} deg"
-    return f"{value:.{digits}g} {unit}"
+    from kincal.identify.checks import show_quantity
+
+    return show_quantity(value, unit, digits)
 
 
 def trust_section_html(flow: FlowResult) -> str:
