@@ -296,3 +296,10 @@ def test_selected_poses_beat_random_poses_in_a_monte_carlo(puma) -> None:
     for c in CRITERIA:
         assert err[c].mean() < rand.mean(), c
         assert pvals[c] < 0.01, (c, pvals[c])
+
+
+def test_the_cli_baseline_count_is_the_library_one() -> None:
+    from kincal.cli import plan as cli_plan
+    from kincal.identify.plan import RANDOM_DESIGNS
+
+    assert cli_plan.RANDOM_DESIGNS == RANDOM_DESIGNS

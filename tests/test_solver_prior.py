@@ -21,8 +21,10 @@ import math
 import numpy as np
 import pytest
 
+from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
 from kincal.measure.base import MeasurementModel, ParamSpec
+from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
 from kincal.robots.files import load_robot
 
 ROBOT = load_robot("puma560")
@@ -283,3 +285,24 @@ def test_data_only_standard_errors_name_the_parameters_the_prior_holds():
     assert np.isnan(res.data_std[res.names.index("theta_offset[1]")])
     plain = calibrate(ROBOT, [LinearBlock(A, y)])
     assert plain.data_std is None and plain.held_by_prior == []
+
+
+def test_prior_tolerances_is_what_the_command_line_uses_by_default() -> None:
+    """``prior="tolerances"`` gives the same estimate as the explicit tolerance mapping the
+    workflow builds for ``kincal calibrate``'s default."""
+    from kincal.identify.tolerances import resolve_tolerances
+    from kincal.measure.base import stack
+
+    rng = np.random.default_rng(3)
+    robot = load_robot("puma560")
+    truth = perturb_robot(robot, rng)
+    q = random_configurations(robot, 40, rng)
+    data = simulate_positions(truth, q, rng, noise_std=1e-5)
+    prob, _ = stack(robot, [data])
+    explicit = resolve_tolerances(prob.names, prob.units, prob.roles).prior()
+    a = calibrate(robot, [data], prior="tolerances")
+    b = calibrate(robot, [data], prior=explicit)
+    assert a.prior == b.prior and a.prior
+    assert np.array_equal(a.theta, b.theta)
+    with pytest.raises(KincalError, match="'tolerances'"):
+        calibrate(robot, [data], prior="tolerance")

@@ -20,7 +20,7 @@ import stat
 import sys
 import tempfile
 import threading
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -181,3 +181,15 @@ def _finite(obj: Any) -> Any:
 def write_json(path: str | os.PathLike[str], data: Any) -> None:
     """Write ``data`` (NumPy arrays allowed) as indented JSON, atomically; ``-`` is stdout."""
     atomic_write_text(path, json_text(data))
+
+
+def html_table(header: Sequence[str], rows: Sequence[Sequence[object]],
+               caption: str = "") -> str:
+    """A small HTML table (every cell escaped) for notebook displays (``_repr_html_``)."""
+    import html as _html
+
+    head = "".join(f"<th>{_html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{_html.escape(str(c))}</td>" for c in row) + "</tr>"
+                   for row in rows)
+    cap = f"<caption style='text-align:left'>{_html.escape(caption)}</caption>" if caption else ""
+    return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"

@@ -16,8 +16,6 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
-import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -31,12 +29,13 @@ from kincal.cli.options import SeedOpt, SiOpt, legacy_quantity, use_si
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
-    import numpy as np
+    from kincal.identify.plan import Plan
 
-__all__ = ["plan", "Plan", "build_plan", "render_plan_html"]
-
-#: Random designs drawn for the baseline column.
+#: Random designs in the baseline column (kincal.identify.plan.RANDOM_DESIGNS, not
+#: imported here so that `kincal --help` stays free of NumPy).
 RANDOM_DESIGNS = 20
+
+__all__ = ["plan", "render_plan_html"]
 
 _MEANING = {
     "O1": "(s1...sL)^(1/L)/sqrt(m), Borm & Menq: D-optimality",
@@ -54,21 +53,6 @@ padding:3px 8px;text-align:right}th{background:#f3f3f3}td.l,th.l{text-align:left
 img{max-width:100%}.small{font-size:.85em;color:#555}"""
 
 
-@dataclass
-class Plan:
-    """Everything ``kincal plan`` computed (SI units)."""
-
-    problem: Any
-    design: Any
-    prediction: Any
-    random_indices: list[dict[str, float]]
-    random_rms: list[float]
-    random_prediction: Any
-    random_singular_values: Any
-    inputs: dict[str, str] = field(default_factory=dict)
-    dropped: int = 0
-
-
 def _criterion(text: str) -> str:
     from kincal.identify.observability import CRITERIA
 
@@ -78,73 +62,6 @@ def _criterion(text: str) -> str:
         raise KincalError(f"option --criterion: unknown criterion {text!r}; use one of "
                           f"{', '.join(CRITERIA)}")
     return key
-
-
-def build_plan(robot: Any, *, instrument: str = "position", poses: int = 30,
-               criterion: str = "O1", candidates: int = 2000,
-               candidates_file: str | None = None, reachable: bool = False,
-               units: str | None = None, ignore: list[str] | None = None,
-               noise: float = 1e-5, orientation_noise: float = 1e-5,
-               marker: np.ndarray | None = None, scaling: str = "workspace",
-               min_distance: float = 0.0, margin: float = 0.05, grid: int = 3,
-               exchange: bool = True, seed: int = 0, progress: Any = None) -> Plan:
-    """Candidates -> design problem -> selection -> prediction, with a random baseline."""
-    import numpy as np
-
-    from kincal.identify.design import (
-        instrument_candidates,
-        random_candidates,
-        random_design,
-        read_configurations,
-        select_poses,
-    )
-    from kincal.identify.observability import DEFAULT_MARKER, design_problem
-    from kincal.identify.prediction import predict_accuracy, workspace_grid
-    from kincal.measure.files import parse_list_option, parse_units_option
-
-    rng = np.random.default_rng(seed)
-    opts: dict[str, Any] = {"scaling": scaling}
-    if instrument in ("position", "pose"):
-        opts.update(noise=noise, orientation_noise=orientation_noise,
-                    marker=DEFAULT_MARKER if marker is None else marker)
-    dropped = 0
-    if progress is not None:
-        progress("candidate Jacobian", 0, 1)
-    if reachable:
-        from kincal.measure.registry import get_instrument
-
-        inst_opts = {"margin": margin} if "margin" in get_instrument(instrument).options else {}
-        problem = instrument_candidates(robot, instrument, candidates, rng, inst_opts, **opts)
-        source = f"{problem.num_candidates} configurations measurable by {instrument}"
-    else:
-        if candidates_file:
-            q, dropped = read_configurations(candidates_file, robot, parse_units_option(units),
-                                             parse_list_option(ignore))
-            source = f"{len(q)} configurations from {candidates_file}"
-        else:
-            q = random_candidates(robot, candidates, rng, margin)
-            source = f"{len(q)} random configurations within the joint limits"
-        problem = design_problem(robot, q, instrument, **opts)
-    design = select_poses(problem, poses, criterion, min_distance=min_distance,
-                          exchange=exchange, progress=progress)
-    q_eval = workspace_grid(robot, grid, margin=0.1)
-    pred = predict_accuracy(problem, design, q_eval)
-    rnd, rms, preds = [], [], []
-    for _ in range(RANDOM_DESIGNS):
-        d = random_design(problem, poses, rng, min_distance=min_distance)
-        p = predict_accuracy(problem, d, q_eval)
-        rnd.append(d)
-        rms.append(p.rms)
-        preds.append(p)
-    med = int(np.argsort(rms)[len(rms) // 2])
-    inputs = {"robot": robot.name, "instrument": instrument, "candidates": source,
-              "poses": str(poses), "criterion": f"{criterion} ({design.method})",
-              "scaling": scaling, "noise": f"{noise * 1e3:g} mm per coordinate",
-              "minimum distance": f"{math.degrees(min_distance):g} deg (joint space)",
-              "evaluation": f"joint-space grid, {grid} values per joint "
-                            f"({len(q_eval)} configurations)", "seed": str(seed)}
-    return Plan(problem, design, pred, [d.indices.as_dict() for d in rnd], rms, preds[med],
-                rnd[med].indices.singular_values, inputs, dropped)
 
 
 def _seconds(text: str, option: str) -> float:
@@ -431,14 +348,24 @@ def plan(
                 else None)
     out = err_console if json_out == "-" else console
     with _Bar() as bar:
-        p = build_plan(r, instrument=instrument, poses=poses, criterion=crit,
-                       candidates=candidates, candidates_file=candidates_file,
-                       reachable=reachable, units=units, ignore=ignore,
-                       noise=sd,
+        cands: Any = candidates
+        src, dropped = None, 0
+        if candidates_file and not reachable:
+            from kincal.identify.design import read_configurations
+            from kincal.measure.files import parse_list_option, parse_units_option
+
+            cands, dropped = read_configurations(candidates_file, r, parse_units_option(units),
+                                                 parse_list_option(ignore))
+            src = f"{len(cands)} configurations from {candidates_file}"
+        from kincal.identify.plan import plan_poses
+
+        p = plan_poses(r, instrument=instrument, poses=poses, criterion=crit,
+                       candidates=cands, reachable=reachable, noise=sd,
                        orientation_noise=sd_rot or 1e-5,
                        marker=marker_m, scaling=scaling,
                        min_distance=min_dist, margin=margin, grid=grid,
-                       exchange=not no_exchange, seed=seed, progress=bar)
+                       exchange=not no_exchange, seed=seed, progress=bar,
+                       source=src, dropped=dropped)
     d, pred = p.design, p.prediction
     html_text = render_plan_html(p) if report else None
     comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={crit} "

@@ -269,7 +269,7 @@ def simulate(
     rng = np.random.default_rng(seed)
     names = None
     if perturb:
-        from kincal.identify.solver import match_names
+        from kincal.identify.names import match_names
 
         names = [nominal.param_names[i] for i in
                  match_names(nominal.param_names, [p.strip() for p in perturb.split(",")])]

@@ -75,6 +75,25 @@ class Compensation:
     def __len__(self) -> int:
         return int(self.q.shape[0])
 
+    def __repr__(self) -> str:
+        n, ok = len(self), int(np.sum(self.success))
+        size = ""
+        if self.correction is not None and ok:
+            c = self.correction[self.success] * 1e3
+            size = (f", compensation RMS {float(np.sqrt(np.mean(c**2))):.4g} mm, "
+                    f"max {float(np.max(c)):.4g} mm")
+        back = "" if self.fallback is None else f", {int(np.sum(self.fallback))} sent nominal"
+        return (f"Compensation({ok}/{n} {self.mask} targets compensated{size}, "
+                f"{len(self.branch_changes)} branch changes{back})")
+
+    def _repr_html_(self) -> str:
+        """Notebook display: the headline and the targets that failed, with why."""
+        from kincal.io import html_table
+
+        bad = np.flatnonzero(~self.success)
+        rows = [[int(i), self.reason[i]] for i in bad[:20]]
+        return html_table(["target", "why it failed"], rows, repr(self))
+
 
 def _check_compatible(calibrated: Robot, nominal: Robot) -> None:
     if calibrated.joint_names != nominal.joint_names:

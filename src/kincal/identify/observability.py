@@ -368,7 +368,7 @@ def design_problem_from_blocks(robot: Robot, blocks: Sequence[MeasurementModel],
         kind: ``"position"``, ``"pose"`` or ``"blocks"`` (how predictions are made).
         sigma: the stated position noise [m]; default the RMS of the blocks' sigmas.
     """
-    from kincal.identify.solver import match_names
+    from kincal.identify.names import match_names
 
     if scaling not in SCALINGS:
         raise KincalError(f"unknown scaling {scaling!r}; use one of {', '.join(SCALINGS)}")

@@ -114,8 +114,6 @@ times; the parameters dropped keep their initial values and are named in
 from __future__ import annotations
 
 import dataclasses
-import difflib
-import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
@@ -126,6 +124,7 @@ from scipy.special import gammaincinv
 
 from kincal.errors import IdentifiabilityError, KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze, default_priority
+from kincal.identify.names import match_names
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
 from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
 from kincal.robots.chain import Robot
@@ -148,34 +147,6 @@ NOISE_RTOL = 5e-3
 
 
 # --------------------------------------------------------------------------- names
-def _regex(pattern: str) -> re.Pattern[str]:
-    return re.compile(re.escape(pattern).replace(r"\*", ".*").replace(r"\?", ".") + r"\Z")
-
-
-def match_names(names: Sequence[str], patterns: str | Iterable[str]) -> list[int]:
-    """Indices of ``names`` matched by any of ``patterns`` (names or globs), in order.
-
-    Only ``*`` and ``?`` are wildcards (``theta_offset[*]`` matches ``theta_offset[3]``).
-    A pattern matching nothing raises a :class:`KincalError` naming close matches.
-    """
-    names = list(names)
-    if isinstance(patterns, str):
-        patterns = [patterns]
-    hit = np.zeros(len(names), dtype=bool)
-    for p in patterns:
-        if p in names:
-            hit[names.index(p)] = True
-            continue
-        rx = _regex(p)
-        found = [i for i, n in enumerate(names) if rx.match(n)]
-        if not found:
-            close = difflib.get_close_matches(p, names, n=3)
-            hint = f"; did you mean {', '.join(close)}?" if close else ""
-            raise KincalError(f"no parameter matches {p!r}{hint}")
-        hit[found] = True
-    return [int(i) for i in np.flatnonzero(hit)]
-
-
 def _stage_candidates(spec: str | Sequence[str], prob: StackedProblem,
                       free: Sequence[int]) -> list[int]:
     if isinstance(spec, str) and spec in STAGE_KEYWORDS:
@@ -436,6 +407,31 @@ class CalibrationResult:
                          + ", ".join(f"{b}[{r}]" for b, r in self.outliers[:20]))
         return "\n".join(lines)
 
+    def _repr_html_(self) -> str:
+        """Notebook display: the headline and the estimated parameters in mm / deg."""
+        from kincal.io import html_table
+
+        rows = []
+        for i, n in enumerate(self.names):
+            if n not in self.estimated:
+                continue
+            f, u = _DISPLAY.get(self.problem.units[i], (1.0, self.problem.units[i]))
+            held = " (held by the prior)" if n in self.held_by_prior else ""
+            rows.append([n, u, f"{self.theta0[i] * f:.5f}", f"{self.theta[i] * f:.5f}",
+                         f"{(self.theta[i] - self.theta0[i]) * f:.5f}",
+                         f"{self.std[i] * f:.4f}{held}"])
+        r = self.rms()
+        errors = ", ".join(format_error(k[4:], v, "RMS") for k, v in r.items())
+        state = "converged" if self.converged else "NOT converged"
+        estimator = "MAP (tolerance priors)" if self.prior else "least squares"
+        caption = (f"{state} after {self.iterations} iterations ({self.message}); "
+                   f"{estimator}; {len(self.estimated)} of {len(self.names)} parameters "
+                   f"estimated; sigma0 = {self.sigma0:.4g}; training {errors}; "
+                   f"{len(self.names) - len(self.estimated)} held (result.summary(True) "
+                   "says why)")
+        return html_table(["parameter", "unit", "initial", "estimate", "change", "std"],
+                          rows, caption)
+
     def __repr__(self) -> str:
         rms = self.rms()
         pos = f", rms_position={rms['rms_position_m'] * 1e3:.4g} mm" \
@@ -538,6 +534,18 @@ class _WithPrior:
         for k, j in enumerate(self.idx):
             A[k, pos[int(j)]] = self.inv[k]
         return c.with_rows(A, self._prior(theta))
+
+
+def _tolerance_prior(robot: Robot, prob: StackedProblem, which: str) -> dict[str, float]:
+    """``prior="tolerances"``: ``{name: tolerance}`` of the problem's robot parameters."""
+    from kincal.identify.tolerances import resolve_tolerances
+
+    if which != "tolerances":
+        raise KincalError(f"prior must be a mapping {{name: sigma}}, 'tolerances' or None; "
+                          f"got {which!r}")
+    meta = getattr(robot, "meta", {}) or {}
+    return resolve_tolerances(prob.names, prob.units, prob.roles,
+                              meta.get("tolerances"), None).prior()
 
 
 def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> dict[int, float]:
@@ -907,7 +915,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
               progress: Callable[[IterationRecord], Any] | None = None, *,
               trust_sigma: bool = False, tol_rank: float | None = None,
               initial: dict[str, float] | None = None,
-              prior: Mapping[str, float] | None = None,
+              prior: Mapping[str, float] | str | None = None,
               noise_scale: float | None = None,
               prefer: Sequence[str] | str = ()) -> CalibrationResult:
     """Calibrate ``robot`` from measurement ``blocks``.
@@ -934,6 +942,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             maximum a-posteriori estimate centred on the values before calibration
             (see the module docstring); a later key overrides an earlier one for
             the names both match.  Only estimated parameters are affected.
+            ``"tolerances"``: the manufacturing tolerances of every robot parameter
+            (role defaults, then the robot file's ``tolerances:`` section;
+            :mod:`kincal.identify.tolerances`) as prior standard deviations, which is
+            what ``kincal calibrate`` does by default.  None: plain least squares.
         noise_scale: with a prior, the factor ``sigma0`` of the stated measurement
             sigmas used to weigh it; None (default) estimates it (module docstring,
             "Prior"), 1 under ``trust_sigma``.
@@ -959,6 +971,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         blocks = [blocks]
     prob, theta0 = stack(robot, list(blocks))
     center = theta0.copy()
+    if isinstance(prior, str):
+        prior = _tolerance_prior(robot, prob, prior)
     prior_s = _prior_sigmas(prob.names, prior)
     if noise_scale is not None and not (np.isfinite(noise_scale) and noise_scale > 0):
         raise KincalError(f"noise_scale must be positive and finite, got {noise_scale!r}")

@@ -213,7 +213,7 @@ class Tolerances:
 def _apply(entries: Sequence[Entry], names: Sequence[str], units: Sequence[str],
            roles: Sequence[str], sigma: dict[str, float], source: dict[str, str],
            label: str, option: str) -> None:
-    from kincal.identify.solver import match_names
+    from kincal.identify.names import match_names
 
     dims = [{"m": "length", "rad": "angle"}.get(u) for u in units]
     for e in entries:

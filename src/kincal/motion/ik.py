@@ -147,6 +147,15 @@ class IKSolutions:
         """Indices of the targets that failed."""
         return np.flatnonzero(~self.success)
 
+    def _repr_html_(self) -> str:
+        """Notebook display: the failures with their reasons, and the worst errors."""
+        from kincal.io import html_table
+
+        rows = [[int(i), self.reason[i]] for i in self.failures()[:20]]
+        more = len(self.failures()) - len(rows)
+        return html_table(["target", "why it failed"], rows, repr(self)
+                          + (f"; {more} more failures" if more > 0 else ""))
+
     def __repr__(self) -> str:
         n, ok = len(self), int(np.sum(self.success))
         worst_p = float(np.max(self.position_error[self.success], initial=0.0))

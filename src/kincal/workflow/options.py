@@ -54,7 +54,7 @@ def parse_selection(names: Sequence[str], roles: Sequence[str], free: str | None
 
     Returns ``(free names or None for automatic, fixed names)``.
     """
-    from kincal.identify.solver import match_names
+    from kincal.identify.names import match_names
 
     def expand(text: str | None) -> list[str] | None:
         if not text:
