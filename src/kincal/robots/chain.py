@@ -536,6 +536,14 @@ class _Structure:
         return sel
 
 
+def _buffer(pool: dict[str, Array], name: str, shape: tuple[int, ...]) -> Array:
+    """The working array ``name`` of ``pool`` with this shape (made when it has another)."""
+    a = pool.get(name)
+    if a is None or a.shape != shape:
+        a = pool[name] = np.empty(shape)
+    return a
+
+
 def _constant_run(ets: Sequence[ElementaryTransform], value: list[float], start: int,
                   stop: int, axes: list[list[float]], origins: list[list[float]]
                   ) -> list[list[float]]:
@@ -871,7 +879,7 @@ class _Plan:
             M[:, 1, 0], M[:, 2, 0], M[:, 2, 1] = a[:, 2], -a[:, 1], a[:, 0]
             M[~rot] = 0.0
             const = np.where(rot[:, None], -np.cross(a, o), a)
-            pre = (M.reshape(-1, 3), const.reshape(-1, 1))
+            pre = (M, const[:, :, None])
         record = C > 0
         L = self._block_size(N, False, record)
         for start in range(0, N, L):
@@ -894,35 +902,34 @@ class _Plan:
                 Db[...] = 0.0
             if sel["n"] == 0:
                 continue
-            if "Z" not in b:
-                b["Z"], b["dY"] = np.empty((6, 3, Lb)), np.empty((3, Lb))
-                b["out"] = np.empty((self.R, 3, Lb))
-            Z, d = b["Z"], b["dY"]
-            one_block = Lb == N and sel["direct"] and K == 1    # write D in place
-            for k in range(K):
-                yk = Yb[k]
-                # rows written in place (one block, one point) or into a buffer
-                base = Dout[:, k] if one_block else b["out"]
-                if sel["pre"]:
-                    out = base[: sel["pre"]].reshape(-1, Lb)
-                    np.matmul(pre[0], yk, out=out)
+            Z = _buffer(b, "Z", (6, K, 3, Lb))
+            d = _buffer(b, "dY", (K, 3, Lb))
+            tmp = _buffer(b, "tZ", (3, K, Lb))
+            # all markers at once: rows written in place (one block) or into a buffer
+            one_block = Lb == N and sel["direct"]
+            base = Dout if one_block else _buffer(b, "out", (self.R, K, 3, Lb))
+            if sel["pre"]:
+                for k in range(K):
+                    out = base[: sel["pre"], k]
+                    np.matmul(pre[0], Yb[k], out=out)
                     out += pre[1]
-                for m, rows, Cg in sel["groups"]:
-                    np.subtract(yk, S[m][3], out=d)              # y - p_m
-                    Sm = S[m][:3]                                # (3 columns, 3, L)
-                    for i in range(3):                           # Z[c] = S_c x (y - p_m)
-                        j, l = (i + 1) % 3, (i + 2) % 3
-                        np.multiply(Sm[:, j], d[l], out=Z[:3, i])
-                        Z[:3, i] -= Sm[:, l] * d[j]
-                    Z[3:] = Sm
-                    np.matmul(Cg, Z.reshape(6, 3 * Lb),
-                              out=base[rows].reshape(rows.stop - rows.start, 3 * Lb))
-                if not one_block:
-                    part = b["out"][: sel["n"]]
-                    if sel["direct"]:
-                        Db[:, k] = part
-                    else:
-                        np.add.at(Db[:, k], sel["dest"], part)
+            for m, rows, Cg in sel["groups"]:
+                np.subtract(Yb, S[m][3], out=d)                  # y_k - p_m
+                Sm = S[m][:3]                                    # (3 columns, 3, L)
+                for i in range(3):                               # Z[c] = S_c x (y_k - p_m)
+                    j, l = (i + 1) % 3, (i + 2) % 3
+                    np.multiply(Sm[:, None, j], d[None, :, l], out=Z[:3, :, i])
+                    np.multiply(Sm[:, None, l], d[None, :, j], out=tmp)
+                    Z[:3, :, i] -= tmp
+                Z[3:] = Sm[:, None]
+                np.matmul(Cg, Z.reshape(6, K * 3 * Lb),
+                          out=base[rows].reshape(rows.stop - rows.start, K * 3 * Lb))
+            if not one_block:
+                part = base[: sel["n"]]
+                if sel["direct"]:
+                    Db[...] = part
+                else:
+                    np.add.at(Db, sel["dest"], part)
         return Y, Dout, Rot
 
     # ------------------------------------------------------------- jacobians
