@@ -652,6 +652,16 @@ class Triangle:
         self.R = _fold(self.R, A.T, min(8, self.p))
         self.rows += A.shape[0]
 
+    def add_transposed(self, B: Array) -> None:
+        """Fold the rows ``B^T`` in, given their transpose ``B`` (p, n) in C order (each
+        column of the system one contiguous row of ``B``: no copy); ``B`` is overwritten."""
+        if B.ndim != 2 or B.shape[0] != self.p or not B.flags.c_contiguous:
+            raise ValueError(f"a C-ordered array of {self.p} rows expected, got shape {B.shape}")
+        if B.shape[1] == 0:
+            return
+        self.R = _fold(self.R, B, min(8, self.p))
+        self.rows += B.shape[1]
+
     def solve(self, nx: int, rcond: float = 1e-10) -> Array:
         """``X`` (nx, p - nx): the minimum-norm least-squares solution of ``A_x X = B``
         for ``A = [A_x | B]``; singular values of ``A_x`` below ``rcond`` times the

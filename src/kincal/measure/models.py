@@ -434,17 +434,17 @@ class PositionMeasurement(MeasurementModel):
         the minimum-norm solution is taken (markers near the tool origin).
 
         One pass over the configurations, in pieces, gathers everything (memory
-        independent of N): the QR triangle of step 1's system; that of step 2's
-        matrix ``[I, -R_e]`` with its right-hand sides ``p_e`` and ``y_b e_a``, since
-        ``p_e - R y = p_e - sum_ab R_ab y_b e_a`` is linear in ``R``; and the weighted
+        independent of N): the QR triangle of step 1's system, which also gives that of
+        step 2's matrix ``[I, -R_e]`` with its right-hand sides ``p_e`` and ``y_b e_a``
+        (the same columns in another order), since ``p_e - R y = p_e - sum_ab R_ab y_b
+        e_a`` is linear in ``R``; and the weighted
         moments the Kabsch cross-covariance needs (``sum w y``, ``sum w p_e``,
         ``sum w R_e``, ``sum w y p_e^T``, ``sum w y_a R_e``), since the registered
         points ``p_e + R_e m`` are linear in ``m``.  The iterations then cost nothing.
         """
         N, K = self.N, self.K
-        eye = np.eye(3)
         p1, p2 = 12 + 3 * K, 3 + 3 * K
-        first, second = Triangle(p1 + 1), Triangle(p2 + 10)
+        first = Triangle(p1 + 1)
         w_all = 1.0 / self.sigma ** 2                              # (N, K)
         y0, pe0 = self._y[0, 0].copy(), None
         S_w = np.zeros(K)
@@ -456,35 +456,36 @@ class PositionMeasurement(MeasurementModel):
             Re, pe = T[:, :3, :3], T[:, :3, 3]
             y = self._y[cs]
             n = len(pe)
+            ReT = Re.transpose(2, 0, 1)                            # ReT[c, :, a] = Re[:, a, c]
+            # the systems' columns as rows (n, K, 3) of B (no transposed copy to fold):
             # step 1: [vec_col(A); t; m_1 .. m_K | p_e]
-            Mx = np.zeros((n, K, 3, p1 + 1))
-            for j in range(3):
-                Mx[:, :, :, 3 * j: 3 * j + 3] = y[:, :, j, None, None] * eye
-            Mx[:, :, :, 9:12] = eye
-            for k in range(K):
-                Mx[:, k, :, 12 + 3 * k: 15 + 3 * k] = -Re
-            Mx[:, :, :, p1] = pe[:, None, :]
-            first.add(Mx.reshape(-1, p1 + 1))
-            # step 2: [I, -R_e | p_e, y_b e_a (a, b = 0..2)]
-            A = np.zeros((n, K, 3, p2 + 10))
-            A[:, :, :, :3] = eye
-            for k in range(K):
-                A[:, k, :, 3 + 3 * k: 6 + 3 * k] = -Re
-            A[:, :, :, p2] = pe[:, None, :]
+            B = np.zeros((p1 + 1, n, K, 3))
             for a in range(3):
-                A[:, :, a, p2 + 1 + 3 * a: p2 + 4 + 3 * a] = y[:, :, :]
-            second.add(A.reshape(-1, p2 + 10))
-            # Kabsch moments (shifted by one point for accuracy)
+                for b in range(3):
+                    B[3 * b + a, :, :, a] = y[:, :, b]
+                B[9 + a, :, :, a] = 1.0
+                B[p1, :, :, a] = pe[:, a, None]
+            for k in range(K):
+                np.negative(ReT, out=B[12 + 3 * k: 15 + 3 * k, :, k, :])
+            first.add_transposed(B.reshape(p1 + 1, -1))
+            # Kabsch moments (shifted by one point for accuracy), as matrix products
             if pe0 is None:
                 pe0 = pe[0].copy()
             w = w_all[cs]                                          # (n, K)
             ys, ps = y - y0, pe - pe0
+            wy = (w[:, :, None] * ys).reshape(n, 3 * K)            # w_ik (y_ik - y_0)
             S_w += w.sum(0)
-            S_y += np.einsum("nk,nka->ka", w, ys)
+            S_y += wy.sum(0).reshape(K, 3)
             S_pe += w.T @ ps
-            S_R += np.einsum("nk,nbc->kbc", w, Re)
-            S_ype += np.einsum("nk,nka,nb->kab", w, ys, ps)
-            S_yR += np.einsum("nk,nka,nbc->kabc", w, ys, Re)
+            S_R += (w.T @ Re.reshape(n, 9)).reshape(K, 3, 3)
+            S_ype += (wy.T @ ps).reshape(K, 3, 3)
+            S_yR += (wy.T @ Re.reshape(n, 9)).reshape(K, 3, 3, 3)
+        # step 2's matrix [I, -R_e | p_e, y_b e_a] has step 1's columns (t, m, p_e and,
+        # as y_b e_a, column 3 b + a of vec_col(A)): its triangle is that of step 1's
+        # triangle with the columns in that order (A P = Q (R P))
+        order = [*range(9, p1 + 1), *(3 * b + a for a in range(3) for b in range(3))]
+        second = Triangle(p2 + 10)
+        second.R = np.linalg.qr(first.R[:, order], mode="r")
         sol = first.solve(p1)[:, 0]
         R = project_so3(sol[:9].reshape(3, 3, order="F"))
         m = sol[12:].reshape(K, 3)
