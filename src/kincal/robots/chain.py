@@ -881,11 +881,15 @@ class _Plan:
             const = np.where(rot[:, None], -np.cross(a, o), a)
             pre = (M, const[:, :, None])
         record = C > 0
-        L = self._block_size(N, False, record)
+        # configurations per block: the frames, the cross-product table and one block of
+        # output rows within _BLOCK_BYTES (a piece of a few thousand is one block, whose
+        # rows are then written in place)
+        per = 8 * (15 * self.J + 42 + 24 * K)
+        L = max(1, min(N, max(_BLOCK_MIN, min(_BLOCK_MAX, _BLOCK_BYTES // per))))
         for start in range(0, N, L):
             sl = slice(start, min(N, start + L))
             Lb = sl.stop - sl.start
-            b = self._scratch(Lb, record, record)
+            b = self._scratch(Lb, record, False)
             F, S = self._sweep(q, sl, b, record, prefix)
             Yb = Y[:, :, sl]
             for k in range(K):                                   # y_k = p + R m_k
