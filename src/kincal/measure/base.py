@@ -32,6 +32,7 @@ identifiability analysis need follows from ``(R, z)``: ``J^T W J = R^T R``,
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -110,6 +111,16 @@ def frame_matrix(values: Array) -> Array:
     :func:`kincal.spatial.xyzrpy_to_matrix` which takes ``(x, y, z, roll, pitch, yaw)``.
     """
     v = np.asarray(values, dtype=float)
+    if v.shape == (6,):                     # one frame: no batched stacking (the same products)
+        x, y, z, rz, ry, rx = v.tolist()
+        cz, sz, cy, sy, cx, sx = (math.cos(rz), math.sin(rz), math.cos(ry), math.sin(ry),
+                                  math.cos(rx), math.sin(rx))
+        T = np.eye(4)
+        T[:3, :3] = (np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+                     @ np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+                     @ np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]]))
+        T[:3, 3] = x, y, z
+        return T
     return homogeneous(rpy_to_matrix(v[..., [5, 4, 3]]), v[..., :3])
 
 
