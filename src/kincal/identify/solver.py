@@ -123,7 +123,13 @@ from numpy.typing import NDArray
 from scipy.special import gammaincinv
 
 from kincal.errors import IdentifiabilityError, KincalError
-from kincal.identify.identifiability import IdentifiabilityReport, analyze, default_priority
+from kincal.identify.identifiability import (
+    DEFAULT_TOL,
+    ZERO_TOL,
+    IdentifiabilityReport,
+    analyze,
+    default_priority,
+)
 from kincal.identify.names import match_names
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
 from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
@@ -610,10 +616,25 @@ def _columns(c: CompressedSystem, idx: Sequence[int]) -> CompressedSystem:
     return c.select([where[int(i)] for i in idx])
 
 
+def _independent(R: Array, tol: float | None) -> bool:
+    """Whether :func:`analyze` of ``R`` would keep every column, known without it: no
+    column is zero (``ZERO_TOL``) and the columns scaled to unit norm have a smallest
+    singular value above twice the tolerance.  (The analysis keeps a column when its
+    distance from the span of those kept before it, and the smallest singular value of
+    the kept ones, exceed ``tol``; both are at least that of all the columns.)"""
+    norms = np.linalg.norm(R, axis=0)
+    big = float(norms.max()) if norms.size else 0.0
+    if not big > 0 or np.any(norms <= ZERO_TOL * big):
+        return False
+    s = np.linalg.svd(R / norms, compute_uv=False)
+    return bool(s[-1] > 2.0 * (DEFAULT_TOL if tol is None else tol))
+
+
 def _reselections(prob: StackedProblem, est: list[int], at_start: CompressedSystem,
-                  at_end: CompressedSystem, converged: bool, tol: float | None
+                  at_end: CompressedSystem, converged: bool, tol: float | None,
+                  report: bool = False
                   ) -> tuple[list[tuple[list[int], IdentifiabilityReport, str, bool]],
-                             IdentifiabilityReport]:
+                             IdentifiabilityReport | None]:
     """Smaller base sets to try when the estimated set ``est`` fails where a stage ended.
 
     The base set is chosen at the stage's start, from the Jacobian ``J`` of a model that
@@ -651,6 +672,9 @@ def _reselections(prob: StackedProblem, est: list[int], at_start: CompressedSyst
         converged: whether the stage converged.
         tol: the analysis tolerance.
 
+        report: always return the analysis where the stage ended (otherwise None
+            when a converged stage's set plainly stands, :func:`_independent`).
+
     Returns:
         ``(options, analysis where the stage ended)``; each option is
         ``(indices to drop, the analysis that found them, why, needs convergence)``,
@@ -659,6 +683,8 @@ def _reselections(prob: StackedProblem, est: list[int], at_start: CompressedSyst
     names = [prob.names[i] for i in est]
     roles = [prob.roles[i] for i in est]
     c = _columns(at_end, est)
+    if converged and not report and _independent(c.R, tol):
+        return [], None
     end = analyze(c.R if converged else c.residual_free(), names, tol=tol, roles=roles)
     lost = [i for i, n in zip(est, names, strict=True) if n not in set(end.identifiable)]
     if converged and not lost:
@@ -1060,8 +1086,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         # set (see _reselections).
         reselected = False
         for _ in range(MAX_RESELECT):
-            options, end = _reselections(prob, est, at_start, end_c, last.converged, tol_rank)
+            options, end = _reselections(prob, est, at_start, end_c, last.converged, tol_rank,
+                                         report=reselected)
             if not options and reselected:      # the final set's conditioning, at its end
+                assert end is not None
                 report = dataclasses.replace(report, cond_scaled=end.cond_scaled,
                                              cond_unscaled=end.cond_unscaled)
             accepted = False
