@@ -39,7 +39,9 @@ Huber ``w = min(1, c / e)``, Cauchy ``w = 1 / (1 + (e / c)^2)``.  Measurements w
 final weight is below 0.5 are reported as outliers ``(block, row)``.
 
 Uncertainty: ``Cov = sigma0^2 (J^T J)^-1`` over the estimated parameters at the
-solution (weighted ``J``).  By default ``sigma0^2 = sum w r^2 / (M - p)`` (the
+solution (weighted ``J``; when the last step was shorter than ``tol_step``, ``J`` where
+it started: the step that ends a stage is not linearised again, and ``J`` moves by less
+than the step).  By default ``sigma0^2 = sum w r^2 / (M - p)`` (the
 a-posteriori variance factor: honest even when the stated sigmas are only nominal);
 ``trust_sigma=True`` uses ``sigma0 = 1`` (the Cramér-Rao bound of the stated noise).
 
@@ -750,6 +752,10 @@ class _StageEnd(NamedTuple):
     C: CompressedSystem | None = None
     #: the same without the prior rows (the measurements' own), when the stage has it
     data: CompressedSystem | None = None
+    #: ``C`` and ``data`` were built at ``theta``; False when the stage ended on a step
+    #: shorter than tol_step, whose triangle was not built: they are those where that
+    #: step started (``R`` stands for the one at ``theta``; ``z``, ``rho``, ``cost`` do not)
+    exact: bool = True
 
 
 def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
@@ -782,6 +788,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
          else _robust_weights(r, ids, dims, loss, loss_scale, n_fixed))  # type: ignore[arg-type]
     # the triangle at theta without its residual vector, while theta stays
     here = None if C is None else dataclasses.replace(C, r=None)
+    # where ``here`` was built: theta, except after a last step shorter than tol_step,
+    # which the stage takes without building its triangle (it ends there; the triangle
+    # where that step started stands for it: J differs by the step, < tol_step)
+    here_theta = theta
 
     def current() -> Array:
         nonlocal r
@@ -790,9 +800,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         return r
 
     def done(converged: bool, iterations: int, message: str) -> _StageEnd:
-        data = prob.measurements_at(theta) if isinstance(prob, _WithPrior) and prob.rows \
+        data = prob.measurements_at(here_theta) if isinstance(prob, _WithPrior) and prob.rows \
             else here
-        return _StageEnd(theta, converged, iterations, message, current(), here, data)
+        return _StageEnd(theta, converged, iterations, message, current(), here, data,
+                         here_theta is theta)
 
     cost_of = _half_weighted_ss
 
@@ -823,7 +834,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     for it in range(1, max_iter + 1):
         if here is None:
             C = prob.compressed(theta, w, est)
-            r, here = C.r, dataclasses.replace(C, r=None)
+            r, here, here_theta = C.r, dataclasses.replace(C, r=None), theta
         # [W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]: R D^-1 = U S V^T, g = U^T z
         D = np.linalg.norm(here.R, axis=0)
         Dmax = np.maximum(Dmax, D)
@@ -840,15 +851,19 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             dx = z / Ds
             new = theta.copy()
             new[est] += dx
-            C_new = prob.compressed(new, w, est) if speculate else None
+            step = _scaled_step(dx, theta[est])
+            # a step within tol_step ends the stage: no triangle there (see here_theta)
+            C_new = prob.compressed(new, w, est) if speculate and step > tol_step else None
             r_new = prob.residuals(new) if C_new is None else C_new.r
             c_new = cost_of(r_new, w)
             if not np.isfinite(c_new):
                 return done(False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
                                             "(non-finite residuals); try method='lm'"))
-            step = _scaled_step(dx, theta[est])
             theta, r = new, r_new
-            here = None if C_new is None else dataclasses.replace(C_new, r=None)
+            if C_new is not None:
+                here, here_theta = dataclasses.replace(C_new, r=None), theta
+            elif not (speculate and step <= tol_step):
+                here = None
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
             if step <= tol_step:
@@ -875,17 +890,18 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                                                                 g) ** 2))
             new = theta.copy()
             new[est] += dx
+            # A trial step within tol_step ends the stage whether it is taken or not: if
+            # it fails, every further (more damped) one is shorter still (in the scaled
+            # norm), so whatever it found would end the stage on the step rule with theta
+            # changed by about tol_step at most; stop here (one evaluation rather than a
+            # dozen doublings of lambda).  Its triangle is not built (see here_theta).
+            tiny = _scaled_step(dx, theta[est]) <= tol_step
             # the first trial of an iteration is usually taken: build its triangle now
-            C_new = prob.compressed(new, w, est) if speculate and first else None
+            C_new = prob.compressed(new, w, est) if speculate and first and not tiny else None
             first = False
             r_new = prob.residuals(new) if C_new is None else C_new.r
             c_new = cost_of(r_new, w)
             rho = (cost - c_new) / pred if pred > 0 else (0.0 if c_new > cost else 1.0)
-            # A failed trial step within tol_step: every further (more damped) one is
-            # shorter still (in the scaled norm), so whatever it found would end the
-            # stage on the step rule with theta changed by about tol_step at most; stop
-            # here (one evaluation rather than a dozen doublings of lambda).
-            tiny = _scaled_step(dx, theta[est]) <= tol_step
             if try_gn:
                 try_gn = False
                 if np.isfinite(c_new) and rho > 0.25:
@@ -920,7 +936,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                                    "tol_step (at a minimum)"))
         step = _scaled_step(dx, theta[est])
         theta, r = new, r_new                    # C_new: the triangle there, if built
-        here = None if C_new is None else dataclasses.replace(C_new, r=None)
+        if C_new is not None:
+            here, here_theta = dataclasses.replace(C_new, r=None), theta
+        elif not (speculate and tiny):
+            here = None
         w_old = w
         w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
@@ -1035,31 +1054,34 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     def weights_of(res: Array) -> Array:
         return _robust_weights(res, ids, dims, loss, loss_scale)
 
-    def solve(idx: list[int], theta_start: Array, label: str, at: CompressedSystem
+    def solve(idx: list[int], theta_start: Array, label: str, at: CompressedSystem | None
               ) -> _StageEnd:
         """Run a stage over ``idx`` from ``theta_start`` (``at``: the measurements'
-        triangle there, over columns that include ``idx``)."""
+        triangle there, over columns that include ``idx``, or None)."""
         aug = with_prior(idx)
+        first = None if at is None else aug.extend(_columns(at, idx), theta_start)
         return _run_stage(aug, theta_start, idx, label, method, loss, loss_scale, max_iter,
-                          tol_step, tol_cost, ids, dims, history, progress, aug.rows,
-                          aug.extend(_columns(at, idx), theta_start))
+                          tol_step, tol_cost, ids, dims, history, progress, aug.rows, first)
 
-    def ended(stage: _StageEnd, stage_est: Sequence[int], columns: Iterable[int]
-              ) -> CompressedSystem:
+    def ended(stage: _StageEnd, columns: Iterable[int]) -> tuple[CompressedSystem, bool]:
         """The measurements' triangle (robust weights, no prior rows) where ``stage``
-        ended, over ``columns``: the one the stage built there when it is that one
-        (uniform weights, the same columns)."""
+        ended, over ``columns``: the one the stage built when it is that one (uniform
+        weights, the same columns); and whether it is at the stage's end (else it is
+        where the stage's last step, shorter than tol_step, started: its ``R`` stands
+        for the one at the end, not its ``z``; see ``_StageEnd.exact``)."""
         cols = sorted(set(columns))
         C = stage.data
-        if C is not None and loss == "linear" and [int(j) for j in C.columns] == cols:
-            return dataclasses.replace(C, r=None)
+        if (C is not None and loss == "linear" and [int(j) for j in C.columns] == cols
+                and (stage.exact or stage.converged)):
+            return dataclasses.replace(C, r=None), stage.exact
         return prob.compressed(stage.theta, weights_of(stage.r[:M]), cols,
-                               keep_residuals=False)
+                               keep_residuals=False), True
 
     all_cand = [[i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
                 for spec in specs]
     last: _StageEnd | None = None
     end_c: CompressedSystem | None = None
+    end_exact = True
     for k, spec in enumerate(specs):
         label = _stage_label(spec)
         stage_cand = all_cand[k]
@@ -1067,7 +1089,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         after = all_cand[k + 1] if k + 1 < len(specs) else []
         start = theta.copy()
         # the weighted measurements at the stage's start, compressed to a triangle
-        if end_c is None:
+        if end_c is None or not end_exact:
             w0 = None if loss == "linear" else weights_of(prob.residuals(start))
             at_start = prob.compressed(start, w0, stage_cand, keep_residuals=False)
         else:
@@ -1079,7 +1101,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                          tol=tol_rank, roles=cand_roles, priority=priority)
         est = sorted(names.index(n) for n in report.identifiable)
         last = solve(est, start, label, at_start)
-        end_c = ended(last, est, [*est, *after])
+        end_c, end_exact = ended(last, [*est, *after])
         total_it += last.iterations
         # The base set was chosen at the stage's start; check it where the stage ended
         # and, if it fails there, solve the stage again from its start with a smaller
@@ -1106,7 +1128,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
                                 f"again from its start with {len(kept)} parameters")
                 report = _drop_from_report(report, check, lost)
                 est, last = kept, again
-                end_c = ended(last, est, [*est, *after])
+                end_c, end_exact = ended(last, [*est, *after])
                 total_it += again.iterations
                 reselected = accepted = True
                 break
@@ -1129,8 +1151,9 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             if new is None or abs(new / scale[0] - 1.0) < NOISE_RTOL:
                 break
             scale[0] = new
-            last = solve(est, theta, label, end_c)
-            theta, end_c = last.theta, ended(last, est, est)
+            last = solve(est, theta, label, end_c if end_exact else None)
+            theta = last.theta
+            end_c, end_exact = ended(last, est)
             total_it += last.iterations
             converged = earlier_ok and last.converged
             messages[-1] = last.message
