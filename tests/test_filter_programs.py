@@ -25,6 +25,7 @@ from kincal.compensation.programs import fanuc, krl, rapid, urscript
 from kincal.compensation.programs.base import read_frames
 from kincal.compensation.programs.driver import filter_program, read_program
 from kincal.compensation.programs.numbers import format_number, style_of
+from kincal.errors import KincalError
 from kincal.measure.simulate import perturb_robot
 from kincal.motion.ik_wrist import ik_spherical_wrist
 from kincal.robots.controller import controller_map
@@ -372,10 +373,11 @@ def test_plan_writes_a_joint_move_program_the_readers_read_back(case, tmp_path, 
 
 
 def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
-    """With a calibration result, each filtered target gets the predicted position std of
-    the calibrated model there, and targets whose joints leave the training ranges are
-    flagged 'outside the calibrated region'."""
-    from kincal.compensation.filter import accuracy_from_result
+    """With a calibration's accuracy model (kincal.identify.accuracy), each filtered target
+    gets the predicted position std of the calibrated model at its TCP, and targets whose
+    joints leave the training ranges are flagged 'outside the calibrated region'."""
+    from kincal.compensation.filter import tcp_accuracy
+    from kincal.identify.accuracy import AccuracyModel, accuracy_model, predicted_position_std
     from kincal.identify.solver import calibrate
     from kincal.measure.simulate import simulate_positions
 
@@ -384,28 +386,63 @@ def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
     rng = np.random.default_rng(4)
     q = rng.uniform(-0.6, 0.6, (40, 6)) + np.array([0.1, -1.2, 1.5, -1.9, -1.57, 0.3])
     res = calibrate(nom, [simulate_positions(truth, q, rng, noise_std=1e-5)])
+    model = accuracy_model(res)
     src = _copy(tmp_path, "pick_and_place.script")
-    out = filter_program(str(src), res.robot, nom, accuracy=accuracy_from_result(res))
+    out = filter_program(str(src), res.robot, nom, accuracy=model)
     poses = [r for r in out.reports if r.kind == "pose"]
     assert all(np.isfinite(r.predicted_std_mm) and r.predicted_std_mm > 0 for r in poses)
-    # the same numbers from the result JSON's accuracy model (covariance, joint ranges)
-    from kincal.compensation.accuracy_model import accuracy_document, accuracy_from_document
-    from kincal.identify.accuracy import predicted_position_std
-
-    model = accuracy_from_document({"accuracy_model": accuracy_document(res)}, res.robot)
+    # the std at the program's TCP is the covariance propagated to that point, and the
+    # result JSON's model (to_dict / from_dict) gives the same numbers
     q_t = np.array([out.result.joints[r.index] for r in poses])
     m = np.array([0.0, 0.0, 0.15])                                  # the program's set_tcp
-    std, _ = model(q_t, np.tile(m, (len(q_t), 1)))
+    assert np.allclose(predicted_position_std(res, q_t, point=m) * 1e3,
+                       [r.predicted_std_mm for r in poses], rtol=1e-9)
+    back = AccuracyModel.from_dict(json.loads(json.dumps(model.to_dict())))
+    std, outside = tcp_accuracy(back, res.robot, q_t, np.tile(m, (len(q_t), 1)))
     assert np.allclose(std * 1e3, [r.predicted_std_mm for r in poses], rtol=1e-9)
-    assert np.allclose(std, predicted_position_std(res, q_t, point=m), rtol=1e-9)
     # a far target (shoulder pan turned by 2 rad) is outside the region the data covered
     text = src.read_text().replace("movej(home, a=1.4, v=1.05)",
                                    "movej([2.5, -1.2, 1.5, -1.9, -1.57, 0.3])\n"
                                    "  movel(p[0.5, 0.3, 0.2, 0.0, 3.14, 0.0])")
     src.write_text(text)
-    out = filter_program(str(src), res.robot, nom, accuracy=accuracy_from_result(res))
+    out = filter_program(str(src), res.robot, nom, accuracy=model)
     flagged = [r for r in out.reports if "outside the calibrated region" in r.warnings]
     assert flagged and all(r.kind == "pose" for r in flagged)
+
+
+def test_filter_reads_the_older_accuracy_model(tmp_path):
+    """A result JSON whose accuracy_model holds only the robot parameters' covariance and
+    the training joint ranges (what `kincal calibrate --json` wrote before the hull, the
+    measured point and the floor were added) still gives the std at each TCP and the
+    joint-range flag."""
+    from kincal.compensation.filter import tcp_accuracy
+    from kincal.identify.accuracy import AccuracyModel, predicted_position_std
+    from kincal.identify.solver import calibrate
+    from kincal.measure.simulate import simulate_positions
+
+    nom = load_robot("ur5")
+    truth = perturb_robot(nom, np.random.default_rng(3))
+    rng = np.random.default_rng(4)
+    q = rng.uniform(-0.6, 0.6, (40, 6)) + np.array([0.1, -1.2, 1.5, -1.9, -1.57, 0.3])
+    res = calibrate(nom, [simulate_positions(truth, q, rng, noise_std=1e-5)])
+    keep = [i for i, n in enumerate(res.estimated) if n in nom.param_names]
+    old = {"parameters": [res.estimated[i] for i in keep],
+           "covariance": res.covariance[np.ix_(keep, keep)].tolist(),
+           "joint_names": list(nom.joint_names), "joint_min": q.min(axis=0).tolist(),
+           "joint_max": q.max(axis=0).tolist(), "note": "covariance (m, rad)"}
+    model = AccuracyModel.from_dict(old)
+    m = np.array([0.01, 0.0, 0.15])
+    q_t = np.vstack([q[:5], q[0] + [2.0, 0, 0, 0, 0, 0]])
+    std, outside = tcp_accuracy(model, res.robot, q_t, np.tile(m, (len(q_t), 1)))
+    assert np.allclose(std, predicted_position_std(res, q_t, point=m), rtol=1e-9)
+    assert outside.tolist() == [False] * 5 + [True]
+    rj = tmp_path / "old.json"
+    rj.write_text(json.dumps({"accuracy_model": old}))
+    from kincal.workflow.flow import accuracy_from_result
+
+    assert accuracy_from_result(rj, res.robot).parameters == tuple(old["parameters"])
+    with pytest.raises(KincalError, match="for another robot"):
+        accuracy_from_result(rj, load_robot("puma560"))
 
 
 def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys):
@@ -413,7 +450,8 @@ def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys
     joint ranges; `kincal filter --result` reports the predicted std at every target's TCP,
     equal to the in-memory propagation (kincal.identify.accuracy), and flags targets
     outside the calibrated joint ranges."""
-    from kincal.compensation.accuracy_model import accuracy_from_document
+    from kincal.compensation.filter import tcp_accuracy
+    from kincal.workflow.flow import accuracy_from_result
 
     train = tmp_path / "train.csv"
     code, _, err = run(capsys, "simulate", "kr6", "-o", train, "--truth", tmp_path / "t.yaml",
@@ -431,7 +469,8 @@ def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys
     rows = json.loads((tmp_path / "f.json").read_text())["targets"]
     stds = [r["predicted_std_mm"] for r in rows if r["status"] == "filtered"]
     assert stds and all(s > 0 for s in stds)
-    doc = json.loads(rj.read_text())
-    model = accuracy_from_document(doc, load_robot(str(cal)))
-    std, inside = model(np.radians([[5.0, -80, 100, 10, 40, -20]]), np.array([[0.01, 0, 0.15]]))
+    model = accuracy_from_result(rj, load_robot(str(cal)))
+    std, outside = tcp_accuracy(model, load_robot(str(cal)),
+                                np.radians([[5.0, -80, 100, 10, 40, -20]]),
+                                np.array([[0.01, 0, 0.15]]))
     assert std[0] > 0

@@ -388,11 +388,11 @@ def validate_cmd(
 
     Without --result each file's instrument parameters (frame and marker) are re-registered
     to each robot: they absorb a little of any robot error."""
-    from kincal.identify.accuracy import AccuracyModel
     from kincal.io import write_json
     from kincal.measure.joints.terms import parse_joint_model, with_joint_model
     from kincal.report.metrics import error_metrics, merge_errors
     from kincal.workflow.flow import (
+        accuracy_from_result,
         check_options_used,
         extras_from_result,
         result_document,
@@ -421,7 +421,7 @@ def validate_cmd(
     doc_in = result_document(result) if result else {}
     accuracy = None
     if isinstance(doc_in.get("accuracy_model"), dict):
-        accuracy = AccuracyModel.from_dict(doc_in["accuracy_model"], str(result))
+        accuracy = accuracy_from_result(str(result), r)
     files = validate_blocks(r, blocks, before, extras, validation_frames,
                             extras_from_result(result, "before") if result else None,
                             accuracy)

@@ -142,7 +142,12 @@ def compensate_cmd(
     if fallback == "nominal" and (nom is None or result is None):
         raise KincalError("--fallback nominal needs --nominal (the controller's model) and "
                           "--result (the predicted accuracy)")
-    accuracy = _accuracy(result, cal) if result else None
+    if result:
+        from kincal.workflow.flow import accuracy_from_result
+
+        accuracy = accuracy_from_result(result, cal)
+    else:
+        accuracy = None
     T, seeds, table = read_targets(targets, cal, units, ignore)
     length_unit = length_unit or table.units.get("x", "m")
     angle_unit = angle_unit or table.units.get("rx", "rad" if length_unit == "m" else "deg")
@@ -206,23 +211,6 @@ def compensate_cmd(
             doc["fallback_nominal"] = (comp.fallback if comp.fallback is not None
                                        else np.zeros(len(comp), dtype=bool))
         write_json(json_out, doc)
-
-
-def _accuracy(result: str, robot: Any) -> Any:
-    """The :class:`~kincal.identify.accuracy.AccuracyModel` of a result JSON."""
-    from kincal.identify.accuracy import AccuracyModel
-    from kincal.workflow.flow import result_document
-
-    doc = result_document(result)
-    if not isinstance(doc.get("accuracy_model"), dict):
-        raise KincalError("has no accuracy_model (written by `kincal calibrate --json`)",
-                          source=result)
-    model = AccuracyModel.from_dict(doc["accuracy_model"], result)
-    missing = [n for n in model.parameters if n not in robot.param_names]
-    if missing:
-        raise KincalError(f"its accuracy model is for another robot (no parameter "
-                          f"{missing[0]!r} in {robot.name!r})", source=result)
-    return model
 
 
 def _print_prediction(out: Any, pred: Any, comp: Any, table: Any, cu: Any) -> None:

@@ -68,8 +68,9 @@ def filter_cmd(
     result: Annotated[str | None, typer.Option("--result", help="Result JSON of the "
                                                "calibration (`kincal calibrate --json`): each "
                                                "target gets the calibrated model's predicted "
-                                               "accuracy there, and targets outside the "
-                                               "calibrated joint ranges are flagged.")] = None,
+                                               "accuracy (std at its TCP) there, and targets "
+                                               "outside the calibrated region (training "
+                                               "joint ranges and workspace) are flagged.")] = None,
     csv_out: Annotated[str | None, typer.Option("--csv", help="Also write the per-target "
                                                 "table as CSV.")] = None,
     json_out: JsonOpt = None, base_link: BaseLink = None, tip_link: TipLink = None,
@@ -91,15 +92,9 @@ def filter_cmd(
     fr = read_frames(frames)
     accuracy = None
     if result:
-        import json
+        from kincal.workflow.flow import accuracy_from_result
 
-        from kincal.compensation.accuracy_model import accuracy_from_document
-
-        try:
-            doc = json.loads(Path(result).read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise KincalError(f"cannot read the result JSON ({exc})", source=result) from None
-        accuracy = accuracy_from_document(doc, cal, result)
+        accuracy = accuracy_from_result(result, cal)
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
     if not res.reports:
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "

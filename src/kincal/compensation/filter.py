@@ -21,14 +21,18 @@ Warnings per target: unreachable (left unchanged), branch change (the calibrated
 solution has another configuration than asked: the controller would not reproduce
 it), near a singularity (shoulder, elbow or wrist margin below
 :data:`SINGULARITY_MARGINS`), joint limit (within :data:`LIMIT_MARGIN` of one),
-outside the calibrated region (when an accuracy model says so).  Units: m, rad.
+outside the calibrated region (with the calibration's
+:class:`~kincal.identify.accuracy.AccuracyModel`: a joint outside the training ranges or
+the TCP outside the training workspace hull, :func:`~kincal.identify.accuracy.predict`),
+where each target also gets the predicted position std of its TCP.  Units: m, rad.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,16 +48,15 @@ from kincal.spatial import log_so3
 
 Array = NDArray[np.float64]
 
+if TYPE_CHECKING:
+    from kincal.identify.accuracy import AccuracyModel
+
 #: Singularity margins: wrist centre within 20 mm of axis 1, elbow within 2 deg of
 #: stretched or folded (|Y| / r3 = sine of that angle), wrist within 2 deg of aligned.
 SINGULARITY_MARGINS = (0.020, math.sin(math.radians(2.0)), math.sin(math.radians(2.0)))
 #: A joint within this distance of a limit [rad] is flagged.
 LIMIT_MARGIN = math.radians(2.0)
 
-#: The accuracy model's answer at joint values (N, n) for TCPs (N, 3) in the flange frame:
-#: predicted position std [m] and whether each configuration lies inside the region the
-#: calibration data covered.
-AccuracyModel = Callable[[Array, Array], tuple[Array, NDArray[np.bool_]]]
 
 
 @dataclass
@@ -197,7 +200,9 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
         requests: the targets, in program order.
         offline_joints: correct joint targets too (they were computed with the nominal
             model); by default they stay (taught on the real robot).
-        accuracy: optional accuracy model of the calibration (predicted std, inside flag).
+        accuracy: the calibration's accuracy model (:func:`~kincal.identify.accuracy.
+            accuracy_model`, or ``AccuracyModel.from_dict`` of a result JSON): each
+            target's predicted position std at its TCP and the outside-the-region flag.
         cmap: the controller map; default the nominal robot's.
     """
     _check_compatible(calibrated, nominal)
@@ -314,41 +319,29 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
     changed = ok & (pose | offline_joints) & ((shift_p > 1e-9) | (shift_r > 1e-9))
     std = np.full(N, np.nan)
     if accuracy is not None and good.size:
-        s, inside = accuracy(q_cal[good], tools[good][:, :3, 3])
+        s, outside = tcp_accuracy(accuracy, calibrated, q_cal[good], tools[good][:, :3, 3])
         std[good] = s
-        for k in np.flatnonzero(~np.asarray(inside, bool)):
+        for k in np.flatnonzero(outside):
             warnings[good[k]].append("outside the calibrated region")
     return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
                         reason, warnings, signs)
 
 
-def accuracy_from_result(result: object, tool_point: Array | None = None,
-                         margin: float = 0.0) -> AccuracyModel:
-    """An :data:`AccuracyModel` from a calibration result (in memory).
+def tcp_accuracy(accuracy: AccuracyModel, calibrated: Robot, q: Array, tcp: Array
+                 ) -> tuple[Array, NDArray[np.bool_]]:
+    """The predicted position std [m] of each TCP (N, 3) in the flange frame at joints
+    ``q`` (N, n), and whether the configuration lies outside the calibrated region
+    (:func:`kincal.identify.accuracy.predict` with ``point=`` the TCP, one propagation
+    per distinct TCP)."""
+    from kincal.identify.accuracy import predict
 
-    The predicted std is :func:`kincal.identify.accuracy.predicted_position_std` of the
-    flange point (``tool_point``, (3,) in the flange frame [m], default its origin)
-    through the robot parameters' covariance.  A configuration is inside the calibrated
-    region when every joint lies within the range the training blocks covered (widened
-    by ``margin`` [rad / m]): outside it the prediction is an extrapolation.
-    """
-    from kincal.identify.accuracy import predicted_position_std
-
-    qs = [np.asarray(b.q, dtype=float) for b in result.problem.blocks  # type: ignore[attr-defined]
-          if hasattr(b, "q")]
-    q_all = np.vstack(qs) if qs else None
-    lo = q_all.min(axis=0) - margin if q_all is not None else None
-    hi = q_all.max(axis=0) + margin if q_all is not None else None
-    point = np.zeros(3) if tool_point is None else np.asarray(tool_point, dtype=float)
-
-    def model(q: Array, tcp: Array) -> tuple[Array, NDArray[np.bool_]]:
-        std = np.zeros(len(q))
-        pts = np.asarray(tcp, dtype=float) if tool_point is None else np.tile(point, (len(q), 1))
-        for m in np.unique(pts, axis=0):          # one propagation per distinct TCP
-            rows = np.all(pts == m, axis=1)
-            std[rows] = predicted_position_std(result, q[rows], point=m)  # type: ignore[arg-type]
-        inside = (np.all((q >= lo) & (q <= hi), axis=1) if lo is not None
-                  else np.ones(len(q), bool))
-        return std, inside
-
-    return model
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    tcp = np.asarray(tcp, dtype=float).reshape(len(q), 3)
+    std = np.zeros(len(q))
+    outside = np.zeros(len(q), dtype=bool)
+    for m in np.unique(tcp, axis=0):
+        rows = np.all(tcp == m, axis=1)
+        pred = predict(accuracy, calibrated, q[rows], point=m)
+        std[rows] = pred.std_position_m
+        outside[rows] = pred.outside
+    return std, outside

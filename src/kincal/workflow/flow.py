@@ -561,6 +561,30 @@ def result_document(path: str | Path) -> dict[str, Any]:
     return doc
 
 
+def accuracy_from_result(path: str | Path, robot: Any) -> Any:
+    """The :class:`~kincal.identify.accuracy.AccuracyModel` of a result JSON written by
+    ``kincal calibrate --json`` (its ``accuracy_model``; older files holding only the
+    robot parameters' covariance and the training joint ranges read too), checked
+    against the calibrated ``robot``: one-line errors naming the file."""
+    from kincal.identify.accuracy import AccuracyModel
+
+    doc = result_document(path)
+    if not isinstance(doc.get("accuracy_model"), dict):
+        raise KincalError("has no accuracy_model (written by `kincal calibrate --json`)",
+                          source=str(path))
+    model = AccuracyModel.from_dict(doc["accuracy_model"], str(path))
+    missing = [n for n in model.parameters if n not in robot.param_names]
+    if missing:
+        raise KincalError(f"its accuracy model is for another robot (no parameter "
+                          f"{missing[0]!r} in {robot.name!r})", source=str(path))
+    region = model.region
+    if region is not None and tuple(region.joint_names) != tuple(robot.joint_names):
+        raise KincalError(f"its accuracy model is for another robot (joints "
+                          f"{', '.join(region.joint_names)}, not those of {robot.name!r})",
+                          source=str(path))
+    return model
+
+
 def extras_from_result(path: str | Path, which: str = "estimate") -> dict[str, float]:
     """``{parameter: value}`` of a result JSON written by ``kincal calibrate``.
 

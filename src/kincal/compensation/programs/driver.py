@@ -14,11 +14,11 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from kincal.compensation.filter import AccuracyModel, FilterResult, TargetRequest, filter_targets
+from kincal.compensation.filter import FilterResult, TargetRequest, filter_targets
 from kincal.compensation.programs.base import (
     Array,
     Frames,
@@ -30,6 +30,9 @@ from kincal.errors import KincalError
 from kincal.robots.chain import Robot
 from kincal.robots.controller import controller_map
 from kincal.spatial import inverse
+
+if TYPE_CHECKING:
+    from kincal.identify.accuracy import AccuracyModel
 
 DIALECTS = ("krl", "rapid", "urscript", "fanuc-ls")
 _SUFFIX = {".src": "krl", ".dat": "krl", ".mod": "rapid", ".modx": "rapid", ".prg": "rapid",
