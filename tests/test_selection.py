@@ -18,11 +18,13 @@ from cli_helpers import run
 from test_cli_joint_model import H_TRUE, INSTRUMENT, MARKER, NOISE
 from test_compliance import perturbed_puma
 
+from kincal.errors import KincalError
 from kincal.identify.selection import (
     Candidate,
     FoldResult,
     candidates,
     choose,
+    cross_validate,
     fold_specs,
     fold_units,
     run_fold,
@@ -92,6 +94,24 @@ def test_fold_tasks_are_pure_and_any_mapper_runs_them(sim):
                                mapper=lambda f, xs: [pool.submit(f, x) for x in xs])
     plain = select_model(nominal, [play], tol, [Candidate()], folds=3)
     assert futures.rms == plain.rms
+
+
+def test_one_fold_mechanism_for_cross_validate_and_select(sim):
+    """cross_validate (one block, its own folds) runs the same fold tasks as --select auto:
+    the geometric candidate's pooled held-out RMS of select_model on the same parts is
+    cross_validate's, each row is held out once, and the folds' fits come back."""
+    nominal, play, _, tol = sim
+    cv = cross_validate(nominal, play, folds=3, rng=np.random.default_rng(0),
+                        prior=None)
+    assert cv["split"] == "rows" and len(cv["results"]) == len(cv["folds"]) == 3
+    assert sorted(u for part in cv["held_out"] for u in part) == list(range(play.N))
+    assert all(r.problem.blocks[0].N == play.N - len(h)
+               for r, h in zip(cv["results"], cv["held_out"], strict=True))
+    sel = select_model(nominal, [play], tol, [Candidate((), None)], folds=3, seed=0)
+    assert cv["rms_position_m"] == pytest.approx(sel.rms[0], rel=1e-9)
+    assert sum(f["n"] for f in cv["folds"]) == play.N
+    with pytest.raises(KincalError, match="folds must be between 2 and its number of rows"):
+        cross_validate(nominal, play, folds=play.N + 1)
 
 
 def test_the_rule_skips_untrusted_candidates():

@@ -41,8 +41,8 @@ from kincal.errors import KincalError
 Array = NDArray[np.float64]
 
 __all__ = ["Candidate", "FoldSpec", "FoldResult", "Selection", "candidates", "fold_units",
-           "fold_specs", "run_fold", "select_model", "gather_folds", "choose", "RULE",
-           "split_kind",
+           "fold_specs", "run_fold", "run_folds", "select_model", "gather_folds",
+           "cross_validate", "choose", "RULE", "split_kind",
            "PRIOR_SCALES", "JOINT_MODELS"]
 
 #: Prior scales tried (times the tolerances); ``None`` is least squares.
@@ -108,12 +108,15 @@ def split_kind(blocks: Sequence[Any]) -> str:
     return " / ".join(kinds)
 
 
-def fold_units(blocks: Sequence[Any], folds: int, seed: int = 0
+def fold_units(blocks: Sequence[Any], folds: int,
+               seed: int | np.random.Generator | None = 0
                ) -> tuple[list[list[Any] | None], list[str]]:
     """Per block, its units in ``folds`` parts (None: too few units, always trained on),
-    and why blocks are not split.  Permutations from ``numpy.random.default_rng(seed)``,
-    one per block in order."""
-    rng = np.random.default_rng(seed)
+    and why blocks are not split.  Permutations from ``numpy.random.default_rng(seed)``
+    (or the generator given), one per block in order; ``seed=None``: the units in their
+    order, consecutive parts."""
+    rng = seed if isinstance(seed, np.random.Generator) else \
+        None if seed is None else np.random.default_rng(seed)
     parts: list[list[Any] | None] = []
     notes = []
     for b in blocks:
@@ -123,7 +126,7 @@ def fold_units(blocks: Sequence[Any], folds: int, seed: int = 0
             notes.append(f"{b.name}: {len(units)} {what}, fewer than {folds} folds: always "
                          "in training")
             continue
-        order = rng.permutation(len(units))
+        order = np.arange(len(units)) if rng is None else rng.permutation(len(units))
         parts.append([[units[i] for i in np.sort(p)] for p in np.array_split(order, folds)])
     return parts, notes
 
@@ -143,6 +146,8 @@ class FoldSpec:
         options: keyword arguments of :func:`~kincal.identify.solver.calibrate`
             (``prior`` already scaled).
         tolerances: ``{name: tolerance}`` for the plausibility of the full fit.
+        keep: return the fit itself in :attr:`FoldResult.result` (in-process use: a
+            whole calibration result is heavy to send back from a worker).
     """
 
     candidate: int
@@ -153,6 +158,7 @@ class FoldSpec:
     test: tuple[Any, ...]
     options: Mapping[str, Any]
     tolerances: Mapping[str, float] = field(default_factory=dict)
+    keep: bool = False
 
 
 @dataclass
@@ -167,6 +173,8 @@ class FoldResult:
         trusted: the full fit converged and is plausible (folds: same as converged).
         reason: why not (empty when trusted).
         estimated: number of estimated parameters; ``sigma0``: the fit's noise scale.
+        result: the fit (a :class:`~kincal.identify.solver.CalibrationResult`) when
+            the spec asked to ``keep`` it, else None.
     """
 
     candidate: int
@@ -177,6 +185,7 @@ class FoldResult:
     reason: str = ""
     estimated: int = 0
     sigma0: float = float("nan")
+    result: Any = None
 
 
 def run_fold(spec: FoldSpec) -> FoldResult:
@@ -210,7 +219,17 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     return FoldResult(spec.candidate, spec.fold, {k: np.concatenate(v) for k, v in
                                                    errors.items()},
                       bool(res.converged), trusted, "" if trusted else verdict.short(),
-                      len(res.estimated), float(res.sigma0))
+                      len(res.estimated), float(res.sigma0), res if spec.keep else None)
+
+
+def _fold_parts(parts: Sequence[list[Any] | None], k: int
+                ) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+    """Per block, the units trained on and held out in fold ``k`` (None: the whole block /
+    nothing)."""
+    train = tuple(None if p is None else [u for j, q in enumerate(p) if j != k for u in q]
+                  for p in parts)
+    test = tuple(None if p is None else list(p[k]) for p in parts)
+    return train, test
 
 
 def fold_specs(robot: Any, blocks_by_candidate: Sequence[Sequence[Any]],
@@ -230,9 +249,7 @@ def fold_specs(robot: Any, blocks_by_candidate: Sequence[Sequence[Any]],
         specs.append(FoldSpec(c, -1, robot, tuple(blocks), full, full, opts,
                               dict(tolerances)))
         for k in range(folds):
-            train = tuple(None if p is None else [u for j, q in enumerate(p) if j != k
-                                                  for u in q] for p in parts)
-            test = tuple(None if p is None else list(p[k]) for p in parts)
+            train, test = _fold_parts(parts, k)
             specs.append(FoldSpec(c, k, robot, tuple(blocks), train, test, opts,
                                   dict(tolerances)))
     return specs
@@ -316,21 +333,80 @@ def _pool(results: Sequence[FoldResult], n: int) -> list[dict[str, list[Array]]]
     return out
 
 
+def run_folds(robot: Any, blocks: Sequence[Any], parts: Sequence[list[Any] | None],
+              options: Mapping[str, Any], mapper: Callable[..., Iterable[Any]] = map,
+              candidate: int = 0, keep: bool = False) -> list[FoldResult]:
+    """One fit per fold of ``blocks`` as they are (``options`` as given, ``prior``
+    included): the :class:`FoldResult` of every fold, in fold order."""
+    folds = max((len(p) for p in parts if p is not None), default=0)
+    specs = [FoldSpec(candidate, k, robot, tuple(blocks), *_fold_parts(parts, k),
+                      dict(options), keep=keep) for k in range(folds)]
+    return sorted(_gather(mapper(run_fold, specs)), key=lambda r: r.fold)
+
+
+def _rms(errors: Mapping[str, Sequence[Array]]) -> dict[str, float]:
+    return {k: float(np.sqrt(np.mean(np.concatenate([np.ravel(x) for x in v]) ** 2)))
+            for k, v in errors.items()}
+
+
 def gather_folds(robot: Any, blocks_by_candidate: Sequence[Sequence[Any]],
                  cands: Sequence[Candidate], parts: Sequence[list[Any] | None],
                  tolerances: Mapping[str, float], options: Mapping[str, Any],
                  mapper: Callable[..., Iterable[Any]] = map) -> list[dict[str, float]]:
     """Cross-validate blocks as they are (e.g. already inside a joint model): per
     candidate, ``{kind: pooled held-out RMS}`` (``options["prior"]`` as given, the
-    candidates' scale ignored).  What ``--cross-validate K`` runs."""
-    specs = [s for s in fold_specs(robot, blocks_by_candidate, cands, parts, tolerances,
-                                   options) if s.fold >= 0]
-    specs = [FoldSpec(s.candidate, s.fold, s.robot, s.blocks, s.train, s.test,
-                      {**s.options, "prior": options.get("prior")}, s.tolerances)
-             for s in specs]
-    pooled = _pool(_gather(mapper(run_fold, specs)), len(cands))
-    return [{k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in p.items()}
-            for p in pooled]
+    candidates' scale and ``tolerances`` ignored).  What ``--cross-validate K`` runs."""
+    out = []
+    for c, blocks in enumerate(blocks_by_candidate[: len(cands)]):
+        pooled = _pool(run_folds(robot, blocks, parts, options, mapper, c), len(cands))[c]
+        out.append(_rms(pooled))
+    return out
+
+
+def cross_validate(robot: Any, block: Any, folds: int = 5,
+                   rng: np.random.Generator | None = None, *,
+                   mapper: Callable[..., Iterable[Any]] = map,
+                   **calibrate_options: Any) -> dict[str, Any]:
+    """K-fold cross-validation of a calibration on one block, through :func:`run_fold`.
+
+    The block is split by rows (blocks with ``subset(rows)``: a tracker's points) or,
+    for an artifact block, by *placements* (``subset_placements``): the rows of one
+    placement share its socket points and frames, so they are held out together; in
+    consecutive parts of the block's order, or of a permutation drawn from ``rng``.
+    Each fold calibrates on the other folds (``calibrate(robot, [train],
+    **calibrate_options)``) and predicts the held-out fold with the fit's frames and
+    parameters (an artifact's held-out placements get their own socket points fitted
+    with the robot fixed).  A fold whose fit fails raises its one-line error.
+
+    Returns:
+        ``{"rms_k": pooled RMS of error kind k over all held-out errors (e.g.
+        rms_position_m, rms_distance_m), "folds": [per-fold statistics
+        (:func:`~kincal.identify.validation.error_statistics`)], "results": [the folds'
+        CalibrationResult], "split": "rows" | "placements", "held_out": [per fold, the
+        held-out rows / placements], "errors": {kind: [per fold, its held-out errors,
+        flattened]}}``.
+    """
+    from kincal.identify.validation import error_statistics
+
+    units, split = _units(block)
+    if not (hasattr(block, "subset") or hasattr(block, "subset_placements")):
+        raise KincalError(f"block {block.name!r} cannot be split into folds")
+    if not 2 <= folds <= len(units):
+        raise KincalError(f"cross-validation of block {block.name!r}: folds must be between "
+                          f"2 and its number of {split} ({len(units)}), got {folds}")
+    parts, _ = fold_units([block], folds, rng)
+    results = run_folds(robot, [block], parts, calibrate_options, mapper, keep=True)
+    failed = [r for r in results if r.result is None]
+    if failed:
+        raise KincalError(f"cross-validation of block {block.name!r}, fold {failed[0].fold}: "
+                          f"{failed[0].reason}")
+    errors = _pool(results, 1)[0]
+    out: dict[str, Any] = {f"rms_{k}": v for k, v in _rms(errors).items()}
+    out.update({"folds": [error_statistics(r.errors) for r in results],
+                "results": [r.result for r in results], "split": split,
+                "held_out": [list((parts[0] or [])[r.fold]) for r in results],
+                "errors": errors})
+    return out
 
 
 def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, float],

@@ -21,7 +21,8 @@ points and frames belong to its placements: held-out placements never have them 
 placement is an unknown position of the same artifact; with ``sockets="eliminate"``
 the block does the same internally, a socket point being the mean of its tips).
 
-:func:`cross_validate` holds out rows, or whole placements of an artifact.
+:func:`kincal.identify.selection.cross_validate` holds out rows, or whole placements
+of an artifact, through the same fold tasks as ``--select auto``.
 
 Statistics per block and overall: for each error kind ``k`` (``position_m``,
 ``orientation_rad`` ...): ``rms_k = sqrt(mean e^2)``, ``mean_k``, ``max_k``; and ``n``,
@@ -30,7 +31,7 @@ the number of measured points.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,7 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["validate", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE"]
+__all__ = ["validate", "error_statistics", "PER_PLACEMENT_ROLE"]
 
 #: Role of block parameters that belong to one placement of an artifact (socket points,
 #: socket frames): held-out placements have their own, fitted on the held-out data.
@@ -154,62 +155,3 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
             pooled.setdefault(k, []).append(np.ravel(v))
     overall = error_statistics({k: np.concatenate(v) for k, v in pooled.items()})
     return {"overall": overall, "blocks": per, "extras": used}
-
-
-def _folds_of(block: Any) -> tuple[list[Any], Callable[[Sequence[Any]], Any], str]:
-    """What ``block`` splits into and how: artifact placements (``subset_placements``)
-    or rows (``subset``)."""
-    if hasattr(block, "subset_placements"):
-        return list(block.placements), block.subset_placements, "placements"
-    if hasattr(block, "subset"):
-        return list(range(block.q.shape[0])), block.subset, "rows"
-    raise KincalError(f"block {block.name!r} cannot be split into folds")
-
-
-def cross_validate(robot: Robot, block: Any, folds: int = 5, rng: np.random.Generator | None = None,
-                   **calibrate_options: Any) -> dict[str, Any]:
-    """K-fold cross-validation of a calibration on one block.
-
-    The block is split by rows (blocks with ``subset(rows)``: a tracker's points) or,
-    for an artifact block, by *placements* (``subset_placements``): the rows of one
-    placement share its socket points and frames, so they are held out together.
-    Each fold calibrates on the other folds (``calibrate(robot, [train],
-    **calibrate_options)``) and validates on the fold with the training parameters
-    (``extras`` from training; an artifact's held-out placements get their own socket
-    points and frames fitted with the robot fixed, see :func:`validate`).
-
-    Returns:
-        ``{"rms_k": pooled RMS of error kind k over all held-out errors (e.g.
-        rms_position_m, rms_distance_m), "folds": [per-fold overall stats],
-        "results": [the folds' CalibrationResult], "split": "rows" | "placements",
-        "held_out": [per fold, the indices of its held-out rows / placements],
-        "errors": {kind: [per fold, the held-out errors as the block gives them]}}``.
-    """
-    from kincal.identify.solver import calibrate
-
-    units, subset, split = _folds_of(block)
-    if not 2 <= folds <= len(units):
-        raise KincalError(f"cross-validation of block {block.name!r}: folds must be between "
-                          f"2 and its number of {split} ({len(units)}), got {folds}")
-    order = np.arange(len(units)) if rng is None else rng.permutation(len(units))
-    parts = np.array_split(order, folds)
-    stats, results, held_out = [], [], []
-    per_fold: dict[str, list[Array]] = {}
-    for k in range(folds):
-        test = np.sort(parts[k])
-        train = np.sort(np.concatenate([parts[j] for j in range(folds) if j != k]))
-        res = calibrate(robot, [subset([units[i] for i in train])], **calibrate_options)
-        held = subset([units[i] for i in test])
-        v = validate(res.robot, [held], extras=res.extras())
-        stats.append(v["overall"])
-        results.append(res)
-        held_out.append(test)
-        e = np.array([v["extras"][held.name][n] for n in held.parameters().names])
-        for key, err in held.errors(res.robot, e).items():
-            per_fold.setdefault(key, []).append(np.asarray(err, dtype=float))
-    out: dict[str, Any] = {
-        f"rms_{key}": float(np.sqrt(np.mean(np.concatenate([x.ravel() for x in v]) ** 2)))
-        for key, v in per_fold.items()}
-    out.update({"folds": stats, "results": results, "split": split, "held_out": held_out,
-                "errors": per_fold})
-    return out
