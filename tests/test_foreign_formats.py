@@ -75,6 +75,32 @@ def test_an_offset_beyond_its_tolerance_is_a_loud_warning():
     data = simulate_positions(truth, q, rng, noise_std=1e-5)
     flow = run_flow(nominal, [data])                          # the default: MAP
     text = " ".join(flow.warnings)
-    assert re.search(r"encoder offset theta_offset\[3\] moved \+(1\.[89]\d?|2) deg", text), text
+    assert re.search(r"encoder offset theta_offset\[3\] moved \+(1\.[89]\d*|2) deg", text), text
     assert "re-master" in text
     assert flow.verdict.trusted
+
+
+def test_offsets_are_judged_once_a_warning_then_a_refusal():
+    """One mechanism (identify.checks.judge) for an encoder offset beyond its tolerance:
+    within the plausibility bound it is a warning naming the offset, its change and its
+    tolerance; beyond the bound the same words and advice refuse the calibration."""
+    from kincal.identify.checks import OFFSET_ADVICE
+
+    nominal = load_robot("puma560")
+    rng = np.random.default_rng(5)
+    q = random_configurations(nominal, 50, rng)
+    for deg, trusted in ((2.0, True), (8.0, False)):
+        truth = nominal.with_params({"theta_offset[3]": math.radians(deg)})
+        flow = run_flow(nominal, [simulate_positions(truth, q, rng, noise_std=1e-6)])
+        res, v = flow.result, flow.verdict
+        change = math.degrees(res.params["theta_offset[3]"])
+        assert (0.5 < change < 5.0) is trusted        # 1 to 10 tolerances: a warning
+        words = (f"encoder offset theta_offset[3] moved +{change:.4g} deg "
+                 f"({change / 0.5:.3g}x its tolerance 0.5 deg)")
+        assert v.trusted is trusted, v.line()
+        if trusted:
+            assert f"{words}: {OFFSET_ADVICE}" in flow.warnings
+            assert v.to_dict()["warnings"] == v.warnings()
+        else:
+            assert words in v.line() and OFFSET_ADVICE in v.line()
+            assert not any("theta_offset[3]" in w for w in flow.warnings)

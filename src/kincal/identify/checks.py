@@ -14,6 +14,13 @@ A calibration is *not trusted* when
 
 :func:`judge` returns a :class:`Verdict` whose :meth:`~Verdict.line` is the one line the
 command line prints (exit status 1, no calibrated robot written unless ``--force``).
+
+An encoder offset is held to the same tolerances one step earlier: a robot's encoder
+zeros are set to a fraction of a degree, so an offset that moved more than its tolerance
+(but not beyond the bound) is a loud warning (:meth:`Verdict.warnings`): the zero was
+lost (a re-mastered axis), or something else - the probe, the tool, the instrument - is
+described wrongly and the offset absorbs it.  Beyond the bound the same sentence joins
+the reasons the calibration is refused.
 """
 
 from __future__ import annotations
@@ -25,7 +32,11 @@ from typing import Any
 
 from kincal.identify.tolerances import PLAUSIBLE
 
-__all__ = ["Verdict", "Implausible", "judge", "ABSURD_STD", "show_quantity"]
+__all__ = ["Verdict", "Implausible", "judge", "ABSURD_STD", "show_quantity", "OFFSET_ADVICE"]
+
+#: What an encoder offset beyond its tolerance says (warning and refusal alike).
+OFFSET_ADVICE = ("the axis may have lost its zero (re-master it), or the probe, tool or "
+                 "instrument is not what the files say")
 
 #: A standard error above this (per unit) is absurd whatever the parameter.
 ABSURD_STD = {"m": 1.0, "rad": 1.0}
@@ -57,7 +68,9 @@ class Implausible:
         change: ``estimate - nominal`` [m / rad].
         tolerance: its tolerance [m / rad] (None when judged by its std alone).
         std: its standard error [m / rad].
-        reason: ``"change"`` (beyond the bound) or ``"std"`` (absurd uncertainty).
+        reason: ``"change"`` (beyond the bound: refused; for an encoder offset, beyond its
+            tolerance: a warning) or ``"std"`` (absurd uncertainty).
+        offset: the parameter is an encoder offset (its words say so).
     """
 
     name: str
@@ -66,10 +79,12 @@ class Implausible:
     tolerance: float | None
     std: float
     reason: str
+    offset: bool = False
 
     def words(self, bound: float = PLAUSIBLE) -> str:
         if self.reason == "change" and self.tolerance:
-            return (f"{self.name} moved {_show(self.change, self.unit, signed=True)} "
+            what = "encoder offset " if self.offset else ""
+            return (f"{what}{self.name} moved {_show(self.change, self.unit, signed=True)} "
                     f"({abs(self.change) / self.tolerance:.3g}x its tolerance "
                     f"{_show(self.tolerance, self.unit)})")
         return f"{self.name} has a standard error of {_show(self.std, self.unit, missing='inf')}"
@@ -88,12 +103,15 @@ class Verdict:
         message: the solver's message (what stopped it).
         implausible: the implausible estimates, worst first.
         bound: the plausibility bound in tolerances.
+        moved: encoder offsets beyond their tolerance but within the bound, worst first
+            (trusted, with a warning).
     """
 
     converged: bool
     message: str = ""
     implausible: list[Implausible] = field(default_factory=list)
     bound: float = PLAUSIBLE
+    moved: list[Implausible] = field(default_factory=list)
 
     @property
     def trusted(self) -> bool:
@@ -111,7 +129,14 @@ class Verdict:
             out.append(f"implausible estimate{'s' if len(self.implausible) > 1 else ''} "
                        f"(beyond {self.bound:g}x the tolerance): " + ", ".join(words)
                        + (f" and {more} more" if more > 0 else ""))
+            if any(p.offset for p in self.implausible[:limit]):
+                out[-1] += f" ({OFFSET_ADVICE})"
         return out
+
+    def warnings(self) -> list[str]:
+        """One sentence per encoder offset that moved beyond its tolerance (module
+        docstring)."""
+        return [f"{p.words(self.bound)}: {OFFSET_ADVICE}" for p in self.moved]
 
     def short(self) -> str:
         """A few words for tables: ``"did not converge"``, ``"d[3] 42x its tolerance"``."""
@@ -134,7 +159,8 @@ class Verdict:
     def to_dict(self) -> dict[str, Any]:
         return {"trusted": self.trusted, "converged": self.converged,
                 "bound_tolerances": self.bound, "reasons": self.reasons(limit=1000),
-                "implausible": [p.to_dict() for p in self.implausible]}
+                "implausible": [p.to_dict() for p in self.implausible],
+                "warnings": self.warnings()}
 
 
 def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE) -> Verdict:
@@ -146,21 +172,30 @@ def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE
             Tolerances`' ``sigma``).
         bound: implausible beyond ``bound`` tolerances from nominal.
 
-    Only estimated parameters are judged (the others keep their nominal values).
+    Only estimated parameters are judged (the others keep their nominal values); an
+    encoder offset's change is taken in (-pi, pi] (``c`` and ``c + 2 pi k``: one robot).
     """
     names = list(result.names)
     units = list(result.problem.units)
     bad: list[tuple[float, Implausible]] = []
+    moved: list[tuple[float, Implausible]] = []
     for n in result.estimated:
         i = names.index(n)
+        offset = result.problem.roles[i] == "offset"
         change = float(result.theta[i] - result.theta0[i])
-        if result.problem.roles[i] == "offset" and units[i] == "rad":
-            change = math.remainder(change, 2 * math.pi)     # c and c + 2 pi k: one robot
+        if offset and units[i] == "rad":
+            change = math.remainder(change, 2 * math.pi)
         std = float(result.std[i])
         tol = tolerances.get(n)
-        if tol is not None and abs(change) > bound * tol:
-            bad.append((abs(change) / tol, Implausible(n, units[i], change, tol, std, "change")))
+        if tol and abs(change) > bound * tol:
+            bad.append((abs(change) / tol, Implausible(n, units[i], change, tol, std, "change",
+                                                       offset)))
         elif units[i] in ABSURD_STD and not std <= ABSURD_STD[units[i]]:
-            bad.append((math.inf, Implausible(n, units[i], change, tol, std, "std")))
+            bad.append((math.inf, Implausible(n, units[i], change, tol, std, "std", offset)))
+        elif offset and tol and abs(change) > tol:
+            moved.append((abs(change) / tol, Implausible(n, units[i], change, tol, std,
+                                                         "change", True)))
     bad.sort(key=lambda x: -x[0])
-    return Verdict(bool(result.converged), str(result.message), [b for _, b in bad], bound)
+    moved.sort(key=lambda x: -x[0])
+    return Verdict(bool(result.converged), str(result.message), [b for _, b in bad], bound,
+                   [m for _, m in moved])

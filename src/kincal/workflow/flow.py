@@ -293,9 +293,10 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     from kincal.identify.checks import judge
     from kincal.identify.weak import weak_parameters
 
-    warnings += offset_warnings(res, tols.sigma)
+    verdict = judge(res, tols.sigma)
+    warnings += verdict.warnings()
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
-                      tolerances=tols, verdict=judge(res, tols.sigma),
+                      tolerances=tols, verdict=verdict,
                       weak=weak_parameters(res), selection=selection, accuracy=accuracy,
                       heldout=heldout, notes=notes)
 
@@ -358,37 +359,6 @@ def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
         blocks = with_joint_model(blocks, robot, terms, masses)
         holdouts = with_joint_model(holdouts, robot, terms, masses)
     return sel, blocks, holdouts, tols.with_scale(choice.scale)
-
-
-def offset_warnings(res: Any, tolerances: Mapping[str, float]) -> list[str]:
-    """A loud warning for every encoder offset that moved more than its tolerance (but
-    not so far that the calibration is refused: :func:`~kincal.identify.checks.judge`
-    does that beyond :data:`~kincal.identify.tolerances.PLAUSIBLE` tolerances).
-
-    A robot's encoder zeros are set to a fraction of a degree; an offset that moves more
-    says the zero was lost (a re-mastered axis), or that something else - the probe, the
-    tool, the instrument - is described wrongly and the offset absorbs it.
-    """
-    from kincal.identify.tolerances import PLAUSIBLE
-    from kincal.spatial import wrap_angle
-
-    out = []
-    theta0 = dict(zip(res.names, res.theta0, strict=True))
-    for n, v, role, unit in zip(res.names, res.theta, res.problem.roles, res.problem.units,
-                                strict=True):
-        tol = tolerances.get(n)
-        if role != "offset" or n not in res.estimated or not tol:
-            continue
-        change = float(wrap_angle(v - theta0[n])) if unit == "rad" else float(v - theta0[n])
-        if tol < abs(change) <= PLAUSIBLE * tol:
-            shown = (f"{np.degrees(change):+.3g} deg" if unit == "rad"
-                     else f"{change * 1e3:+.3g} mm")
-            tol_shown = (f"{np.degrees(tol):.3g} deg" if unit == "rad" else
-                         f"{tol * 1e3:.3g} mm")
-            out.append(f"encoder offset {n} moved {shown}, {abs(change) / tol:.1f} times its "
-                       f"tolerance {tol_shown}: the axis may have lost its zero (re-master "
-                       "it), or the probe, tool or instrument is not what the files say")
-    return out
 
 
 def tolerances_of(robot: Any, prob: Any, prior: str | None = None) -> Any:
