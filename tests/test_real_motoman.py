@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from kincal.identify.selection import cross_validate
+from kincal.identify.validation import cross_validate
 from kincal.measure.models import PositionMeasurement
 from kincal.robots.dh import DHLink, from_dh
 

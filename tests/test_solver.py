@@ -370,7 +370,7 @@ def test_validate_artifact_blocks(cross_bar):
 
 
 def test_cross_validation_holds_out_whole_placements(cross_bar):
-    from kincal.identify.selection import cross_validate
+    from kincal.identify.validation import cross_validate
 
     nominal, true, train, held, cross, rng = cross_bar
     cv = cross_validate(nominal, train, folds=3)

@@ -11,7 +11,6 @@ import pytest
 
 from kincal.identify.accuracy import predicted_position_std, predicted_rms
 from kincal.identify.identifiability import analyze
-from kincal.identify.selection import cross_validate
 from kincal.identify.solver import calibrate
 from kincal.identify.uncertainty import (
     correlation,
@@ -19,7 +18,7 @@ from kincal.identify.uncertainty import (
     cramer_rao,
     standard_errors,
 )
-from kincal.identify.validation import error_statistics, validate
+from kincal.identify.validation import cross_validate, error_statistics, validate
 from kincal.measure.base import stack
 from kincal.measure.simulate import (
     instrument_values,

@@ -21,8 +21,12 @@ points and frames belong to its placements: held-out placements never have them 
 placement is an unknown position of the same artifact; with ``sockets="eliminate"``
 the block does the same internally, a socket point being the mean of its tips).
 
-:func:`kincal.identify.selection.cross_validate` holds out rows, or whole placements
-of an artifact, through the same fold tasks as ``--select auto``.
+Cross-validation holds out rows, or whole placements of an artifact, in independent
+pure fold tasks - :class:`FoldSpec` in, :class:`FoldResult` out, :func:`run_fold` a
+module-level function of plain values, run by any ``mapper`` with the signature of the
+builtin :func:`map` (an executor's, a Dask client's: futures are gathered with
+``.result()``) - shared by :func:`cross_validate` (one block), ``--cross-validate K`` and
+``--select auto`` (:mod:`kincal.identify.selection`).
 
 Statistics per block and overall: for each error kind ``k`` (``position_m``,
 ``orientation_rad`` ...): ``rms_k = sqrt(mean e^2)``, ``mean_k``, ``max_k``; and ``n``,
@@ -31,7 +35,8 @@ the number of measured points.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,7 +48,8 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["validate", "error_statistics", "PER_PLACEMENT_ROLE"]
+__all__ = ["validate", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE", "FoldSpec",
+           "FoldResult", "fold_units", "run_fold", "run_folds", "split_kind"]
 
 #: Role of block parameters that belong to one placement of an artifact (socket points,
 #: socket frames): held-out placements have their own, fitted on the held-out data.
@@ -155,3 +161,224 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
             pooled.setdefault(k, []).append(np.ravel(v))
     overall = error_statistics({k: np.concatenate(v) for k, v in pooled.items()})
     return {"overall": overall, "blocks": per, "extras": used}
+
+
+# --------------------------------------------------------------------------- folds
+def _units(block: Any) -> tuple[list[Any], str]:
+    if hasattr(block, "subset_placements"):
+        return list(block.placements), "placements"
+    if hasattr(block, "subset"):
+        return list(range(block.q.shape[0])), "rows"
+    return [], "rows"
+
+
+def _subset(block: Any, units: Sequence[Any]) -> Any:
+    if hasattr(block, "subset_placements"):
+        return block.subset_placements(list(units))
+    return block.subset(np.asarray(units, dtype=np.intp))
+
+
+def split_kind(blocks: Sequence[Any]) -> str:
+    """``"rows"``, ``"placements"`` or ``"rows / placements"``: what the folds hold out."""
+    kinds = sorted({_units(b)[1] for b in blocks})
+    return " / ".join(kinds)
+
+
+def fold_units(blocks: Sequence[Any], folds: int,
+               seed: int | np.random.Generator | None = 0
+               ) -> tuple[list[list[Any] | None], list[str]]:
+    """Per block, its units in ``folds`` parts (None: too few units, always trained on),
+    and why blocks are not split.  Permutations from ``numpy.random.default_rng(seed)``
+    (or the generator given), one per block in order; ``seed=None``: the units in their
+    order, consecutive parts."""
+    rng = seed if isinstance(seed, np.random.Generator) else \
+        None if seed is None else np.random.default_rng(seed)
+    parts: list[list[Any] | None] = []
+    notes = []
+    for b in blocks:
+        units, what = _units(b)
+        if len(units) < max(folds, 2):
+            parts.append(None)
+            notes.append(f"{b.name}: {len(units)} {what}, fewer than {folds} folds: always "
+                         "in training")
+            continue
+        order = np.arange(len(units)) if rng is None else rng.permutation(len(units))
+        parts.append([[units[i] for i in np.sort(p)] for p in np.array_split(order, folds)])
+    return parts, notes
+
+
+@dataclass(frozen=True)
+class FoldSpec:
+    """One fit of one candidate: plain values, picklable.
+
+    Attributes:
+        candidate: index of the candidate in the selection.
+        fold: fold index, or -1 for the fit on all the training data (no held-out part).
+        robot: the nominal robot.
+        blocks: the training blocks inside the candidate's joint model (whole sessions:
+            a row keeps its approach direction and load when the block is split).
+        train, test: per block, the units (rows or placements) fitted / held out; None
+            = the whole block (train) or nothing (test).
+        options: keyword arguments of :func:`~kincal.identify.solver.calibrate`
+            (``prior`` already scaled).
+        tolerances: ``{name: tolerance}`` for the plausibility of the full fit.
+        keep: return the fit itself in :attr:`FoldResult.result` (in-process use: a
+            whole calibration result is heavy to send back from a worker).
+    """
+
+    candidate: int
+    fold: int
+    robot: Any
+    blocks: tuple[Any, ...]
+    train: tuple[Any, ...]
+    test: tuple[Any, ...]
+    options: Mapping[str, Any]
+    tolerances: Mapping[str, float] = field(default_factory=dict)
+    keep: bool = False
+
+
+@dataclass
+class FoldResult:
+    """What one :class:`FoldSpec` gave.
+
+    Attributes:
+        candidate, fold: as in the spec.
+        errors: ``{kind: held-out errors}`` (position_m, coincidence_m ...), pooled over
+            the held-out blocks; empty for the full fit.
+        converged: the fit converged.
+        trusted: the full fit converged and is plausible (folds: same as converged).
+        reason: why not (empty when trusted).
+        estimated: number of estimated parameters; ``sigma0``: the fit's noise scale.
+        result: the fit (a :class:`~kincal.identify.solver.CalibrationResult`) when
+            the spec asked to ``keep`` it, else None.
+    """
+
+    candidate: int
+    fold: int
+    errors: dict[str, Array]
+    converged: bool
+    trusted: bool
+    reason: str = ""
+    estimated: int = 0
+    sigma0: float = float("nan")
+    result: Any = None
+
+
+def run_fold(spec: FoldSpec) -> FoldResult:
+    """Fit ``spec``'s training part and predict its held-out part (module docstring).
+
+    Held-out blocks are predicted with every block parameter from the fit (frames,
+    markers, joint-model coefficients); an artifact's held-out placements get their own
+    socket points fitted with the robot fixed (:func:`~kincal.identify.validation.validate`).
+    """
+    from kincal.identify.checks import judge
+    from kincal.identify.solver import calibrate
+    train = [b if u is None else _subset(b, u) for b, u in zip(spec.blocks, spec.train,
+                                                                strict=True)]
+    try:
+        res = calibrate(spec.robot, train, **dict(spec.options))
+    except KincalError as exc:
+        return FoldResult(spec.candidate, spec.fold, {}, False, False, f"failed: {exc}")
+    errors: dict[str, list[Array]] = {}
+    for b, u in zip(spec.blocks, spec.test, strict=True):
+        if u is None:
+            continue
+        held = _subset(b, u)
+        v = validate(res.robot, [held], extras=res.extras())
+        e = np.array([v["extras"][held.name][n] for n in held.parameters().names])
+        for k, x in held.errors(res.robot, e).items():
+            errors.setdefault(k, []).append(np.ravel(np.asarray(x, dtype=float)))
+    verdict = judge(res, spec.tolerances)
+    trusted = verdict.trusted if spec.fold < 0 else bool(res.converged)
+    return FoldResult(spec.candidate, spec.fold, {k: np.concatenate(v) for k, v in
+                                                   errors.items()},
+                      bool(res.converged), trusted, "" if trusted else verdict.short(),
+                      len(res.estimated), float(res.sigma0), res if spec.keep else None)
+
+
+def fold_parts(parts: Sequence[list[Any] | None], k: int
+                ) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+    """Per block, the units trained on and held out in fold ``k`` (None: the whole block /
+    nothing)."""
+    train = tuple(None if p is None else [u for j, q in enumerate(p) if j != k for u in q]
+                  for p in parts)
+    test = tuple(None if p is None else list(p[k]) for p in parts)
+    return train, test
+
+
+def gather_results(results: Iterable[Any]) -> list[FoldResult]:
+    """Results of a mapper, resolving futures (objects with ``.result()``)."""
+    out = []
+    for r in results:
+        res = getattr(r, "result", None)
+        out.append(res() if callable(res) and not isinstance(r, FoldResult) else r)
+    return out
+
+
+def pool_errors(results: Sequence[FoldResult], n: int) -> list[dict[str, list[Array]]]:
+    """Per candidate, ``{kind: [held-out errors per fold, in fold order]}``."""
+    out: list[dict[str, list[Array]]] = [{} for _ in range(n)]
+    for r in sorted(results, key=lambda r: (r.candidate, r.fold)):
+        for k, v in r.errors.items():
+            out[r.candidate].setdefault(k, []).append(v)
+    return out
+
+
+def run_folds(robot: Any, blocks: Sequence[Any], parts: Sequence[list[Any] | None],
+              options: Mapping[str, Any], mapper: Callable[..., Iterable[Any]] = map,
+              candidate: int = 0, keep: bool = False) -> list[FoldResult]:
+    """One fit per fold of ``blocks`` as they are (``options`` as given, ``prior``
+    included): the :class:`FoldResult` of every fold, in fold order."""
+    folds = max((len(p) for p in parts if p is not None), default=0)
+    specs = [FoldSpec(candidate, k, robot, tuple(blocks), *fold_parts(parts, k),
+                      dict(options), keep=keep) for k in range(folds)]
+    return sorted(gather_results(mapper(run_fold, specs)), key=lambda r: r.fold)
+
+
+def pooled_rms(errors: Mapping[str, Sequence[Array]]) -> dict[str, float]:
+    return {k: float(np.sqrt(np.mean(np.concatenate([np.ravel(x) for x in v]) ** 2)))
+            for k, v in errors.items()}
+
+
+def cross_validate(robot: Any, block: Any, folds: int = 5,
+                   rng: np.random.Generator | None = None, *,
+                   mapper: Callable[..., Iterable[Any]] = map,
+                   **calibrate_options: Any) -> dict[str, Any]:
+    """K-fold cross-validation of a calibration on one block, through :func:`run_fold`.
+
+    The block is split by rows (blocks with ``subset(rows)``: a tracker's points) or,
+    for an artifact block, by *placements* (``subset_placements``): the rows of one
+    placement share its socket points and frames, so they are held out together; in
+    consecutive parts of the block's order, or of a permutation drawn from ``rng``.
+    Each fold calibrates on the other folds (``calibrate(robot, [train],
+    **calibrate_options)``) and predicts the held-out fold with the fit's frames and
+    parameters (an artifact's held-out placements get their own socket points fitted
+    with the robot fixed).  A fold whose fit fails raises its one-line error.
+
+    Returns:
+        ``{"rms_k": pooled RMS of error kind k over all held-out errors (e.g.
+        rms_position_m, rms_distance_m), "folds": [per-fold statistics
+        (:func:`~kincal.identify.validation.error_statistics`)], "results": [the folds'
+        CalibrationResult], "split": "rows" | "placements", "held_out": [per fold, the
+        held-out rows / placements], "errors": {kind: [per fold, its held-out errors,
+        flattened]}}``.
+    """
+    units, split = _units(block)
+    if not (hasattr(block, "subset") or hasattr(block, "subset_placements")):
+        raise KincalError(f"block {block.name!r} cannot be split into folds")
+    if not 2 <= folds <= len(units):
+        raise KincalError(f"cross-validation of block {block.name!r}: folds must be between "
+                          f"2 and its number of {split} ({len(units)}), got {folds}")
+    parts, _ = fold_units([block], folds, rng)
+    results = run_folds(robot, [block], parts, calibrate_options, mapper, keep=True)
+    failed = [r for r in results if r.result is None]
+    if failed:
+        raise KincalError(f"cross-validation of block {block.name!r}, fold {failed[0].fold}: "
+                          f"{failed[0].reason}")
+    errors = pool_errors(results, 1)[0]
+    out: dict[str, Any] = {f"rms_{k}": v for k, v in pooled_rms(errors).items()}
+    out.update({"folds": [error_statistics(r.errors) for r in results],
+                "results": [r.result for r in results], "split": split,
+                "held_out": [list((parts[0] or [])[r.fold]) for r in results],
+                "errors": errors})
+    return out

@@ -176,7 +176,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             centred on the nominal values, the noise scale estimated first.  The
             tolerances also bound what is plausible (``FlowResult.verdict``).
         cross_validate: K-fold cross-validation of the same calibration on the training
-            data (:func:`~kincal.identify.selection.gather_folds`, folds drawn with
+            data (the fold tasks of :mod:`~kincal.identify.validation`, folds drawn with
             seed 0; one training block, ``procedure="lm"``): how well the chosen model
             predicts measurements it was not fitted to, from the training data alone.
         progress: called with every :class:`~kincal.identify.solver.IterationRecord`.
