@@ -507,8 +507,12 @@ class _WithPrior:
         return (theta[self.idx] - self.center) * self.inv
 
     def residuals(self, theta: Array) -> Array:
-        r = self.prob.residuals(theta)
-        return np.concatenate([r, self._prior(theta)]) if self.rows else r
+        """The measurements' residuals with the prior rows after them (one vector)."""
+        if not self.rows:
+            return self.prob.residuals(theta)
+        r = self.prob.residuals(theta, spare_rows=self.rows)
+        r[-self.rows:] = self._prior(theta)
+        return r
 
     def compressed(self, theta: Array, weights: Array, columns: Sequence[int]
                    ) -> CompressedSystem:
@@ -516,7 +520,8 @@ class _WithPrior:
         compressed piece by piece (:meth:`StackedProblem.compressed`), then the prior
         rows folded in (``weights``: measurements, then prior rows, which have 1)."""
         M = len(weights) - self.rows
-        data = self.prob.compressed(theta, weights[:M], columns)
+        # the residual vector has room for the prior rows: extend writes them, no copy
+        data = self.prob.compressed(theta, weights[:M], columns, spare_rows=self.rows)
         if self.rows:
             self._data = [*self._data[-1:], (theta.copy(), dataclasses.replace(data, r=None))]
         return self.extend(data, theta)
@@ -541,7 +546,17 @@ class _WithPrior:
         A = np.zeros((self.rows, len(pos)))
         for k, j in enumerate(self.idx):
             A[k, pos[int(j)]] = self.inv[k]
-        return c.with_rows(A, self._prior(theta))
+        prior = self._prior(theta)
+        out = dataclasses.replace(c, r=None).with_rows(A, prior)
+        if c.r is None:
+            return out
+        M = self.prob.num_residuals()
+        if c.r.size == M + self.rows:          # room left for the prior rows (compressed)
+            r = c.r
+            r[M:] = prior
+        else:
+            r = np.concatenate([c.r, prior])
+        return dataclasses.replace(out, r=r)
 
 
 def _tolerance_prior(robot: Robot, prob: StackedProblem, which: str) -> dict[str, float]:

@@ -232,6 +232,11 @@ class MeasurementModel(ABC):
         for sl, r, Jr, Je in self.evaluate_chunks(robot, extra, rows):
             yield sl, None, r, Jr[:, robot_columns].T, Je[:, own_columns].T
 
+    def residuals_into(self, robot: Robot, extra: Array, out: Array) -> None:
+        """The whitened residuals of :meth:`evaluate` written into ``out`` (M,).  The
+        default copies them; blocks that can compute them in place override it."""
+        out[...] = self.evaluate(robot, extra, jacobian=False)[0]
+
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         """Physical errors per measurement for reports, e.g. ``{"position_m": (N,)}``.
 
@@ -327,12 +332,22 @@ class StackedProblem:
         robot, extras = self.split(theta)
         return {b.name: b.errors(robot, e) for b, e in zip(self.blocks, extras, strict=True)}
 
-    def residuals(self, theta: Array) -> Array:
-        """Stacked whitened residuals r(theta): (M,)."""
+    def residuals(self, theta: Array, spare_rows: int = 0) -> Array:
+        """Stacked whitened residuals r(theta): (M,).
+
+        ``spare_rows``: the vector gets that many more entries at its end, left for the
+        caller (e.g. a prior's rows), so that it need not be copied to append them.
+        """
         robot, extras = self.split(theta)
-        parts = [b.evaluate(robot, e, jacobian=False)[0]
-                 for b, e in zip(self.blocks, extras, strict=True)]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        if len(self.blocks) == 1 and not spare_rows:
+            return self.blocks[0].evaluate(robot, extras[0], jacobian=False)[0]
+        out = np.empty(self.num_residuals() + spare_rows)
+        start = 0
+        for b, e in zip(self.blocks, extras, strict=True):
+            m = b.num_residuals()
+            b.residuals_into(robot, e, out[start: start + m])
+            start += m
+        return out
 
     def num_residuals(self) -> int:
         """Total number of stacked residuals ``M``."""
@@ -371,7 +386,7 @@ class StackedProblem:
 
     def compressed(self, theta: Array, weights: ArrayLike | None = None,
                    columns: Sequence[int] | None = None, rows: int = CHUNK_ROWS,
-                   keep_residuals: bool = True) -> CompressedSystem:
+                   keep_residuals: bool = True, spare_rows: int = 0) -> CompressedSystem:
         """The weighted least-squares problem at ``theta`` compressed to a triangle.
 
         With ``W = diag(weights)`` (default 1) and ``J`` the columns ``columns`` of
@@ -391,7 +406,8 @@ class StackedProblem:
 
         Uniform weights (a zero-stride array such as ``np.broadcast_to(1.0, M)``) cost
         nothing.  ``keep_residuals=False`` returns ``r = None`` (memory independent of
-        ``M``; the cost is summed piece by piece).
+        ``M``; the cost is summed piece by piece); ``spare_rows`` gives ``r`` that many
+        more entries at its end, left for the caller (not in the triangle or the cost).
 
         Returns:
             A :class:`CompressedSystem` (``R``, ``z``, ``rho``, ``r``, ``cost``).
@@ -412,7 +428,7 @@ class StackedProblem:
         where[cols] = np.arange(p)
         rob_src = np.flatnonzero(where[:P] >= 0)
         rob_dst = where[rob_src]
-        r = np.empty(M) if keep_residuals else None
+        r = np.empty(M + spare_rows) if keep_residuals else None
         rw2 = 0.0
         # [W^1/2 J | W^1/2 r]^T piece by piece into B (p + 1, n) (row-major, i.e. the
         # piece in LAPACK's column-major order), folded into the triangle by dtpqrt

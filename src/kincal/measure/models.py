@@ -257,11 +257,13 @@ class PositionMeasurement(MeasurementModel):
     def num_residuals(self) -> int:
         return 3 * self.K * self.N
 
-    def predict(self, robot: Robot, extra: ArrayLike) -> Array:
-        """Predicted observations ``y_pred`` (N, K, 3) [m] (in pieces of configurations)."""
+    def predict(self, robot: Robot, extra: ArrayLike, out: Array | None = None) -> Array:
+        """Predicted observations ``y_pred`` (N, K, 3) [m] (in pieces of configurations;
+        into ``out`` when given)."""
         extra = np.asarray(extra, dtype=float)
         H, m = self._left(extra), extra[6:].reshape(self.K, 3)
-        out = np.empty((self.N, self.K, 3))
+        if out is None:
+            out = np.empty((self.N, self.K, 3))
         for cs in _configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
             Y, _, _ = robot.point_jacobian(self.q[cs], m, H, ())
             out[cs] = Y.transpose(2, 0, 1)
@@ -340,10 +342,9 @@ class PositionMeasurement(MeasurementModel):
                  ) -> tuple[Array, Array | None, Array | None]:
         extra = np.asarray(extra, dtype=float)
         if not jacobian:                      # in place: one (N, K, 3) array
-            y = self.predict(robot, extra)
-            y -= self._y
-            y /= self.sigma[:, :, None]
-            return y.reshape(-1), None, None
+            r = np.empty(self.num_residuals())
+            self.residuals_into(robot, extra, r)
+            return r, None, None
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 6 + 3 * self.K))
         ws, frames = _Scratch(), self._frames(extra)
@@ -351,6 +352,13 @@ class PositionMeasurement(MeasurementModel):
             rs = slice(3 * self.K * cs.start, 3 * self.K * cs.stop)
             self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
         return r, Jr, Je
+
+    def residuals_into(self, robot: Robot, extra: Array, out: Array) -> None:
+        """The whitened residuals computed in ``out`` (M,) itself."""
+        y = out.reshape(self.N, self.K, 3)
+        self.predict(robot, np.asarray(extra, dtype=float), y)
+        y -= self._y
+        y /= self.sigma[:, :, None]
 
     def evaluate_chunks(self, robot: Robot, extra: Array, rows: int = CHUNK_ROWS
                         ) -> Iterator[tuple[slice, Array, Array, Array]]:
