@@ -3,47 +3,187 @@
 * ``<!-- kincal:cli-reference -->`` becomes the reference of every ``kincal`` command,
   read from the command objects (names, arguments, options, defaults, help);
 * ``<!-- kincal:run PATH -->`` runs the example script ``PATH`` (relative to the
-  repository root) in a fresh temporary folder and inserts what it printed, so every
-  tutorial shows real output of the code being documented; a script that fails stops
-  the build.
+  repository root, ``.sh`` or ``.py``) in a fresh temporary folder and inserts what it
+  printed (stdout and stderr, in terminal order); ``<!-- kincal:run PATH:STEP -->``
+  inserts only what the lines between ``# --8<-- [start:STEP]`` and
+  ``# --8<-- [end:STEP]`` of the script printed (the same markers the page's
+  ``--8<-- "PATH:STEP"`` uses to show those lines). A script that fails stops the build.
+
+Scripts on the real data sets read them from ``$KINCAL_DATA`` and exit with
+:data:`SKIP` (77) when the data are absent. The page then shows the output recorded in
+``PATH`` with the suffix ``.recorded.txt`` (committed next to the script), in a box that
+says it is recorded and when; ``tests/test_tutorials.py`` checks that the recorded
+output is what a fresh run prints wherever the data are present. Record it again with
+``python docs/hooks/kincal_pages.py record PATH``.
+
+Every script of the site is started in parallel (two at a time) when the build begins.
 """
 
 from __future__ import annotations
 
+import datetime
 import os
 import re
 import subprocess
 import sys
 import tempfile
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
-_RUN = re.compile(r"<!-- kincal:run (\S+) -->")
-_CACHE: dict[str, str] = {}
+DATA = ROOT.parent / "shared" / "data"
+#: Exit status of a script whose data are absent (automake's "skipped").
+SKIP = 77
+_RUN = re.compile(r"<!-- kincal:run (\S+?)(?::([\w-]+))? -->")
+_START = re.compile(r"^(\s*)# --8<-- \[start:([\w-]+)\]\s*$")
+_MARK = "@@kincal-step {}@@"
+_MARK_RE = re.compile(r"^@@kincal-step ([\w-]+)@@$", re.M)
+_POOL: ThreadPoolExecutor | None = None
+_FUTURES: dict[str, Future[Run]] = {}
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of an example script: what it printed, step by step."""
+
+    script: str
+    status: int
+    output: str          # stdout and stderr together, with the step markers
+    seconds: float
+    recorded: str = ""   # the recording's header line when the data were absent
+
+    def step(self, name: str | None) -> str:
+        """What the script printed in step ``name`` (all of it for ``None``)."""
+        if name is None:
+            return _MARK_RE.sub("", self.output).strip("\n")
+        parts = _MARK_RE.split(self.output)
+        found = [parts[i + 1] for i in range(1, len(parts), 2) if parts[i] == name]
+        if not found:
+            raise KeyError(f"{self.script}: no step '{name}' (no '# --8<-- [start:{name}]')")
+        return "\n".join(p.strip("\n") for p in found)
+
+
+def steps(text: str) -> list[str]:
+    """The step names of a script, in order."""
+    return [m.group(2) for line in text.splitlines() if (m := _START.match(line))]
+
+
+def _instrumented(script: Path) -> str:
+    """The script with a line printing a step marker after each step's start marker."""
+    out = []
+    for line in script.read_text(encoding="utf-8").splitlines():
+        out.append(line)
+        m = _START.match(line)
+        if m:
+            indent, name = m.groups()
+            mark = _MARK.format(name)
+            out.append(f"{indent}echo '{mark}'" if script.suffix == ".sh"
+                       else f"{indent}print({mark!r}, flush=True)")
+    return "\n".join(out) + "\n"
+
+
+def environment() -> dict[str, str]:
+    """What the scripts run with: the data folder (``$KINCAL_DATA``), the repository's
+    ``examples/`` (``$KINCAL_EXAMPLES``: the files a tutorial starts from), a 100-column
+    plain terminal, one BLAS thread."""
+    return dict(os.environ, KINCAL_DATA=os.environ.get("KINCAL_DATA", str(DATA)),
+                KINCAL_EXAMPLES=str(ROOT / "examples"),
+                COLUMNS="100", NO_COLOR="1", TERM="dumb", PYTHONUNBUFFERED="1",
+                PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+
+
+def execute(rel: str, env: dict[str, str] | None = None) -> Run:
+    """Run ``rel`` in a fresh temporary folder; the skip status is returned, not raised."""
+    script = ROOT / rel
+    if not script.is_file():
+        raise FileNotFoundError(f"example script not found: {rel}")
+    code = _instrumented(script)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="kincal-docs-") as tmp:
+        path = Path(tmp) / f"_tutorial{script.suffix}"
+        path.write_text(code, encoding="utf-8")
+        cmd = (["bash", str(path)] if script.suffix == ".sh"
+               else [sys.executable, str(path)])
+        work = Path(tmp) / "work"
+        work.mkdir()
+        res = subprocess.run(cmd, cwd=work, env=env or environment(), stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True, errors="replace",
+                             timeout=900)
+    output = "\n".join(line.rstrip() for line in res.stdout.replace(tmp, ".").splitlines())
+    return Run(rel, res.returncode, output, time.perf_counter() - t0)
+
+
+def recording(rel: str) -> Path:
+    """Where the recorded output of a real-data script lives."""
+    return (ROOT / rel).with_suffix(".recorded.txt")
+
+
+def read_recording(rel: str) -> Run:
+    """The recorded run of ``rel``: header line, then the output with its step markers."""
+    path = recording(rel)
+    if not path.is_file():
+        raise RuntimeError(f"{rel} skipped (its data are absent) and has no recorded output "
+                           f"{path.relative_to(ROOT)}")
+    header, _, output = path.read_text(encoding="utf-8").partition("\n")
+    return Run(rel, 0, output, 0.0, recorded=header.lstrip("# ").strip())
+
+
+def run_example(rel: str) -> Run:
+    """The run of ``rel`` to show: a fresh one, or the recorded one if its data are absent."""
+    run = execute(rel)
+    if run.status == SKIP:
+        return read_recording(rel)
+    if run.status != 0:
+        raise RuntimeError(f"{rel} failed (exit {run.status}):\n{run.output}")
+    return run
+
+
+def record(rel: str) -> Path:
+    """Run ``rel`` on the real data and write its recorded output next to it."""
+    run = execute(rel)
+    if run.status != 0:
+        raise SystemExit(f"{rel}: exit {run.status} (data in {environment()['KINCAL_DATA']}?)"
+                         f"\n{run.output}")
+    from kincal import __version__
+
+    header = (f"# recorded on {datetime.date.today().isoformat()} with kincal {__version__} "
+              f"on the data sets of {Path(environment()['KINCAL_DATA']).name}/")
+    path = recording(rel)
+    path.write_text(header + "\n" + run.output, encoding="utf-8")
+    return path
+
+
+# -- the CLI reference ---------------------------------------------------------------------
+
+_TYPES = {"str": "TEXT", "int": "INTEGER", "int range": "INTEGER", "float": "NUMBER",
+          "float range": "NUMBER", "path": "PATH", "boolean": "BOOLEAN"}
 
 
 def _option_row(p: Any) -> str:
     names = ", ".join(f"`{o}`" for o in [*p.opts, *p.secondary_opts])
-    meta = "" if getattr(p, "is_flag", False) else f" `{p.metavar or p.type.name.upper()}`"
+    kind = p.metavar or _TYPES.get(p.type.name, p.type.name.upper())
+    meta = "" if getattr(p, "is_flag", False) else f" `{kind}`"
     default = p.default
-    show = "" if default in (None, False, (), []) or callable(default) else f" (default: `{default}`)"
+    show = ("" if default in (None, False, (), []) or callable(default)
+            else f" (default: `{default}`)")
     text = (p.help or "").replace("|", "\\|").replace("\n", " ")
     return f"| {names}{meta} | {text}{show} |"
 
 
 def _command_markdown(name: str, cmd: Any, ctx: Any) -> list[str]:
-    import click
-
     out = [f"## `kincal {name}`", ""]
     doc = (cmd.help or "").strip()
     if doc:
         out += [doc.replace("\b\n", ""), ""]
-    sub_ctx = click.Context(cmd, info_name=name, parent=ctx)
+    sub_ctx = type(ctx)(cmd, info_name=name, parent=ctx)
     out += ["```", " ".join(cmd.collect_usage_pieces(sub_ctx)).join(
         [f"kincal {name} ", ""]), "```", ""]
-    args = [p for p in cmd.params if isinstance(p, click.Argument)]
-    opts = [p for p in cmd.params if isinstance(p, click.Option) and not p.hidden]
+    # typer may build its commands with its own copy of click: compare by kind, not class
+    args = [p for p in cmd.params if p.param_type_name == "argument"]
+    opts = [p for p in cmd.params if p.param_type_name == "option" and not p.hidden]
     if args:
         out += ["| argument | |", "|---|---|"]
         out += [f"| `{a.human_readable_name}` | {(getattr(a, 'help', '') or '').strip()} |"
@@ -51,7 +191,7 @@ def _command_markdown(name: str, cmd: Any, ctx: Any) -> list[str]:
         out.append("")
     if opts:
         out += ["| option | |", "|---|---|"] + [_option_row(o) for o in opts] + [""]
-    if isinstance(cmd, click.Group):
+    if getattr(cmd, "commands", None):
         for sub_name, sub in sorted(cmd.commands.items()):
             if not getattr(sub, "hidden", False):
                 out += _command_markdown(f"{name} {sub_name}", sub, sub_ctx)
@@ -60,13 +200,12 @@ def _command_markdown(name: str, cmd: Any, ctx: Any) -> list[str]:
 
 def cli_reference() -> str:
     """The reference of every visible ``kincal`` command, in ``kincal --help`` order."""
-    import click
     import typer
 
     from kincal.cli import app
 
     group = typer.main.get_command(app)
-    ctx = click.Context(group, info_name="kincal")
+    ctx = group.context_class(group, info_name="kincal")
     lines: list[str] = []
     for name in group.list_commands(ctx):
         cmd = group.get_command(ctx, name)
@@ -75,24 +214,64 @@ def cli_reference() -> str:
     return "\n".join(lines)
 
 
-def run_example(rel: str) -> str:
-    """Run ``rel`` (a .sh or .py script under the repository) in a fresh folder."""
-    if rel in _CACHE:
-        return _CACHE[rel]
-    script = ROOT / rel
-    cmd = ["bash", str(script)] if script.suffix == ".sh" else [sys.executable, str(script)]
-    env = dict(os.environ, KINCAL_DATA=str(ROOT.parent / "shared" / "data"),
-               COLUMNS="100", NO_COLOR="1", TERM="dumb")
-    with tempfile.TemporaryDirectory(prefix="kincal-docs-") as tmp:
-        res = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True,
-                             timeout=600)
-    if res.returncode != 0:
-        raise RuntimeError(f"{rel} failed (exit {res.returncode}):\n{res.stdout}\n{res.stderr}")
-    _CACHE[rel] = res.stdout.rstrip()
-    return _CACHE[rel]
+# -- the hook ------------------------------------------------------------------------------
+
+def scripts_of(markdown: str) -> list[str]:
+    """The example scripts a page runs."""
+    return list(dict.fromkeys(m.group(1) for m in _RUN.finditer(markdown)))
+
+
+def on_pre_build(config: Any) -> None:
+    """Start every script the pages run, two at a time, before the pages are rendered."""
+    global _POOL
+    _FUTURES.clear()
+    _POOL = ThreadPoolExecutor(max_workers=int(os.environ.get("KINCAL_DOCS_JOBS", "2")))
+    docs = Path(config["docs_dir"])
+    wanted = [s for page in sorted(docs.rglob("*.md"))
+              for s in scripts_of(page.read_text(encoding="utf-8"))]
+    for rel in dict.fromkeys(wanted):
+        _FUTURES[rel] = _POOL.submit(run_example, rel)
+
+
+def _result(rel: str) -> Run:
+    if rel not in _FUTURES:
+        assert _POOL is not None
+        _FUTURES[rel] = _POOL.submit(run_example, rel)
+    return _FUTURES[rel].result()
+
+
+def _render(match: re.Match[str]) -> str:
+    run = _result(match.group(1))
+    block = "```text\n" + run.step(match.group(2)) + "\n```"
+    if not run.recorded:
+        return block
+    body = "\n".join("    " + line if line else "" for line in block.splitlines())
+    return (f'!!! note "Recorded output"\n    The real data were not found when this page '
+            f"was built, so this is the output {run.recorded} "
+            f"(`{Path(run.script).with_suffix('.recorded.txt').as_posix()}`; "
+            f"`tests/test_tutorials.py` checks it against a fresh run where the data are).\n\n"
+            f"{body}")
 
 
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
     if "<!-- kincal:cli-reference -->" in markdown:
         markdown = markdown.replace("<!-- kincal:cli-reference -->", cli_reference())
-    return _RUN.sub(lambda m: "```text\n" + run_example(m.group(1)) + "\n```", markdown)
+    return _RUN.sub(_render, markdown)
+
+
+def on_post_build(config: Any) -> None:
+    from mkdocs.utils import log
+
+    runs = [f.result() for f in _FUTURES.values()]
+    for run in sorted(runs, key=lambda r: -r.seconds):
+        log.info(f"kincal example {run.script}: "
+                 + (f"{run.seconds:.1f} s" if not run.recorded else "recorded output"))
+    if _POOL is not None:
+        _POOL.shutdown()
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 3 or sys.argv[1] != "record":
+        raise SystemExit("usage: python docs/hooks/kincal_pages.py record SCRIPT...")
+    for rel in sys.argv[2:]:
+        print(f"recorded -> {record(rel).relative_to(ROOT)}")

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# A KUKA program through the calibrated model (docs/tutorials/robot-programs.md): a KR 6
+# with known errors is calibrated on simulated tracker data, then its weld program is
+# filtered so that a controller with the nominal model puts the real robot on target.
+set -euo pipefail
+FILES="${KINCAL_EXAMPLES:-examples}/tutorials/files"   # the program and its frames
+
+# --8<-- [start:calibrate]
+kincal simulate kr6 -o train.csv --truth truth.yaml -n 60 --noise 0.01mm --seed 1
+kincal calibrate kr6 --data train.csv -o kr6_cal.yaml --json result.json > calibrate.txt
+tail -n 1 calibrate.txt
+# --8<-- [end:calibrate]
+
+# --8<-- [start:filter]
+cp "$FILES"/weld_seam.src "$FILES"/weld_seam.dat "$FILES"/krl_frames.yaml .
+kincal filter weld_seam.src --robot kr6_cal.yaml --nominal kr6 --frames krl_frames.yaml \
+    --result result.json -o filtered/weld_seam.src --csv targets.csv
+# --8<-- [end:filter]
+
+# --8<-- [start:diff]
+diff weld_seam.dat filtered/weld_seam.dat | grep XP1 || true
+diff weld_seam.src filtered/weld_seam.src || true
+# --8<-- [end:diff]
+
+# --8<-- [start:plan]
+kincal plan kr6 -n 12 --program krl --dwell 2s -o poses.src > plan.txt
+tail -n 2 plan.txt
+ls poses.*
+grep -m 3 "PTP" poses.src
+# --8<-- [end:plan]

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# A UR controller's calibration in ROS and in kincal, and calibrated URDFs that review
+# cleanly (docs/tutorials/ur-calibration.md).
+set -euo pipefail
+FILES="${KINCAL_EXAMPLES:-examples}/tutorials/files"   # calibration.conf, arm.urdf
+
+# --8<-- [start:import]
+cp "$FILES/calibration.conf" .
+kincal import ur calibration.conf --nominal ur5e -o ur5e_cal.yaml --kinematics ur5e_kinematics.yaml
+# --8<-- [end:import]
+
+# --8<-- [start:yaml]
+head -n 16 ur5e_kinematics.yaml
+# --8<-- [end:yaml]
+
+# --8<-- [start:refine]
+kincal simulate ur5e_cal.yaml -o tracker.csv -n 50 --noise 0.01mm --seed 3 > /dev/null
+kincal calibrate ur5e_cal.yaml --data tracker.csv -o refined.yaml > calibrate.txt
+tail -n 1 calibrate.txt
+kincal ur-kinematics refined.yaml --nominal ur5e -o kinematics.yaml
+# --8<-- [end:refine]
+
+# --8<-- [start:urdf]
+cp "$FILES/arm.urdf" .
+kincal simulate arm.urdf --tip-link tool0 -o arm.csv -n 60 --noise 0.01mm --seed 2 > /dev/null
+kincal calibrate arm.urdf --tip-link tool0 --data arm.csv -o arm_cal.yaml \
+    --urdf arm_calibrated.urdf > calibrate.txt
+tail -n 2 calibrate.txt
+diff arm.urdf arm_calibrated.urdf || true
+# --8<-- [end:urdf]

@@ -1,0 +1,116 @@
+"""Every tutorial script runs, so a broken tutorial fails here before the docs build.
+
+The documentation site (docs/, built by ``mkdocs build --strict`` in ``.ci/run``) shows
+each tutorial's commands from a script under ``examples/tutorials/`` and its real
+output, produced by running the script (docs/hooks/kincal_pages.py). This module runs the
+same scripts the same way. A script on the real data sets exits with the hook's skip
+status when ``$KINCAL_DATA`` has none; its committed recording is then what the site
+shows, and here, where the data are present, the recording must equal a fresh run
+(apart from timings).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TUTORIALS = ROOT / "examples" / "tutorials"
+DOCS = ROOT / "docs"
+
+_spec = importlib.util.spec_from_file_location("kincal_pages", DOCS / "hooks" / "kincal_pages.py")
+assert _spec and _spec.loader
+pages = importlib.util.module_from_spec(_spec)
+sys.modules["kincal_pages"] = pages
+_spec.loader.exec_module(pages)
+
+SCRIPTS = sorted(p.relative_to(ROOT).as_posix() for p in TUTORIALS.iterdir()
+                 if p.suffix in (".sh", ".py"))
+#: Timings and durations, which differ from run to run: "(0.03 s)", "5.4 s", "[1.5 s]".
+_TIME = re.compile(r"\d+(?:\.\d+)?(?:e-?\d+)? ?(?:s|ms|µs)\b")
+
+
+def _page_directives() -> list[tuple[str, str, str | None]]:
+    found = []
+    for page in sorted(DOCS.rglob("*.md")):
+        text = page.read_text(encoding="utf-8")
+        for m in pages._RUN.finditer(text):
+            found.append((page.relative_to(DOCS).as_posix(), m.group(1), m.group(2)))
+    return found
+
+
+def normalised(text: str) -> str:
+    """The output without its timings."""
+    return _TIME.sub("<time>", text)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_tutorial_script_runs(script: str) -> None:
+    run = pages.execute(script)
+    if run.status == pages.SKIP:
+        assert pages.recording(script).is_file(), (
+            f"{script} skips without data but has no recording; run "
+            f"`python docs/hooks/kincal_pages.py record {script}` where the data are")
+        pytest.skip(f"{script}: real data not found in {pages.environment()['KINCAL_DATA']}; "
+                    "the site shows its recorded output")
+    assert run.status == 0, f"{script} failed (exit {run.status}):\n{run.output}"
+    for name in pages.steps((ROOT / script).read_text(encoding="utf-8")):
+        assert run.step(name).strip(), f"{script}: step '{name}' printed nothing"
+    assert "Traceback" not in run.output, run.output
+    if pages.recording(script).is_file():
+        recorded = pages.read_recording(script)
+        assert normalised(recorded.output) == normalised(run.output), (
+            f"{script}: the recorded output differs from a fresh run on the data; record it "
+            f"again: python docs/hooks/kincal_pages.py record {script}")
+
+
+def test_every_script_is_on_a_page_and_every_page_step_exists() -> None:
+    used = _page_directives()
+    assert {s for _, s, _ in used} == set(SCRIPTS), "a tutorial script no page shows, or a "\
+        "page that runs a script that does not exist"
+    for page, script, step in used:
+        if step is not None:
+            assert step in pages.steps((ROOT / script).read_text(encoding="utf-8")), \
+                f"{page}: {script} has no step '{step}'"
+
+
+def test_scripts_use_no_hidden_spelling() -> None:
+    """Tutorials teach the current CLI style: no hidden alias (``--noise-mm``, ``--out``)."""
+    import typer
+
+    from kincal.cli import app
+
+    hidden: set[str] = set()
+
+    def walk(cmd) -> None:  # typer's own click: compare by kind, not class
+        for p in cmd.params:
+            if p.param_type_name == "option" and p.hidden:
+                hidden.update(o for o in p.opts if o.startswith("--"))
+        if getattr(cmd, "commands", None):
+            for name, sub in cmd.commands.items():
+                if sub.hidden:
+                    hidden.add(f"kincal {name} ")
+                walk(sub)
+
+    walk(typer.main.get_command(app))
+    assert "--noise-mm" in hidden          # the walk finds the aliases
+    for script in SCRIPTS:
+        text = (ROOT / script).read_text(encoding="utf-8")
+        for alias in hidden:
+            assert not re.search(re.escape(alias) + r"(?![\w-])", text), f"{script}: {alias}"
+    for page in DOCS.rglob("*.md"):
+        text = page.read_text(encoding="utf-8")
+        for alias in ("--noise-mm", "--tolerance-mm", "fivebar-thesis"):
+            assert alias not in text or page.name == "conventions.md", f"{page}: {alias}"
+
+
+def test_recorded_outputs_say_when_and_belong_to_a_script() -> None:
+    for path in TUTORIALS.glob("*.recorded.txt"):
+        scripts = [s for s in SCRIPTS if pages.recording(s) == path]
+        assert scripts, f"{path.name}: no script records here"
+        first = path.read_text(encoding="utf-8").partition("\n")[0]
+        assert first.startswith("# recorded on "), f"{path.name}: {first!r}"
