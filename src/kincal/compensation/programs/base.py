@@ -32,7 +32,7 @@ from kincal.compensation.programs.numbers import (
     style_of,
 )
 from kincal.errors import KincalError
-from kincal.spatial import homogeneous, rpy_to_matrix
+from kincal.spatial import homogeneous, matrix_to_rpy, rpy_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -188,6 +188,27 @@ class Frames:
 def frame_matrix(x: float, y: float, z: float, rx: float, ry: float, rz: float) -> Array:
     """``Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` [m, rad]."""
     return homogeneous(rpy_to_matrix(np.array([rx, ry, rz])), np.array([x, y, z]))
+
+
+def pose_mm_deg(x: float, y: float, z: float, roll: float, pitch: float, yaw: float
+                ) -> Array:
+    """``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` [m] from mm and deg: KUKA's
+    ``X Y Z A B C`` (A = yaw, B = pitch, C = roll) and FANUC's ``X Y Z W P R`` (W = roll,
+    P = pitch, R = yaw) alike."""
+    d = np.pi / 180
+    return frame_matrix(x * 1e-3, y * 1e-3, z * 1e-3, roll * d, pitch * d, yaw * d)
+
+
+def xyz_rpy_mm_deg(T: Array, near: tuple[float, float, float]
+                   ) -> tuple[float, float, float, float, float, float]:
+    """The inverse of :func:`pose_mm_deg`: ``x, y, z`` [mm] and ``roll, pitch, yaw``
+    [deg] of ``T``, each angle moved by whole turns to within 180 deg of ``near``
+    (the target's own roll, pitch, yaw), so a rewritten number stays in its range."""
+    rpy = np.degrees(matrix_to_rpy(T[:3, :3]))
+    roll, pitch, yaw = (float(a + 360.0 * np.round((o - a) / 360.0))
+                        for a, o in zip(rpy, near, strict=True))
+    return (float(T[0, 3] * 1e3), float(T[1, 3] * 1e3), float(T[2, 3] * 1e3), roll, pitch,
+            yaw)
 
 
 def read_frames(path: str | None) -> Frames:

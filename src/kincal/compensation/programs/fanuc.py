@@ -23,12 +23,12 @@ from kincal.compensation.programs.base import (
     Array,
     ProgramTarget,
     fail,
-    frame_matrix,
     number_slot,
+    pose_mm_deg,
     position,
     read_program_text,
+    xyz_rpy_mm_deg,
 )
-from kincal.spatial import matrix_to_rpy
 
 JOINT_KEYS = ("j1", "j2", "j3", "j4", "j5", "j6")
 _POINT = re.compile(r"^P\[(\d+)(?:\s*:\s*\"([^\"]*)\")?\]\s*\{", re.MULTILINE)
@@ -132,18 +132,13 @@ def read_ls(path: str) -> LsProgram:
 
 def pose_of(t: ProgramTarget) -> Array:
     """The point's pose in its user frame [m]: ``Trans(X, Y, Z) Rz(R) Ry(P) Rx(W)``."""
-    x, y, z, w, p, r = t.values(("x", "y", "z", "w", "p", "r"))
-    d = np.pi / 180
-    return frame_matrix(x * 1e-3, y * 1e-3, z * 1e-3, w * d, p * d, r * d)
+    return pose_mm_deg(*t.values(("x", "y", "z", "w", "p", "r")))
 
 
 def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
     """X, Y, Z [mm], W, P, R [deg] of T, angles near the point's own."""
-    w, p, r = np.degrees(matrix_to_rpy(T[:3, :3]))
-    old = t.values(("w", "p", "r"))
-    near = [a + 360.0 * np.round((o - a) / 360.0) for a, o in zip((w, p, r), old, strict=True)]
-    return {"x": T[0, 3] * 1e3, "y": T[1, 3] * 1e3, "z": T[2, 3] * 1e3,
-            "w": near[0], "p": near[1], "r": near[2]}
+    x, y, z, w, p, r = xyz_rpy_mm_deg(T, t.values(("w", "p", "r")))
+    return {"x": x, "y": y, "z": z, "w": w, "p": p, "r": r}
 
 
 def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:

@@ -31,12 +31,12 @@ from kincal.compensation.programs.base import (
     ProgramTarget,
     Slot,
     fail,
-    frame_matrix,
     number_slot,
+    pose_mm_deg,
     position,
     read_program_text,
+    xyz_rpy_mm_deg,
 )
-from kincal.spatial import matrix_to_rpy
 
 POSE_KEYS = ("X", "Y", "Z", "A", "B", "C")
 AXIS_KEYS = ("A1", "A2", "A3", "A4", "A5", "A6")
@@ -254,24 +254,17 @@ def _read_src(path: str, text: str, targets: list[ProgramTarget],
 
 
 # --------------------------------------------------------------------------- values
-def _near(angle: float, ref: float) -> float:
-    """``angle`` [deg] moved by whole turns to within 180 deg of ``ref``."""
-    return angle + 360.0 * np.round((ref - angle) / 360.0)
-
-
 def pose_of(t: ProgramTarget) -> Array:
     """The target's pose in its base frame [m, rad] from X, Y, Z [mm], A, B, C [deg]."""
     x, y, z, a, b, c = t.values(("x", "y", "z", "a", "b", "c"))
-    d = np.pi / 180
-    return frame_matrix(x * 1e-3, y * 1e-3, z * 1e-3, c * d, b * d, a * d)
+    return pose_mm_deg(x, y, z, c, b, a)
 
 
 def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
     """X, Y, Z [mm], A, B, C [deg] of pose T, angles near the target's own."""
-    roll, pitch, yaw = np.degrees(matrix_to_rpy(T[:3, :3]))
-    old = t.values(("a", "b", "c"))
-    return {"x": T[0, 3] * 1e3, "y": T[1, 3] * 1e3, "z": T[2, 3] * 1e3,
-            "a": _near(yaw, old[0]), "b": _near(pitch, old[1]), "c": _near(roll, old[2])}
+    a, b, c = t.values(("a", "b", "c"))
+    x, y, z, roll, pitch, yaw = xyz_rpy_mm_deg(T, (c, b, a))
+    return {"x": x, "y": y, "z": z, "a": yaw, "b": pitch, "c": roll}
 
 
 def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:
