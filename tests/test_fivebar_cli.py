@@ -128,5 +128,5 @@ def test_calibrate_rejects_bad_method_and_files(tmp_path, method: str) -> None:
     robot = load_fivebar("fivebar_thesis")
     with pytest.raises(KincalError, match="method must be one of"):
         calibrate_fivebar_file(robot, tmp_path / "x.csv", None, None, None, "newton")
-    with pytest.raises(MeasurementFileError, match="cannot read"):
+    with pytest.raises(MeasurementFileError, match="no such measurement file"):
         calibrate_fivebar_file(robot, tmp_path / "missing.csv", None, None, None, method)

@@ -81,3 +81,21 @@ def test_check_outputs_refuses_clobbering_an_input(tmp_path):
     with pytest.raises(KincalError, match="is a folder"):
         check_outputs({"-o": str(tmp_path)}, {})
     check_outputs({"-o": str(tmp_path / "new.yaml"), "--json": "-"}, {"--data": [str(data)]})
+
+
+def test_one_reader_of_text_inputs_one_line_each(tmp_path):
+    """kincal.io.read_text: the same one-line errors for every text input (robot files,
+    URDF, UR calibration, measurement, socket and setup files), the BOM dropped."""
+    from kincal.errors import MeasurementFileError
+    from kincal.io import read_text
+
+    f = tmp_path / "a.csv"
+    f.write_bytes(b"\xef\xbb\xbfx_mm\n1\n")
+    assert read_text(f) == "x_mm\n1\n"
+    f.write_bytes(b"x\n\xff\n")
+    with pytest.raises(MeasurementFileError, match=r"a.csv: not a UTF-8 text file \(byte 2\)"):
+        read_text(f, "measurement file", MeasurementFileError)
+    with pytest.raises(KincalError, match="no such setup file"):
+        read_text(tmp_path / "none.yaml", "setup file")
+    with pytest.raises(KincalError, match="is a folder, not a robot file"):
+        read_text(tmp_path, "robot file")

@@ -534,7 +534,7 @@ def test_more_bad_inputs(tmp_path):
           '<joint name="k" type="revolute"><parent link="b"/><child link="a"/></joint></robot>',
           "closed loop")
     fails('<robot name="r"><link name="a"/><link name="a"/></robot>', "link 'a'", "twice")
-    with pytest.raises(RobotFileError, match="cannot read"):
+    with pytest.raises(RobotFileError, match="no such URDF file"):
         load_urdf(tmp_path / "missing.urdf")
 
 

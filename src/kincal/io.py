@@ -9,7 +9,8 @@
   ``--data``) or a folder, before any work is done.
 
 An output that cannot be written (no permission, a folder in the way, a full disk) is
-one :class:`~kincal.errors.KincalError` line naming the path.
+one :class:`~kincal.errors.KincalError` line naming the path; so is an input that cannot
+be read as text (:func:`read_text`).
 """
 
 from __future__ import annotations
@@ -27,6 +28,26 @@ from typing import Any
 from kincal.errors import KincalError
 
 _UMASK_LOCK = threading.Lock()
+
+
+def read_text(path: str | os.PathLike[str], what: str = "file",
+              error: type[KincalError] = KincalError) -> str:
+    """The UTF-8 text of an input file (a byte-order mark dropped).
+
+    Every failure is one ``error`` line naming the file: ``no such {what}``, ``is a
+    folder, not a {what}``, ``not a UTF-8 text file (byte N)``, ``cannot read: ...``.
+    """
+    src = str(path)
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise error(f"no such {what}", source=src) from None
+    except IsADirectoryError:
+        raise error(f"is a folder, not a {what}", source=src) from None
+    except UnicodeDecodeError as exc:
+        raise error(f"not a UTF-8 text file (byte {exc.start})", source=src) from None
+    except OSError as exc:
+        raise error(f"cannot read: {exc.strerror or exc}", source=src) from None
 
 
 def current_umask() -> int:

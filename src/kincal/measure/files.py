@@ -54,7 +54,6 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
-from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
@@ -62,7 +61,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
-from kincal.io import atomic_write_text
+from kincal.io import atomic_write_text, read_text
 from kincal.robots.hold import held_joints
 from kincal.units import DIMENSIONS, MAX_SI, UNITS
 
@@ -203,15 +202,7 @@ def _robot_joint_units(robot: Any) -> dict[str, str]:
 
 def _read_lines(path: str | os.PathLike[str]) -> list[str]:
     src = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise MeasurementFileError("no such measurement file", source=src) from None
-    except UnicodeDecodeError as exc:
-        raise MeasurementFileError(f"not a UTF-8 text file (byte {exc.start})",
-                                   source=src) from None
-    except OSError as exc:
-        raise MeasurementFileError(f"cannot read: {exc.strerror}", source=src) from None
+    text = read_text(path, "measurement file", MeasurementFileError)
     if not text.strip():
         raise MeasurementFileError("line 1: the file is empty", source=src)
     return text.splitlines()

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from kincal.errors import MeasurementFileError
+from kincal.io import read_text
 from kincal.parallel.files import ANGLE_UNITS, LENGTH_UNITS, write_text_atomic
 
 _QUANTITIES = {
@@ -93,16 +94,7 @@ def read_fivebar_csv(path: str | Path) -> FiveBarMeasurements:
     """Read a five-bar measurement CSV (see module doc) into SI arrays."""
     path = Path(path)
     name = path.name
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise MeasurementFileError(f"not a UTF-8 text file (byte {exc.start})",
-                                   source=str(path)) from None
-    except IsADirectoryError:
-        raise MeasurementFileError("is a folder, not a measurement file", source=str(path)) \
-            from None
-    except OSError as exc:
-        raise MeasurementFileError(f"cannot read: {exc.strerror}", source=str(path)) from None
+    text = read_text(path, "measurement file", MeasurementFileError)
     numbered = [
         (k + 1, line)
         for k, line in enumerate(text.splitlines())

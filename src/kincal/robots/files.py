@@ -56,7 +56,7 @@ import numpy as np
 import yaml
 
 from kincal.errors import RobotFileError
-from kincal.io import atomic_write_text
+from kincal.io import atomic_write_text, read_text
 from kincal.robots.chain import KINDS, ROLES, ChainBuilder, Robot
 from kincal.robots.dh import DHLink, dh_links, frame_values, from_dh
 from kincal.units import UNITS
@@ -344,12 +344,7 @@ def robot_from_dict(data: Any, source: str) -> Any:
 def read_robot_yaml(path: str | os.PathLike[str]) -> Any:
     """Read a robot YAML file; every problem is a one-line :class:`RobotFileError`."""
     source = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise RobotFileError(f"not UTF-8 text (byte {exc.start})", source=source) from None
-    except OSError as exc:
-        raise RobotFileError(f"cannot read: {exc.strerror}", source=source) from None
+    text = read_text(path, "robot file", RobotFileError)
     try:
         data = yaml_load(text)
     except yaml.YAMLError as exc:

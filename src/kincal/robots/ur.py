@@ -43,6 +43,7 @@ import yaml
 from numpy.typing import NDArray
 
 from kincal.errors import RobotFileError
+from kincal.io import read_text
 from kincal.robots.chain import ChainBuilder, Robot
 from kincal.spatial import inverse, matrix_to_rpy, rotz, xyzrpy_to_matrix
 
@@ -55,15 +56,6 @@ __all__ = ["KINEMATICS_LINKS", "joint_frames", "kinematics_yaml", "read_calibrat
 KINEMATICS_LINKS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
 _KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
-
-
-def _read(path: str | os.PathLike[str]) -> str:
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise RobotFileError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    except UnicodeDecodeError:
-        raise RobotFileError("not UTF-8 text", source=str(path)) from None
 
 
 def _check_ur(nominal: Robot, source: str) -> None:
@@ -81,7 +73,7 @@ def read_calibration_conf(path: str | os.PathLike[str], nominal: Robot) -> Robot
     """
     source = str(path)
     _check_ur(nominal, source)
-    text = _read(path)
+    text = read_text(path, "UR calibration file", RobotFileError)
     deltas: dict[str, list[float]] = {}
     for lineno, line in enumerate(text.splitlines(), 1):
         body = line.split("#", 1)[0]
@@ -122,7 +114,7 @@ def read_kinematics_yaml(path: str | os.PathLike[str], nominal: Robot | None = N
     """
     source = str(path)
     try:
-        data = yaml.safe_load(_read(path))
+        data = yaml.safe_load(read_text(path, "UR calibration file", RobotFileError))
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark else ""

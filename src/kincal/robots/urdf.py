@@ -87,7 +87,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, RobotFileError
-from kincal.io import atomic_write_text
+from kincal.io import atomic_write_text, read_text
 from kincal.robots.chain import ChainBuilder, Robot, elementary_matrix
 from kincal.robots.gravity import PointMass
 from kincal.robots.urdf_text import mask_comments, set_origin
@@ -295,15 +295,6 @@ def _parse_xml(text: str, source: str) -> tuple[ET.Element, dict[int, int]]:
     return root, builder.lines
 
 
-def _read_text(path: str | os.PathLike[str]) -> str:
-    try:
-        return Path(path).read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise RobotFileError(f"cannot read: {exc.strerror}", source=str(path)) from None
-    except UnicodeDecodeError:
-        raise RobotFileError("cannot read: not UTF-8 text", source=str(path)) from None
-
-
 class _Fields:
     """Number parsing with one-line errors naming file, line, element and attribute."""
 
@@ -462,7 +453,7 @@ def parse_urdf(path: str | os.PathLike[str]) -> UrdfModel:
     zero axes of moving joints and ``lower > upper``.
     """
     source = str(path)
-    root, lines = _parse_xml(_read_text(path), source)
+    root, lines = _parse_xml(read_text(path, "URDF file", RobotFileError), source)
     return _model(root, lines, source)
 
 
@@ -499,7 +490,7 @@ def parse_urdf_inertials(path: str | os.PathLike[str]) -> dict[str, UrdfInertial
     negative mass, or a malformed ``<origin xyz/rpy>``.
     """
     source = str(path)
-    root, lines = _parse_xml(_read_text(path), source)
+    root, lines = _parse_xml(read_text(path, "URDF file", RobotFileError), source)
     _model(root, lines, source)                     # the tree must be valid too
     return _inertials(root, lines, source)
 
@@ -664,7 +655,7 @@ def load_urdf_inertials(path: str | os.PathLike[str], base_link: str | None = No
         RobotFileError: as :func:`load_urdf` and :func:`parse_urdf_inertials`.
     """
     source = str(path)
-    root, lines = _parse_xml(_read_text(path), source)
+    root, lines = _parse_xml(read_text(path, "URDF file", RobotFileError), source)
     model = _model(root, lines, source)
     inertials = _inertials(root, lines, source)
     base, _, chain = model.chain(base_link, tip_link)
@@ -853,7 +844,7 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
     if original_urdf is None:
         original_urdf = robot.meta["urdf_file"]
     source = str(original_urdf)
-    text = _read_text(original_urdf)
+    text = read_text(original_urdf, "URDF file", RobotFileError)
     root, lines = _parse_xml(text, source)
     model = _model(root, lines, source)
     base, tip = str(robot.meta["base_link"]), str(robot.meta["tip_link"])

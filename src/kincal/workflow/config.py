@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from kincal.errors import KincalError
+from kincal.io import read_text
 from kincal.units import UNITS, parse_quantity
 from kincal.workflow.sources import FORMATS, DataSource, instrument_tags
 
@@ -158,16 +159,7 @@ def read_yaml(path: str | os.PathLike[str], what: str = "setup file") -> YamlDoc
     import yaml
 
     src = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SetupError(f"no such {what}", source=src) from None
-    except IsADirectoryError:
-        raise SetupError(f"is a folder, not a {what}", source=src) from None
-    except UnicodeDecodeError as exc:
-        raise SetupError(f"not a UTF-8 text file (byte {exc.start})", source=src) from None
-    except OSError as exc:
-        raise SetupError(f"cannot read: {exc.strerror}", source=src) from None
+    text = read_text(path, what, SetupError)
     try:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
         data = yaml.safe_load(text) if node is not None else None

@@ -50,7 +50,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
-from kincal.io import atomic_write_text
+from kincal.io import atomic_write_text, read_text
 from kincal.measure.artifacts.geometry import (
     ArtifactGeometry,
     read_geometry,
@@ -378,16 +378,7 @@ def read_socket_files(source: str | Path | Sequence[str | Path], angle_unit: str
     qs, sockets = [], []
     width = None
     for f in files:
-        try:
-            text = f.read_text(encoding="utf-8-sig")
-        except FileNotFoundError:
-            raise MeasurementFileError("no such socket file", source=str(f)) from None
-        except UnicodeDecodeError as exc:
-            raise MeasurementFileError(f"not a UTF-8 text file (byte {exc.start})",
-                                       source=str(f)) from None
-        except OSError as exc:
-            raise MeasurementFileError(f"cannot read: {exc.strerror or exc}", source=str(f)) \
-                from None
+        text = read_text(f, "socket file", MeasurementFileError)
         rows = [(k + 1, ln) for k, ln in enumerate(text.splitlines())
                 if ln.strip() and not ln.lstrip().startswith("#")]
         if not rows:
