@@ -316,6 +316,28 @@ def test_bad_content_gives_one_line_with_file_line_column_and_writes_nothing(bad
     assert not (tmp_path / "o").exists()
 
 
+def test_krl_module_names_follow_the_new_file_name(tmp_path, calibrated, capsys):
+    """The controller requires DEF name( of a .src and DEFDAT name of its .dat to match the
+    file name: -o seam_cal.src renames both (and nothing else: the bytes are the filtered
+    program's but for those two names); a file name that is no KRL name writes nothing."""
+    _, _, cal_path = calibrated["kr6"]
+    src = _copy(tmp_path, "weld_seam.src")
+    (tmp_path / "o").mkdir()
+    same, new = tmp_path / "o" / "weld_seam.src", tmp_path / "o" / "seam_cal.src"
+    base = ["filter", src, "--robot", cal_path, "--nominal", "kr6", "--frames",
+            tmp_path / "krl_frames.yaml", "-o"]
+    assert run(capsys, *base, same)[0] == 0
+    assert run(capsys, *base, new)[0] == 0
+    for suffix, head in ((".src", b"DEF "), (".dat", b"DEFDAT  ")):
+        a, b = same.with_suffix(suffix).read_bytes(), new.with_suffix(suffix).read_bytes()
+        assert head + b"weld_seam" in a and head + b"weld_seam" not in b
+        assert b.replace(head + b"seam_cal", head + b"weld_seam") == a
+        assert b"\r\n" in b and b.count(b"\r\n") == a.count(b"\r\n")
+    code, _, err = run(capsys, *base, tmp_path / "o" / "9-seam.src")
+    assert code == 2 and "'9-seam' is not a KRL module name" in err
+    assert not (tmp_path / "o" / "9-seam.src").exists()
+
+
 def test_an_unreachable_target_is_left_unchanged_listed_and_exits_1(tmp_path, capsys):
     src = _copy(tmp_path, "pick_and_place.script")
     text = src.read_text()

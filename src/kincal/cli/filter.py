@@ -54,7 +54,8 @@ def filter_cmd(
                                          "(built-in name or file): its IK runs on the "
                                          "controller.")],
     output: Annotated[str, typer.Option("-o", "--output", help="The filtered program (KRL: "
-                                        "OUT.src, and OUT.dat beside it).")],
+                                        "OUT.src, and OUT.dat beside it, their DEF / DEFDAT "
+                                        "renamed OUT).")],
     dialect: Annotated[str, typer.Option("--dialect", help="auto (from the suffix), krl, "
                                          "rapid, urscript, fanuc-ls.")] = "auto",
     frames: Annotated[str | None, typer.Option("--frames", help="YAML with the controller's "
@@ -100,8 +101,14 @@ def filter_cmd(
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
                           "written)", source=program)
     targets = _outputs(program, output, res.texts)
+    texts = dict(res.texts)
+    if res.dialect == "krl":            # DEF name( and DEFDAT name follow the file name
+        from kincal.compensation.programs.krl import rename_module
+
+        texts = {f: rename_module(t, Path(f).stem, Path(targets[f]).stem, targets[f])
+                 for f, t in texts.items()}
     for f, o in targets.items():
-        atomic_write_bytes(o, res.texts[f].encode("latin-1"))
+        atomic_write_bytes(o, texts[f].encode("latin-1"))
     rows = res.reports
     n_f = sum(r.status == "filtered" for r in rows)
     shifts = [r.shift_mm for r in rows if r.status == "filtered"]

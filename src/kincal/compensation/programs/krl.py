@@ -37,6 +37,7 @@ from kincal.compensation.programs.base import (
     read_program_text,
     xyz_rpy_mm_deg,
 )
+from kincal.errors import KincalError
 
 POSE_KEYS = ("X", "Y", "Z", "A", "B", "C")
 AXIS_KEYS = ("A1", "A2", "A3", "A4", "A5", "A6")
@@ -282,3 +283,25 @@ def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, floa
 def digits(key: str) -> int:
     """Minimum decimals: 4 for mm and deg, none for S and T."""
     return 0 if key in ("s", "t") else 4
+
+
+# --------------------------------------------------------------------------- file names
+_MODULE = re.compile(r"^([ \t]*(?:GLOBAL[ \t]+)?DEF(?:DAT)?[ \t]+)([A-Za-z_$][\w$]*)",
+                     re.IGNORECASE | re.MULTILINE)
+#: A KRL name: a letter, _ or $ first, then letters, digits, _ or $; at most 24 characters.
+_NAME = re.compile(r"[A-Za-z_$][\w$]{0,23}", re.ASCII)
+
+
+def rename_module(text: str, old: str, new: str, source: str = "") -> str:
+    """``text`` of a ``.src`` / ``.dat`` with its module's ``DEF old(`` / ``DEFDAT old``
+    renamed to ``new`` (the controller requires them to match the file name; names
+    compare case-insensitively).  Other routines of the file keep their names; nothing
+    else changes.  A ``new`` that is no KRL name is a one-line error."""
+    if old.lower() == new.lower():
+        return text
+    if not _NAME.fullmatch(new):
+        raise KincalError(f"{new!r} is not a KRL module name (a letter, _ or $ first, then "
+                          "letters, digits, _ or $; at most 24 characters): the file name "
+                          "must be one, since DEF / DEFDAT follow it", source=source or None)
+    return _MODULE.sub(lambda m: m.group(1) + new if m.group(2).lower() == old.lower()
+                       else m.group(0), text)
