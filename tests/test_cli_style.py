@@ -94,6 +94,22 @@ def test_output_options(name):
     assert not bad, f"kincal {name}: " + "; ".join(bad)
 
 
+#: An option that writes into a folder: DIR as its metavar, or help saying it writes one.
+WRITES_FOLDER = re.compile(r"\bwrites?\b.{0,60}\b(DIR|folder)\b", re.IGNORECASE)
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_a_folder_of_outputs_is_out_dir(name):
+    """An option that writes into a folder is --out-dir, whatever it writes there (the
+    robot files of a fleet, figures, a demo's files); input folders (--data) are not
+    outputs."""
+    bad = [f"{'/'.join(p.opts)}: a folder of outputs is --out-dir"
+           for p in _options(COMMANDS[name])
+           if ("DIR" in (p.metavar or "") or WRITES_FOLDER.search(p.help or ""))
+           and "--out-dir" not in p.opts]
+    assert not bad, f"kincal {name}: " + "; ".join(bad)
+
+
 @pytest.mark.parametrize("name", sorted(COMMANDS))
 def test_counts_are_dash_n(name):
     bad = [f"{'/'.join(p.opts)}: a count is -n/--<what is counted>"

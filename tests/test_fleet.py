@@ -297,8 +297,12 @@ def test_exported_robot_files_are_what_kincal_calibrate_writes(fleet, tmp_path, 
     with HistoryStore(str(db)) as store:
         calibrate_fleet(load_fleet(fleet.root), store, SerialEngine(), crosscheck=False)
     code, out, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h.csv",
-                       "--robots", tmp_path / "robots")
+                       "--out-dir", tmp_path / "robots")
     assert code == 0 and f"{ROBOTS} calibrated robot file(s)" in _flat(out)
+    code, _, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h2.csv",
+                     "--robots", tmp_path / "old")                # the old spelling, hidden
+    assert code == 0 and sorted(p.name for p in (tmp_path / "old").iterdir()) == \
+        sorted(p.name for p in (tmp_path / "robots").iterdir())
     r = fleet.robots[0]
     latest = fleet.root / r["serial"] / r["dates"][-1] / "tracker.csv"
     assert invoke("calibrate", "puma560", "--data", latest, "-o", tmp_path / "cal.yaml") == 0

@@ -364,10 +364,12 @@ def export_cmd(
         "--parameters", help="Also write one CSV row per calibration and parameter "
         "(estimate, standard error; SI).")] = None,
     robots_dir: Annotated[str | None, typer.Option(
-        "--robots", metavar="DIR", help="Also write each robot's latest calibrated robot "
+        "--out-dir", metavar="DIR", help="Also write each robot's latest calibrated robot "
         "file, DIR/<serial>.yaml (SI; what `kincal calibrate -o` writes).")] = None,
+    robots_old: Annotated[str | None, typer.Option("--robots", hidden=True)] = None,
 ) -> None:
     """Write the calibration history as CSV or JSON (and the calibrated robot files)."""
+    robots_dir = robots_dir or robots_old
     from kincal.fleet.export import history_csv, history_json, parameters_csv
     from kincal.io import atomic_write_text, check_outputs
 
@@ -409,6 +411,6 @@ def _robot_files(records: list[Any]) -> dict[str, str]:
     out = {}
     for serial, r in sorted(latest.items()):
         if not re.fullmatch(r"[A-Za-z0-9._-]+", serial):
-            raise KincalError(f"option --robots: serial {serial!r} cannot be a file name")
+            raise KincalError(f"option --out-dir: serial {serial!r} cannot be a file name")
         out[serial] = robot_yaml_text(calibrated_robot(r))
     return out
