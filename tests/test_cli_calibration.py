@@ -142,7 +142,8 @@ def test_validate_command_with_training_frames_and_before(flow, capsys, tmp_path
     assert doc["before_definition"] == res["metrics"]["validation"]["before_definition"]
     text = " ".join(stdout.split())
     assert "errors before -> after, one row per file" in text
-    assert "before = the nominal robot under the same protocol" in text
+    assert "before (same session) = the nominal robot, the training session's frames" in text
+    assert "re-registered" not in text and "artifact" not in text     # protocols not used
     # without --result the tracker is re-registered on the file: still at the noise level
     code, stdout, _ = run(capsys, "validate", flow["cal"], "--data", flow["hold"])
     assert code == 0 and "re-registered" in stdout

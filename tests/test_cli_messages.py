@@ -36,7 +36,10 @@ def test_one_definition_of_before_for_held_out_data(tmp_path, capsys):
                          "--json", d / "r.json")
     assert code == 0, err
     cal = json.loads((d / "r.json").read_text())["metrics"]["validation"]
-    assert "before = the nominal robot under the same protocol" in " ".join(out.split())
+    shown = " ".join(out.split())
+    assert "before (same session) = the nominal robot, the training session's frames and " \
+        "markers registered to it" in shown
+    assert "re-registered" not in shown and "before = the nominal robot under" not in shown
     code, out, err = run(capsys, "validate", d / "c.yaml", "--data", d / "h.csv", "--result",
                          d / "r.json", "--before", "puma560", "--json", d / "v.json")
     assert code == 0, err
@@ -44,7 +47,8 @@ def test_one_definition_of_before_for_held_out_data(tmp_path, capsys):
     assert val["overall"]["rms_position_m"] == pytest.approx(cal["rms_position_m"], rel=1e-9)
     assert val["overall_before"]["rms_position_m"] == pytest.approx(
         cal["before"]["rms_position_m"], rel=1e-9)
-    assert "frames and markers registered to it on the training data" in " ".join(out.split())
+    assert "the training session's frames and markers registered to it" in " ".join(out.split())
+    assert "frames and markers registered to it on the training data" in val["before_definition"]
 
 
 def test_ik_all_branches_with_a_position_says_what_to_give(capsys):

@@ -258,12 +258,12 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
     outside the training region; then each file's protocol, extrapolation warnings and,
     for artifacts, the per-socket spread and the signed distance errors."""
     from kincal.report.metrics import error_keys, error_metrics, merge_errors
-    from kincal.workflow.heldout import BEFORE_DEFINITION
+    from kincal.workflow.heldout import before_lines
 
     if not files:
         return
     t = Table(title=f"{title}: errors before -> after, one row per file",
-              caption=BEFORE_DEFINITION)
+              caption="\n".join(before_lines(f.protocol for f in files)))
     for c in ("file", "quantity", "n", "RMS before", "RMS after", "max after",
               "predicted RMS", "outside region"):
         t.add_column(c, justify="left" if c in ("file", "quantity") else "right",

@@ -173,7 +173,8 @@ def _metric_table(comparisons: Sequence[ErrorComparison]) -> str:
                 rows.append("<tr>" + "".join(
                     f'<td class="l">{x}</td>' if i < 4 else f"<td>{x}</td>"
                     for i, x in enumerate(cells)) + "</tr>")
-    notes = "".join(f"<li>{html.escape(c.title)}: {html.escape(c.note)}</li>"
+    notes = "".join(f"<li>{html.escape(c.title)}: "
+                    f"{'<br>'.join(html.escape(x) for x in c.note.splitlines())}</li>"
                     for c in comparisons if c.note)
     return ("<table><tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>" + "".join(rows)
             + "</table>" + (f'<ul class="small">{notes}</ul>' if notes else ""))

@@ -379,7 +379,7 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
     :class:`~kincal.workflow.heldout.HeldOutFile` per held-out block (appends to
     ``warnings``)."""
     from kincal.report.metrics import ErrorComparison, merge_errors
-    from kincal.workflow.heldout import BEFORE_DEFINITION, evaluate_file, map_values
+    from kincal.workflow.heldout import before_lines, evaluate_file, map_values
 
     files = []
     default = frames
@@ -403,7 +403,7 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
     comp = ErrorComparison("validation", "held-out" + _files(holdouts),
                            merge_errors([f.before for f in files]),
                            merge_errors([f.after for f in files]),
-                           f"{notes}; {BEFORE_DEFINITION}")
+                           "\n".join([notes, *before_lines(f.protocol for f in files)]))
     return comp, files
 
 

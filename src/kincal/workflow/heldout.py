@@ -31,7 +31,7 @@ distance of the probe tips to their mean) and the signed error of every known di
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,7 +45,7 @@ from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
 Array = NDArray[np.float64]
 
 __all__ = ["HeldOutFile", "evaluate_file", "map_values", "known_by_name", "BEFORE_DEFINITION",
-           "PROTOCOLS"]
+           "PROTOCOLS", "BEFORE_BY_PROTOCOL", "before_lines"]
 
 PROTOCOLS = ("training", "register", "artifact")
 
@@ -54,6 +54,22 @@ BEFORE_DEFINITION = ("before = the nominal robot under the same protocol (same s
                      "frames and markers registered to it on the training data; re-registered: "
                      "frame and marker fitted to it on the held-out file; artifact: its "
                      "nominal probe)")
+
+#: The same definition, one short line per protocol: the console and the report show the
+#: lines of the protocols their files used (the JSON keeps :data:`BEFORE_DEFINITION`).
+BEFORE_BY_PROTOCOL = {
+    "training": "before (same session) = the nominal robot, the training session's frames "
+                "and markers registered to it",
+    "register": "before (re-registered) = the nominal robot, the file's frame and marker "
+                "fitted to it",
+    "artifact": "before (artifact) = the nominal robot with its nominal probe"}
+
+
+def before_lines(protocols: Iterable[str]) -> list[str]:
+    """The :data:`BEFORE_BY_PROTOCOL` lines of the ``protocols`` used, in
+    :data:`PROTOCOLS` order, each once."""
+    used = set(protocols)
+    return [BEFORE_BY_PROTOCOL[p] for p in PROTOCOLS if p in used]
 
 
 def _suffix(block: Any, name: str) -> str:

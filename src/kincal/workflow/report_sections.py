@@ -216,7 +216,7 @@ def trust_section_html(flow: FlowResult) -> str:
                      f"{e(acc.floor_source)}). Outside the training joint ranges or the "
                      "convex hull of the training positions the model extrapolates.</p>")
     if flow.heldout:
-        from kincal.workflow.heldout import BEFORE_DEFINITION
+        from kincal.workflow.heldout import before_lines
 
         rows = []
         for f in flow.heldout:
@@ -240,7 +240,8 @@ def trust_section_html(flow: FlowResult) -> str:
                      "<th>predicted inside</th><th>measured RMS outside [mm]</th>"
                      "<th>predicted outside</th><th>predicted worse than nominal</th>"
                      f"<th class='l'>protocol note</th></tr>{''.join(rows)}</table>"
-                     f"<p class='small'>{e(BEFORE_DEFINITION)}</p>")
+                     "".join(f"<p class='small'>{e(x)}</p>" for x in
+                             before_lines(f.protocol for f in flow.heldout)))
         for f in flow.heldout:
             if f.prediction is not None:
                 parts.append("<ul>" + "".join(f"<li>{e(f.file)}: {e(x)}</li>"
