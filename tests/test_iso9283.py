@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +135,18 @@ def test_plan_and_validate_on_a_simulated_robot(tmp_path, capsys):
         assert f_after["AP_m"] < 3 * 1e-5 * math.sqrt(3 / 10) + 2e-6     # noise / sqrt(n)
         assert f_before["AP_m"] > 10 * f_after["AP_m"]
     assert "distance_P2_P4_after" in iso
+    # --si: the same figures in m, in the tables of validate and plan
+    code, out, err = run(capsys, "validate", tmp_path / "truth.yaml", "--data", data,
+                         "--before", "kr6", "--iso9283", "--si")
+    assert code == 0, err
+    assert "AP before [m]" in out and "RP [m]" in out and "[mm]" not in out
+    rp = iso["after"][0]["RP_m"]
+    assert f"{rp:.7f}" in out
+    assert re.search(r"AD -?\d\.\d{7} m, RD \d\.\d{7} m", " ".join(out.split())), out
+    code, out, err = run(capsys, "plan", "kr6", "--iso9283", "--cycles", "2", "-o",
+                         tmp_path / "iso2.csv", "--cube-size", "300mm", "--si")
+    assert code == 0, err
+    assert "x [m]" in out and "edge 0.3000 m" in out and "mm" not in out
 
 
 @pytest.mark.parametrize("name", ["right_arm_repeatability_table1.csv",

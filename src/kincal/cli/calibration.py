@@ -449,6 +449,7 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
     """Print and return the ISO 9283 figures of every position block, before and after."""
     import math
 
+    from kincal.cli.calibration_common import CONSOLE_UNITS, scaled
     from kincal.identify.iso9283 import block_figures, group_positions
     from kincal.identify.validation import validate
     from kincal.measure.models import PositionMeasurement
@@ -468,15 +469,16 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
         after, dist_a = figures(robot)
         bef, dist_b = figures(before) if before is not None else (None, None)
         name = Path(getattr(b, "source_path", b.name)).name
+        lf, L = CONSOLE_UNITS().scale("m")
         t = Table(title=f"ISO 9283 on {escape(name)} ({escape(robot.name)}"
                         + (f", before: {escape(before.name)})" if before is not None else ")"))
-        cols = ["position", "cycles"] + (["AP before [mm]"] if bef else []) + \
-            ["AP [mm]", "RP [mm]"]
+        cols = ["position", "cycles"] + ([f"AP before [{L}]"] if bef else []) + \
+            [f"AP [{L}]", f"RP [{L}]"]
         for c in cols:
             t.add_column(escape(c), justify="left" if c == "position" else "right")
         for k, f in enumerate(after):
-            row = [f.name, str(f.n)] + ([f"{bef[k].AP * 1e3:.4f}"] if bef else []) + \
-                [f"{f.AP * 1e3:.4f}", f"{f.RP * 1e3:.4f}"]
+            row = [f.name, str(f.n)] + ([scaled(bef[k].AP, lf)] if bef else []) + \
+                [scaled(f.AP, lf), scaled(f.RP, lf)]
             t.add_row(*row)
         out.print(t)
         entry: dict[str, Any] = {"after": [f.to_dict() for f in after]}
@@ -486,9 +488,9 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
             if dist is not None:
                 entry[f"distance_P2_P4_{label}"] = dist
                 if label == "after" or dist_a is None:
-                    ad = dist.get("AD_m", math.nan) * 1e3
-                    out.print(f"distance P2-P4 ({label}): AD {ad:.4f} mm, "
-                              f"RD {dist['RD_m'] * 1e3:.4f} mm")
+                    out.print(f"distance P2-P4 ({label}): AD "
+                              f"{scaled(dist.get('AD_m', math.nan), lf)} {L}, RD "
+                              f"{scaled(dist['RD_m'], lf)} {L}")
         doc[name] = entry
     if not doc:
         raise KincalError("--iso9283 needs position measurements (x, y, z columns)")

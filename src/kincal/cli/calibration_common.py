@@ -293,8 +293,9 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
             for sentence in f.prediction.summary():
                 out.print(f"  {escape(sentence)}")
             if pm is not None:
-                parts = [f"{where} {scaled(pm[f'measured_rms_{where}_m'], 1e3)} mm (predicted "
-                         f"{scaled(pm[f'predicted_rms_{where}_m'], 1e3)})"
+                lf, L = _options.CONSOLE.scale("m")
+                parts = [f"{where} {scaled(pm[f'measured_rms_{where}_m'], lf)} {L} (predicted "
+                         f"{scaled(pm[f'predicted_rms_{where}_m'], lf)})"
                          for where in ("inside", "outside") if pm[f"{where}_n"]]
                 out.print("  measured RMS " + ", ".join(parts))
         if f.artifact is not None:

@@ -310,7 +310,7 @@ def plan(
 
     if iso9283:
         _iso_plan(robot, output, cube_center, cube_size, cycles, program, dwell, angle_unit,
-                  length_unit, base_link, tip_link, json_out)
+                  length_unit, base_link, tip_link, json_out, use_si(si))
         return
     crit = _criterion(criterion)
     for u, dim, opt in ((angle_unit, "angle", "--angle-unit"),
@@ -422,8 +422,10 @@ def plan(
 
 def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str | None,
               cycles: int, program: str | None, dwell: str, angle_unit: str, length_unit: str,
-              base_link: str | None, tip_link: str | None, json_out: str | None) -> None:
-    """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles."""
+              base_link: str | None, tip_link: str | None, json_out: str | None,
+              cu: Any) -> None:
+    """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles (the
+    console in ``cu``'s units: mm and deg, m and rad with --si)."""
     import numpy as np
     from rich.table import Table as _Table
 
@@ -484,13 +486,17 @@ def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str |
                 comments=comments)
     if program:
         atomic_write_bytes(output, text.encode("latin-1"))
-    t = _Table(title=f"ISO 9283 test cube for {escape(r.name)}: edge {size * 1e3:.1f} mm")
-    for c in ("position", "x [mm]", "y [mm]", "z [mm]") + tuple(
-            f"{j.name} [deg]" for j in r.joints):
+    lf, L = cu.scale("m")
+    digits = 4 if cu.si else 1
+    t = _Table(title=f"ISO 9283 test cube for {escape(r.name)}: edge "
+                     f"{size * lf:.{digits}f} {L}")
+    jf = [cu.scale("rad" if j.kind == "revolute" else "m") for j in r.joints]
+    for c in ("position", f"x [{L}]", f"y [{L}]", f"z [{L}]") + tuple(
+            f"{j.name} [{u}]" for j, (_, u) in zip(r.joints, jf, strict=True)):
         t.add_column(escape(c), justify="left" if c == "position" else "right")
     for n in names:
-        t.add_row(n, *(f"{v * 1e3:.1f}" for v in P[n]), *(f"{np.degrees(v):.2f}"
-                                                             for v in qpos[n]))
+        t.add_row(n, *(f"{v * lf:.{digits}f}" for v in P[n]),
+                  *(f"{v * f:.{digits + 1}f}" for v, (f, _) in zip(qpos[n], jf, strict=True)))
     out.print(t)
     out.print(f"cycle: {' -> '.join(CYCLE)} -> P1, {cycles} times ({len(rows)} moves)")
     if program:
