@@ -155,3 +155,27 @@ def test_initial_guess_recovers_the_instrument(key: str) -> None:
     want = np.array([truth[n] for n in names])
     assert np.abs(guess - want).max() < 1e-8
     assert np.abs(block.evaluate(ROBOT, want, False)[0]).max() < 1e-6
+
+
+@pytest.mark.parametrize("key", list(BLOCKS))
+def test_pieces_equal_the_whole(key: str) -> None:
+    """Evaluated in pieces of a few rows (as large blocks are), every residual and
+    Jacobian column is the whole block's, in order; the block-only pieces of the initial
+    guess's refinement are its own columns."""
+    from kincal.measure.instruments.pointblock import _own_pieces
+
+    block, extra = BLOCKS[key]
+    r, Jr, Je = block.evaluate(ROBOT, extra)
+    k = r.size // N
+    pieces = list(block.evaluate_chunks(ROBOT, extra, rows=2 * k + 1))
+    if not hasattr(block, "own_pieces"):                  # one piece: the whole block
+        assert len(pieces) == 1
+    else:
+        assert len(pieces) == -(-N // ((2 * k + 1) // k))
+    assert [sl.start for sl, *_ in pieces] == sorted(sl.start for sl, *_ in pieces)
+    assert np.array_equal(np.concatenate([p[1] for p in pieces]), r)
+    assert np.array_equal(np.concatenate([p[2] for p in pieces]), Jr)
+    assert np.array_equal(np.concatenate([p[3] for p in pieces]), Je)
+    own = list(_own_pieces(block, ROBOT, extra, True))
+    assert np.allclose(np.concatenate([o[0] for o in own]), r, rtol=1e-14, atol=0)
+    assert np.allclose(np.concatenate([o[1] for o in own]), Je, rtol=1e-14, atol=1e-300)

@@ -148,6 +148,15 @@ def frame_rotation_axes(values: Array) -> Array:
                      [1.0, 0.0, -sy]])
 
 
+def configuration_slices(N: int, rows_per_configuration: int, rows: int = CHUNK_ROWS
+                         ) -> Iterator[slice]:
+    """Consecutive slices of N configurations, at most ``rows`` residual rows each (at
+    least one configuration): the pieces a block evaluates at a time."""
+    step = max(1, rows // max(rows_per_configuration, 1))
+    for start in range(0, N, step):
+        yield slice(start, min(N, start + step))
+
+
 class MeasurementModel(ABC):
     """One instrument's block of measurements and its unknown parameters.
 

@@ -56,6 +56,7 @@ from kincal.measure.base import (
     MeasurementModel,
     ParamSpec,
     Triangle,
+    configuration_slices,
     frame_matrix,
     frame_rotation_axes,
     frame_values,
@@ -133,13 +134,6 @@ def _check_q(q: ArrayLike, name: str) -> Array:
         row = int(np.argwhere(~np.isfinite(q))[0, 0])
         raise KincalError(f"measurements {name!r}: joint reading in row {row} is not finite")
     return q
-
-
-def _configuration_slices(N: int, rows_per_configuration: int, rows: int) -> Iterator[slice]:
-    """Consecutive slices of the N configurations, at most ``rows`` residual rows each."""
-    step = max(1, rows // max(rows_per_configuration, 1))
-    for start in range(0, N, step):
-        yield slice(start, min(N, start + step))
 
 
 def _marker_order(L: int, K: int) -> NDArray[np.intp]:
@@ -264,7 +258,7 @@ class PositionMeasurement(MeasurementModel):
         H, m = self._left(extra), extra[6:].reshape(self.K, 3)
         if out is None:
             out = np.empty((self.N, self.K, 3))
-        for cs in _configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
+        for cs in configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
             Y, _, _ = robot.point_jacobian(self.q[cs], m, H, ())
             out[cs] = Y.transpose(2, 0, 1)
         return out
@@ -296,7 +290,7 @@ class PositionMeasurement(MeasurementModel):
         K, step = self.K, 3 * self.K
         cols = tuple(int(c) for c in robot_columns)
         own = [int(c) for c in own_columns]
-        for cs in _configuration_slices(self.N, step, rows):
+        for cs in configuration_slices(self.N, step, rows):
             L = cs.stop - cs.start
             Y, D, Rot = robot.point_jacobian(self.q[cs], m, H, cols, rotation=True)
             wT = (1.0 / self.sigma[cs]).T                         # (K, L)
@@ -348,7 +342,7 @@ class PositionMeasurement(MeasurementModel):
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 6 + 3 * self.K))
         ws, frames = _Scratch(), self._frames(extra)
-        for cs in _configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
+        for cs in configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
             rs = slice(3 * self.K * cs.start, 3 * self.K * cs.stop)
             self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
         return r, Jr, Je
@@ -365,7 +359,7 @@ class PositionMeasurement(MeasurementModel):
         extra = np.asarray(extra, dtype=float)
         step, P, E = 3 * self.K, robot.num_params, 6 + 3 * self.K
         ws, frames = _Scratch(), self._frames(extra)
-        for cs in _configuration_slices(self.N, step, rows):
+        for cs in configuration_slices(self.N, step, rows):
             n = (cs.stop - cs.start) * step
             r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, E))
             self._fill(robot, frames, cs, r, Jr, Je, ws)
@@ -459,7 +453,7 @@ class PositionMeasurement(MeasurementModel):
         S_y, S_pe = np.zeros((K, 3)), np.zeros((K, 3))
         S_R = np.zeros((K, 3, 3))
         S_ype, S_yR = np.zeros((K, 3, 3)), np.zeros((K, 3, 3, 3))
-        for cs in _configuration_slices(N, 3 * K, CHUNK_ROWS):
+        for cs in configuration_slices(N, 3 * K, CHUNK_ROWS):
             T = robot.fk(self.q[cs])
             Re, pe = T[:, :3, :3], T[:, :3, 3]
             y = self._y[cs]
@@ -613,7 +607,7 @@ class PoseMeasurement(MeasurementModel):
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 12))
         ws, frames = _Scratch(), self._frames(extra)
-        for cs in _configuration_slices(self.N, 6, CHUNK_ROWS):
+        for cs in configuration_slices(self.N, 6, CHUNK_ROWS):
             rs = slice(6 * cs.start, 6 * cs.stop)
             self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
         return r, Jr, Je
@@ -623,7 +617,7 @@ class PoseMeasurement(MeasurementModel):
         extra = np.asarray(extra, dtype=float)
         P = robot.num_params
         ws, frames = _Scratch(), self._frames(extra)
-        for cs in _configuration_slices(self.N, 6, rows):
+        for cs in configuration_slices(self.N, 6, rows):
             n = 6 * (cs.stop - cs.start)
             r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, 12))
             self._fill(robot, frames, cs, r, Jr, Je, ws)
@@ -706,7 +700,7 @@ class PoseMeasurement(MeasurementModel):
         """
         eye = np.eye(3)
         rot, tra = Triangle(18), Triangle(6 + 10)
-        for cs in _configuration_slices(self.N, 6, CHUNK_ROWS):
+        for cs in configuration_slices(self.N, 6, CHUNK_ROWS):
             T = robot.fk(self.q[cs])
             Re, pe = T[:, :3, :3], T[:, :3, 3]
             Ro, po = self.poses[cs, :3, :3], self.poses[cs, :3, 3]

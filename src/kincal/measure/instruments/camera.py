@@ -98,6 +98,8 @@ class CameraMeasurement(PointBlock):
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
 
+    row_fields = PointBlock.row_fields + ("K",)
+
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], uv: ArrayLike,
                  sigma: ArrayLike, intrinsics: dict[str, Sequence[float]],
                  marker: str = "own") -> None:

@@ -25,13 +25,13 @@ Derivatives (all analytic):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import ParamSpec, frame_values
+from kincal.measure.base import ParamSpec, Triangle, configuration_slices, frame_values
 from kincal.measure.models import project_so3
 from kincal.robots.chain import Robot
 from kincal.spatial import homogeneous, rotx, roty, rotz
@@ -217,20 +217,27 @@ def direction_pose(directions: Array, points: Array) -> Array:
     scale (homogeneous least squares), fixes the scale and sign so that the points lie in
     front (``u_i . x_i > 0``) and projects onto a rotation.  Needs >= 6 points not on one
     plane.  Returns frame parameters ``x y z rz ry rx``.
+
+    The system's rows are folded into their QR triangle in pieces (its right singular
+    vectors are the system's): memory independent of the number of points.
     """
-    u = directions / np.linalg.norm(directions, axis=1, keepdims=True)
-    ph = np.hstack([points, np.ones((points.shape[0], 1))])            # (N, 4)
-    # rows of u x (P ph): for components (a, b) -> u_a (P ph)_b - u_b (P ph)_a
-    rows = []
-    for a, b in ((1, 2), (2, 0), (0, 1)):
-        row = np.zeros((points.shape[0], 3, 4))
-        row[:, b] = u[:, a, None] * ph
-        row[:, a] = -u[:, b, None] * ph
-        rows.append(row.reshape(points.shape[0], 12))
-    A = np.vstack(rows)
-    P = np.linalg.svd(A, full_matrices=False)[2][-1].reshape(3, 4)
-    x = ph @ P.T
-    if np.sum(np.einsum("ij,ij->i", x, u)) < 0:
+    def pieces() -> Iterator[tuple[Array, Array]]:
+        for cs in configuration_slices(points.shape[0], 3):
+            u = directions[cs] / np.linalg.norm(directions[cs], axis=1, keepdims=True)
+            yield u, np.hstack([points[cs], np.ones((cs.stop - cs.start, 1))])  # (n, 4)
+
+    tri = Triangle(12)
+    for u, ph in pieces():
+        # rows of u x (P ph): for components (a, b) -> u_a (P ph)_b - u_b (P ph)_a
+        rows = []
+        for a, b in ((1, 2), (2, 0), (0, 1)):
+            row = np.zeros((ph.shape[0], 3, 4))
+            row[:, b] = u[:, a, None] * ph
+            row[:, a] = -u[:, b, None] * ph
+            rows.append(row.reshape(ph.shape[0], 12))
+        tri.add(np.vstack(rows))
+    P = np.linalg.svd(tri.R)[2][-1].reshape(3, 4)
+    if sum(float(np.sum((ph @ P.T) * u)) for u, ph in pieces()) < 0:
         P = -P
     scale = np.cbrt(np.linalg.det(P[:, :3]))
     if not np.isfinite(scale) or abs(scale) < 1e-300:

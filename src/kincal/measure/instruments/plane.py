@@ -87,6 +87,8 @@ class PlaneMeasurement(PointBlock):
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
 
+    row_fields = PointBlock.row_fields + ("plane_index",)
+
     def __init__(self, name: str, q: ArrayLike, plane: Sequence[str], sigma: ArrayLike,
                  planes: dict[str, tuple[Sequence[float], float, bool]],
                  marker: str = "own") -> None:

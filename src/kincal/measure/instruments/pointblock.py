@@ -6,16 +6,27 @@
 
     r = (obs(p(q; robot, m), own) - obs_measured) / sigma
     dr/d(robot) = (d obs/dp)(dp/d(robot)) / sigma,   dr/dm = (d obs/dp) R_e / sigma
+
+Large blocks are evaluated in pieces of configurations (:meth:`PointBlock.evaluate_chunks`
+on a view of the rows, :meth:`PointBlock._rows`), and the initial guess's refinement folds
+its pieces into a QR triangle (:func:`refine_block`), so neither holds an (M, P) array.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import copy
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.measure.base import MeasurementModel, ParamSpec
+from kincal.measure.base import (
+    CHUNK_ROWS,
+    MeasurementModel,
+    ParamSpec,
+    Triangle,
+    configuration_slices,
+)
 from kincal.measure.instruments.common import (
     as_q,
     as_sigma,
@@ -32,22 +43,48 @@ from kincal.robots.chain import Robot
 Array = NDArray[np.float64]
 
 
+def _own_pieces(model: MeasurementModel, robot: Robot, x: Array, jacobian: bool
+                ) -> Iterator[tuple[Array, Array | None]]:
+    """The block's residuals and (``jacobian``) its own columns, piece by piece."""
+    if isinstance(model, PointBlock):
+        yield from model.own_pieces(robot, x, jacobian)
+    elif jacobian:
+        for _, r, _, Je in model.evaluate_chunks(robot, x):
+            yield r, Je
+    else:
+        yield model.evaluate(robot, x, jacobian=False)[0], None
+
+
 def refine_block(model: MeasurementModel, robot: Robot, x0: Array, iterations: int = 30
                  ) -> Array:
     """Gauss-Newton on the block's own parameters with the robot held fixed.
 
-    Minimum-norm steps (so parameters the block alone cannot see stay where they are),
-    halved until the cost drops.  Used by ``initial_guess`` after a closed form.
+    Minimum-norm steps (so parameters the block alone cannot see stay where they are;
+    singular values below 1e-10 of the largest are dropped), halved until the cost
+    drops.  Used by ``initial_guess`` after a closed form.  Each linearisation is the
+    QR triangle of ``[J | r]`` folded piece by piece (memory independent of the rows).
     """
     x = np.asarray(x0, dtype=float).copy()
-    r, _, J = model.evaluate(robot, x)
-    cost = float(r @ r)
+    E = x.size
+    if E == 0:
+        return x
+
+    def system(x: Array) -> tuple[Triangle, float]:
+        tri, cost = Triangle(E + 1), 0.0
+        for r, Je in _own_pieces(model, robot, x, True):
+            tri.add(np.column_stack([Je, r]))
+            cost += float(r @ r)
+        return tri, cost
+
+    def cost_at(x: Array) -> float:
+        return sum(float(r @ r) for r, _ in _own_pieces(model, robot, x, False))
+
+    tri, cost = system(x)
     for _ in range(iterations):
-        step = np.linalg.lstsq(J, -r, rcond=1e-10)[0]
+        step = -tri.solve(E, rcond=1e-10)[:, 0]
         for _ in range(30):
             cand = x + step
-            rc = model.evaluate(robot, cand, jacobian=False)[0]
-            cc = float(rc @ rc)
+            cc = cost_at(cand)
             if np.isfinite(cc) and cc <= cost:
                 break
             step = step / 2
@@ -57,7 +94,7 @@ def refine_block(model: MeasurementModel, robot: Robot, x0: Array, iterations: i
         x, cost = cand, cc
         if done:
             break
-        r, _, J = model.evaluate(robot, x)
+        tri, _ = system(x)
     return x
 
 
@@ -73,6 +110,9 @@ class PointBlock(MeasurementModel):
     marker: str
     sigma: Array
     obs: Array
+    #: attributes with one entry per row, cut by :meth:`_rows` (a subclass whose
+    #: ``observe`` or ``difference`` reads another per-row attribute adds it)
+    row_fields: tuple[str, ...] = ("q", "obs", "sigma", "station_index")
 
     # -- for the subclasses' constructors
     def _init_rows(self, kind: str, name: str, q: ArrayLike, obs: ArrayLike | None,
@@ -145,9 +185,58 @@ class PointBlock(MeasurementModel):
     def residual_owner(self) -> NDArray[np.intp]:
         return np.repeat(np.arange(self.q.shape[0]), self.obs.shape[1])
 
+    def _rows(self, cs: slice) -> PointBlock:
+        """The block restricted to the rows ``cs`` (views of its per-row arrays, the same
+        parameters): what one piece of :meth:`evaluate_chunks` evaluates."""
+        view = copy.copy(self)
+        for f in self.row_fields:
+            if hasattr(self, f):
+                setattr(view, f, getattr(self, f)[cs])
+        return view
+
+    def _pieces(self, rows: int = CHUNK_ROWS) -> Iterator[tuple[slice, PointBlock]]:
+        N, k = self.q.shape[0], self.obs.shape[1]
+        if N * k <= rows:
+            yield slice(0, N), self
+            return
+        for cs in configuration_slices(N, k, rows):
+            yield cs, self._rows(cs)
+
+    def evaluate_chunks(self, robot: Robot, extra: Array, rows: int = CHUNK_ROWS
+                        ) -> Iterator[tuple[slice, Array, Array, Array]]:
+        """:meth:`evaluate` over pieces of about ``rows`` residual rows."""
+        k = self.obs.shape[1]
+        for cs, part in self._pieces(rows):
+            r, Jr, Je = part.evaluate(robot, extra, jacobian=True)
+            yield slice(k * cs.start, k * cs.stop), r, Jr, Je  # type: ignore[misc]
+
+    def own_pieces(self, robot: Robot, extra: Array, jacobian: bool, rows: int = CHUNK_ROWS
+                   ) -> Iterator[tuple[Array, Array | None]]:
+        """Residuals and (``jacobian``) the block's own columns ``dr/d(block params)``, piece
+        by piece, without the robot's columns (the robot held fixed)."""
+        for _, part in self._pieces(rows):
+            own, m = part._split(extra)
+            p, R, _, _ = tool_point(robot, part.q, m, False)
+            pred, dodp, dodown = part.observe(p, own, jacobian)
+            r = (part.difference(pred) / part.sigma[:, None]).reshape(-1)
+            if not jacobian:
+                yield r, None
+                continue
+            cols = [(dodown / part.sigma[:, None, None]).reshape(r.size, -1)]  # type: ignore[operator]
+            if m is not None:
+                cols.append(chain_rows(dodp, R, part.sigma))  # type: ignore[arg-type]
+            yield r, np.hstack(cols)
+
+    def tool_points(self, robot: Robot, rows: int = CHUNK_ROWS) -> Array:
+        """The tool origin (N, 3) at every row [m], in pieces."""
+        p = np.empty((self.q.shape[0], 3))
+        for cs in configuration_slices(self.q.shape[0], 3, rows):
+            p[cs] = tool_point(robot, self.q[cs], None, False)[0]
+        return p
+
     def initial_guess(self, robot: Robot) -> Array:
         """Closed form with the marker at the tool origin, then Gauss-Newton on the block."""
-        p, _, _, _ = tool_point(robot, self.q, None, False)
+        p = self.tool_points(robot)
         x0 = self.own_guess(robot, p)
         if self.marker == "own":
             x0 = np.concatenate([x0, np.zeros(3)])

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import ParamSpec
+from kincal.measure.base import ParamSpec, Triangle, configuration_slices
 from kincal.measure.instruments.common import (
     concat_specs,
     label_index_raw,
@@ -63,6 +63,8 @@ class RangeMeasurement(PointBlock):
         run: (N,) run label of incremental rows (a new run after each beam break).
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
+
+    row_fields = PointBlock.row_fields + ("offset_index",)
 
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], rho: ArrayLike,
                  sigma: ArrayLike, mode: Sequence[str] | None = None,
@@ -137,16 +139,23 @@ class RangeMeasurement(PointBlock):
         for k in range(K):
             rows = np.flatnonzero(self.station_index == k)
             offs = sorted(set(self.offset_index[rows][self.offset_index[rows] >= 0].tolist()))
-            # unknowns: s (3), c = |s|^2, then per run: e_j = L0_j, f_j = L0_j^2 (linearised)
-            A = np.zeros((rows.size, 4 + 2 * len(offs)))
-            A[:, :3] = 2 * p[rows]
-            A[:, 3] = -1.0
-            b = np.sum(p[rows] ** 2, axis=1) - rho[rows] ** 2
-            for j, o in enumerate(offs):
-                sel = self.offset_index[rows] == o
-                A[sel, 4 + 2 * j] = 2 * rho[rows][sel]     # 2 rho L0
-                A[sel, 5 + 2 * j] = 1.0                    # L0^2
-            x = np.linalg.lstsq(A, b, rcond=None)[0]
+            # unknowns: s (3), c = |s|^2, then per run: e_j = L0_j, f_j = L0_j^2 (linearised);
+            # the system [A | b] folded into its QR triangle in pieces of rows
+            nx = 4 + 2 * len(offs)
+            tri = Triangle(nx + 1)
+            for cs in configuration_slices(rows.size, 1):
+                rk = rows[cs]
+                A = np.zeros((rk.size, nx + 1))
+                A[:, :3] = 2 * p[rk]
+                A[:, 3] = -1.0
+                A[:, nx] = np.sum(p[rk] ** 2, axis=1) - rho[rk] ** 2
+                for j, o in enumerate(offs):
+                    sel = self.offset_index[rk] == o
+                    A[sel, 4 + 2 * j] = 2 * rho[rk][sel]   # 2 rho L0
+                    A[sel, 5 + 2 * j] = 1.0                # L0^2
+                tri.add(A)
+            # least squares as numpy.linalg.lstsq's default (rcond: eps * max(M, n))
+            x = tri.solve(nx, rcond=np.finfo(float).eps * max(rows.size, nx))[:, 0]
             S[k] = x[:3]
             for j, o in enumerate(offs):
                 L0[o] = x[4 + 2 * j]
