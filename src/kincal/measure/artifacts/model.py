@@ -69,7 +69,7 @@ from kincal.measure.artifacts.perpendicularity import (
     perpendicularity_variance,
 )
 from kincal.measure.artifacts.probe import Probe
-from kincal.measure.base import MeasurementModel, ParamSpec
+from kincal.measure.base import MeasurementModel, ParamSpec, configuration_slices
 from kincal.robots.chain import Robot
 from kincal.spatial import rotx, roty, rotz
 
@@ -330,7 +330,9 @@ class ArtifactMeasurement(MeasurementModel):
         socket frames: zero."""
         parts = [np.asarray(self.probe.value if self.probe.estimate else (), dtype=float)]
         if self.sockets == "parameters":
-            P = self.probe.points(robot, self.q, jacobian=False)[0]
+            P = np.empty((self.N, 3))                          # tips, in pieces of rows
+            for cs in configuration_slices(self.N, 3):
+                P[cs] = self.probe.points(robot, self.q[cs], jacobian=False)[0]
             parts.append(site_means(P, self.sites).reshape(-1))
         parts.append(np.zeros(3 * len(self.framed_sites)))
         return np.concatenate(parts)
