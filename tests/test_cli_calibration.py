@@ -144,6 +144,20 @@ def test_validate_command_with_training_frames_and_before(flow, capsys, tmp_path
     assert "errors before -> after, one row per file" in text
     assert "before (same session) = the nominal robot, the training session's frames" in text
     assert "re-registered" not in text and "artifact" not in text     # protocols not used
+    # --report: the calibration report's family, with the held-out rows measured against
+    # the predicted accuracy and the protocol used
+    rep = tmp_path / "val.html"
+    code, _, err = run(capsys, "validate", flow["cal"], "--data", flow["hold"], "--result",
+                       flow["res"], "--before", "puma560", "--report", rep)
+    assert code == 0, err
+    page = rep.read_text()
+    assert "<h2>Errors before and after on held-out data</h2>" in page
+    assert "Held-out files: measured against predicted" in page and "Predicted accuracy" in page
+    assert "before (same session) = the nominal robot" in page and "ISO 9283" not in page
+    assert page.count("<img") == 2 and f"{doc['overall']['rms_position_m'] * 1e3:.4f}" in page
+    code, _, err = run(capsys, "validate", flow["cal"], "--data", flow["hold"], "--report",
+                       flow["hold"])
+    assert code == 2 and "also the input of --data" in err
     # without --result the tracker is re-registered on the file: still at the noise level
     code, stdout, _ = run(capsys, "validate", flow["cal"], "--data", flow["hold"])
     assert code == 0 and "re-registered" in stdout

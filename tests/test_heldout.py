@@ -103,6 +103,11 @@ def test_one_row_per_file_and_the_protocol_of_each(files, calibrated):
     html = (files / "report.html").read_text()
     assert "Can this calibration be trusted?" in html
     assert "Held-out files: measured against predicted" in html
+    # the table, then 'before' for each protocol the files used (as under the errors table)
+    table = html.index("<th class='l'>protocol note</th>")
+    for line in ("before (same session) =", "before (re-registered) ="):
+        assert html.rindex(line) > table > html.index(line)
+    assert "before (artifact)" not in html
     assert "lie outside the training joint ranges" in html
     assert "before = the nominal robot" in calibrated["metrics"]["validation"][
         "before_definition"]

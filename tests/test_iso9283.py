@@ -135,6 +135,16 @@ def test_plan_and_validate_on_a_simulated_robot(tmp_path, capsys):
         assert f_after["AP_m"] < 3 * 1e-5 * math.sqrt(3 / 10) + 2e-6     # noise / sqrt(n)
         assert f_before["AP_m"] > 10 * f_after["AP_m"]
     assert "distance_P2_P4_after" in iso
+    # --report: the ISO 9283 section, per position, before and after, and the distances
+    code, out, err = run(capsys, "validate", tmp_path / "truth.yaml", "--data", data,
+                         "--before", "kr6", "--iso9283", "--report", tmp_path / "iso.html")
+    assert code == 0, err
+    page = (tmp_path / "iso.html").read_text()
+    assert "<h2>ISO 9283 acceptance figures</h2>" in page and "AP before [mm]" in page
+    for f in iso["after"]:
+        assert f"<td class='l'>{f['position']}</td><td>10</td>" in page
+        assert f"{f['RP_m'] * 1e3:.4f}" in page
+    assert "distance P2-P4 (after): AD" in page and "nan" not in page
     # --si: the same figures in m, in the tables of validate and plan
     code, out, err = run(capsys, "validate", tmp_path / "truth.yaml", "--data", data,
                          "--before", "kr6", "--iso9283", "--si")

@@ -381,6 +381,11 @@ def validate_cmd(
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
     base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
     json_out: JsonOpt = None,
+    report: Annotated[str | None, typer.Option("--report", help="Write a single-file HTML "
+                                               "report: the held-out rows before and after, "
+                                               "the predicted accuracy (with --result) and, "
+                                               "with --iso9283, the ISO 9283 figures.")
+                      ] = None,
 ) -> None:
     """Errors of ROBOT on held-out measurements, one row per file and pooled: RMS before
     (the nominal robot, --before) and after, and, with --result, the predicted accuracy
@@ -402,6 +407,8 @@ def validate_cmd(
 
     out = out_console(json_out)
     use_si(si)
+    check_outputs({"--json": json_out, "--report": report},
+                  {"ROBOT": robot, "--data": data, "--result": result, "--before": nominal})
     if validation_frames not in ("auto", "training", "register"):
         raise KincalError(f"option --validation-frames: {validation_frames!r} is not auto, "
                           "training or register")
@@ -443,6 +450,27 @@ def validate_cmd(
                                                       **f.prediction.to_dict()}
                                 for f in files if f.prediction is not None}
         write_json(json_out, doc)
+    if report:
+        _validation_report(report, r, files, accuracy, iso_doc, {
+            "robot": robot, "data": ", ".join(data), "result": result or "-",
+            "before": nominal or "-", "frames": validation_frames})
+        out.print(f"report: {escape(report)}")
+
+
+def _validation_report(path: str, robot: Any, files: Any, accuracy: Any,
+                       iso_doc: dict[str, Any] | None, inputs: dict[str, str]) -> None:
+    """``kincal validate --report``: the calibration report's family for held-out data."""
+    from kincal.io import atomic_write_text
+    from kincal.report.html import render_validation_html
+    from kincal.report.metrics import ErrorComparison
+    from kincal.workflow.report_sections import heldout_section_html, iso9283_section_html
+
+    comps = [ErrorComparison("validation", f.file, f.before, f.after, f.note) for f in files]
+    sections = [heldout_section_html(files, accuracy)]
+    if iso_doc:
+        sections.append(iso9283_section_html(iso_doc))
+    atomic_write_text(path, render_validation_html(
+        f"kincal validation of {robot.name} on held-out data", comps, inputs, sections))
 
 
 def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dict[str, Any]:

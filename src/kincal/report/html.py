@@ -251,7 +251,6 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
     patent's selection and comparison tables); ``notice`` (plain text) is shown in red
     right under the title (e.g. a calibration that cannot be trusted).
     """
-    from kincal._version import __version__
     from kincal.report import plots as rp
 
     d = result.to_dict()
@@ -260,21 +259,14 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
     chosen = set(result.estimated)
     est_mask = np.array([n in chosen for n in names], dtype=bool)
     title = title or f"kincal calibration of {getattr(result.robot, 'name', 'robot')}"
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
-             f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"]
-    if notice:
-        parts.append(f"<p class='bad'><b>{html.escape(notice)}</b></p>")
-    now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
+    parts = [_head(title, notice)]
     conv = '<span class="ok">converged</span>' if d.get("converged") else \
         '<span class="bad">did not converge</span>'
     parts.append(f"<p>{conv} after {d.get('iterations')} iterations; "
                  f"{int(est_mask.sum())} parameters estimated; "
                  f"a-posteriori sigma0 = {d.get('sigma0', float('nan')):.3g} (1 = residuals at "
                  "the stated noise).</p>")
-    if inputs:
-        parts.append("<table>" + "".join(
-            f'<tr><th class="l">{html.escape(k)}</th><td class="l">{html.escape(str(v))}</td>'
-            "</tr>" for k, v in inputs.items()) + "</table>")
+    parts.append(_inputs(inputs))
     if comparisons:
         parts.append("<h2>Errors before and after calibration</h2>")
         parts.append(_metric_table(comparisons))
@@ -304,12 +296,7 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
         for png in rp.parameter_history(H[:, idx], [names[i] for i in idx],
                                         [units[i] for i in idx], stages, truth):
             parts.append(_img(png, "parameter history"))
-        sets = [(c.title, c.before, c.after) for c in comparisons]
-        if sets:
-            parts.append("<h2>Error distributions</h2>" + _img(rp.error_histograms(sets),
-                                                               "histograms"))
-            parts.append("<h2>Error of every measurement</h2>" + _img(
-                rp.per_pose_errors(sets), "per-measurement errors"))
+        parts.append(_error_plots(comparisons))
         C = getattr(result, "correlation", None)
         if C is not None and 1 < len(idx) <= 80:
             C = np.asarray(C, dtype=float)
@@ -320,8 +307,60 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
                     rp.correlation(C, [names[i] for i in idx]), "correlation"))
     parts.extend(extra_sections)
     parts.append(_solver_details(result, d))
-    parts.append(f"<p class='small'>kincal {__version__}, {now}. Units inside kincal are SI "
-                 "(m, rad); the result JSON and robot files are SI.</p></body></html>")
+    parts.append(_footer())
+    return "\n".join(parts)
+
+
+def _head(title: str, notice: str = "") -> str:
+    """The document's head, the title and a notice in red (plain text) under it."""
+    out = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+           f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>")
+    return out + (f"<p class='bad'><b>{html.escape(notice)}</b></p>" if notice else "")
+
+
+def _inputs(inputs: Mapping[str, str] | None) -> str:
+    if not inputs:
+        return ""
+    return "<table>" + "".join(
+        f'<tr><th class="l">{html.escape(k)}</th><td class="l">{html.escape(str(v))}</td>'
+        "</tr>" for k, v in inputs.items()) + "</table>"
+
+
+def _error_plots(comparisons: Sequence[ErrorComparison]) -> str:
+    """The before/after error histograms and the error of every measurement."""
+    from kincal.report import plots as rp
+
+    sets = [(c.title, c.before, c.after) for c in comparisons]
+    if not sets:
+        return ""
+    return ("<h2>Error distributions</h2>" + _img(rp.error_histograms(sets), "histograms")
+            + "<h2>Error of every measurement</h2>"
+            + _img(rp.per_pose_errors(sets), "per-measurement errors"))
+
+
+def _footer() -> str:
+    from kincal._version import __version__
+
+    now = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
+    return (f"<p class='small'>kincal {__version__}, {now}. Units inside kincal are SI "
+            "(m, rad); the result JSON and robot files are SI.</p></body></html>")
+
+
+def render_validation_html(title: str, comparisons: Sequence[ErrorComparison],
+                           inputs: Mapping[str, str] | None = None,
+                           sections: Sequence[str] = (), plots: bool = True) -> str:
+    """The report of a validation (``kincal validate --report``), in the calibration
+    report's family: the inputs, the before/after table of every held-out file, then
+    ``sections`` (HTML fragments: held-out rows with the predicted accuracy, ISO 9283),
+    then the error plots."""
+    parts = [_head(title), _inputs(inputs)]
+    if comparisons:
+        parts += ["<h2>Errors before and after on held-out data</h2>",
+                  _metric_table(comparisons)]
+    parts.extend(sections)
+    if plots:
+        parts.append(_error_plots(comparisons))
+    parts.append(_footer())
     return "\n".join(parts)
 
 

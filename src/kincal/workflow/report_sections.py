@@ -170,6 +170,120 @@ def _si(value: float, unit: str, digits: int = 3) -> str:
     return show_quantity(value, unit, digits)
 
 
+def heldout_section_html(heldout: Sequence[Any], accuracy: Any = None) -> str:
+    """The predicted accuracy (how it is computed) and the held-out files measured
+    against it, one row each, with their protocol and the 'before' of the protocols used;
+    their extrapolation sentences and artifact metrics.  Shared by the calibration report
+    and ``kincal validate --report``."""
+    e = html.escape
+    parts: list[str] = []
+    acc = accuracy
+    if acc is not None:
+        parts.append(f"<h3>Predicted accuracy</h3><p>Where the calibrated model is used, "
+                     f"its predicted error at the measured point is sqrt(trace(G C G^T) + "
+                     f"floor^2): C the covariance of the estimated parameters, the floor "
+                     f"{acc.floor_m * 1e3:.3g} mm (what no parameter explains, from the "
+                     f"{e(acc.floor_source)}). Outside the training joint ranges or the "
+                     "convex hull of the training positions the model extrapolates.</p>")
+    if heldout:
+        from kincal.workflow.heldout import before_lines
+
+        rows = []
+        for f in heldout:
+            pm = f.prediction_metrics() or {}
+
+            def mm(v: float | None) -> str:
+                return "-" if v is None else f"{v * 1e3:.4f}"
+
+            rows.append(
+                f"<tr><td class='l'>{e(f.file)}</td><td class='l'>{e(f.protocol)}</td>"
+                f"<td>{pm.get('n', '')}</td><td>{pm.get('outside_n', '')}</td>"
+                f"<td>{mm(pm.get('measured_rms_inside_m'))}</td>"
+                f"<td>{mm(pm.get('predicted_rms_inside_m'))}</td>"
+                f"<td>{mm(pm.get('measured_rms_outside_m'))}</td>"
+                f"<td>{mm(pm.get('predicted_rms_outside_m'))}</td>"
+                f"<td>{pm.get('worse_than_nominal', '')}</td>"
+                f"<td class='l'>{e(f.note)}</td></tr>")
+        parts.append("<h3>Held-out files: measured against predicted</h3><table><tr>"
+                     "<th class='l'>file</th><th class='l'>protocol</th><th>poses</th>"
+                     "<th>outside region</th><th>measured RMS inside [mm]</th>"
+                     "<th>predicted inside</th><th>measured RMS outside [mm]</th>"
+                     "<th>predicted outside</th><th>predicted worse than nominal</th>"
+                     f"<th class='l'>protocol note</th></tr>{''.join(rows)}</table>"
+                     + "".join(f"<p class='small'>{e(x)}</p>" for x in
+                             before_lines(f.protocol for f in heldout)))
+        for f in heldout:
+            if f.prediction is not None:
+                parts.append("<ul>" + "".join(f"<li>{e(f.file)}: {e(x)}</li>"
+                                              for x in f.prediction.summary()) + "</ul>")
+            if f.artifact is not None:
+                a = f.artifact
+                rows = [f"<tr><td class='l'>spread {e(k)}</td>"
+                        f"<td>{a['before']['spread_m'][k] * 1e3:.3f}</td><td>{v * 1e3:.3f}</td>"
+                        "</tr>" for k, v in a["after"]["spread_m"].items()]
+                rows += [f"<tr><td class='l'>distance error {e(da['placement'])} "
+                         f"{e(da['label'])}</td><td>{db['error_m'] * 1e3:+.3f}</td>"
+                         f"<td>{da['error_m'] * 1e3:+.3f}</td></tr>"
+                         for db, da in zip(a["before"]["distances"], a["after"]["distances"],
+                                           strict=True)]
+                parts.append(f"<h4>{e(f.file)}: artifact metrics (before = the plain nominal "
+                             "robot)</h4><table><tr><th class='l'>socket / distance</th>"
+                             f"<th>before [mm]</th><th>after [mm]</th></tr>{''.join(rows)}"
+                             "</table>")
+    return "\n".join(parts)
+
+
+def iso9283_section_html(doc: Mapping[str, Any]) -> str:
+    """The ISO 9283 figures of ``kincal validate --iso9283`` (its JSON ``iso9283``: per
+    file, per position AP and RP before and after, and the P2-P4 distance accuracy AD and
+    repeatability RD), as tables in mm and arcsec."""
+    e = html.escape
+    arcsec = 180.0 / math.pi * 3600.0
+
+    def mm(v: Any) -> str:
+        return "-" if v is None or not math.isfinite(float(v)) else f"{float(v) * 1e3:.4f}"
+
+    def sec(v: Sequence[float]) -> str:
+        return ", ".join(f"{x * arcsec:.1f}" for x in v)
+
+    parts = ["<h2>ISO 9283 acceptance figures</h2><p class='small'>Per position (rows at "
+             "the same joint values): pose accuracy AP = distance from the mean attained "
+             "position to the commanded one, pose repeatability RP = mean + 3 standard "
+             "deviations of the distances to the mean attained position (ISO 9283, 7.2); "
+             "orientation AP a, b, c and RP +-3 S in arcsec about the base axes (pose data "
+             "only). "
+             "Before: the nominal robot; after: the robot validated.</p>"]
+    for name, entry in doc.items():
+        after = entry.get("after", [])
+        before = {f["position"]: f for f in entry.get("before", [])}
+        angles = any(math.isfinite(x) for f in after for x in f.get("RP_abc_rad", []))
+        head = ["position", "cycles"] + (["AP before [mm]"] if before else []) + \
+            ["AP [mm]", "RP [mm]"] + (["AP a, b, c [arcsec]", "RP a, b, c [arcsec]"]
+                                      if angles else [])
+        rows = []
+        for f in after:
+            cells = [e(str(f["position"])), str(f["cycles"])]
+            if before:
+                cells.append(mm(before.get(f["position"], {}).get("AP_m")))
+            cells += [mm(f["AP_m"]), mm(f["RP_m"])]
+            if angles:
+                cells += [sec(f.get("AP_abc_rad", [])), sec(f.get("RP_abc_rad", []))]
+            rows.append("<tr>" + "".join(f"<td class='l'>{c}</td>" if i == 0 else f"<td>{c}</td>"
+                                         for i, c in enumerate(cells)) + "</tr>")
+        dist = []
+        for label in ("before", "after"):
+            d = entry.get(f"distance_P2_P4_{label}")
+            if d:
+                dist.append(f"<li>distance P2-P4 ({label}): AD {mm(d.get('AD_m'))} mm, RD "
+                            f"{mm(d.get('RD_m'))} mm over {mm(d.get('D_mean_m'))} mm</li>")
+        parts.append(f"<h3>{e(name)}</h3><table><tr>"
+                     + "".join(f"<th class='l'>{h}</th>" if i == 0 else f"<th>{h}</th>"
+                               for i, h in enumerate(head))
+                     + f"</tr>{''.join(rows)}</table>"
+                     + (f"<ul>{''.join(dist)}</ul>" if dist else ""))
+    return "\n".join(parts)
+
+
 def trust_section_html(flow: FlowResult) -> str:
     """The report's section "Can this calibration be trusted?": the verdict (convergence,
     estimates within 10 tolerances), the prior (tolerances, noise scale), the parameters
@@ -207,59 +321,7 @@ def trust_section_html(flow: FlowResult) -> str:
         parts.append("<h3>Held by the prior (weakly identifiable)</h3><table><tr>"
                      "<th class='l'>parameter</th><th>data alone (1σ)</th><th>prior (1σ)</th>"
                      f"<th class='l'>what would identify it</th></tr>{rows}</table>")
-    acc = flow.accuracy
-    if acc is not None:
-        parts.append(f"<h3>Predicted accuracy</h3><p>Where the calibrated model is used, "
-                     f"its predicted error at the measured point is sqrt(trace(G C G^T) + "
-                     f"floor^2): C the covariance of the estimated parameters, the floor "
-                     f"{acc.floor_m * 1e3:.3g} mm (what no parameter explains, from the "
-                     f"{e(acc.floor_source)}). Outside the training joint ranges or the "
-                     "convex hull of the training positions the model extrapolates.</p>")
-    if flow.heldout:
-        from kincal.workflow.heldout import before_lines
-
-        rows = []
-        for f in flow.heldout:
-            pm = f.prediction_metrics() or {}
-
-            def mm(v: float | None) -> str:
-                return "-" if v is None else f"{v * 1e3:.4f}"
-
-            rows.append(
-                f"<tr><td class='l'>{e(f.file)}</td><td class='l'>{e(f.protocol)}</td>"
-                f"<td>{pm.get('n', '')}</td><td>{pm.get('outside_n', '')}</td>"
-                f"<td>{mm(pm.get('measured_rms_inside_m'))}</td>"
-                f"<td>{mm(pm.get('predicted_rms_inside_m'))}</td>"
-                f"<td>{mm(pm.get('measured_rms_outside_m'))}</td>"
-                f"<td>{mm(pm.get('predicted_rms_outside_m'))}</td>"
-                f"<td>{pm.get('worse_than_nominal', '')}</td>"
-                f"<td class='l'>{e(f.note)}</td></tr>")
-        parts.append("<h3>Held-out files: measured against predicted</h3><table><tr>"
-                     "<th class='l'>file</th><th class='l'>protocol</th><th>poses</th>"
-                     "<th>outside region</th><th>measured RMS inside [mm]</th>"
-                     "<th>predicted inside</th><th>measured RMS outside [mm]</th>"
-                     "<th>predicted outside</th><th>predicted worse than nominal</th>"
-                     f"<th class='l'>protocol note</th></tr>{''.join(rows)}</table>"
-                     "".join(f"<p class='small'>{e(x)}</p>" for x in
-                             before_lines(f.protocol for f in flow.heldout)))
-        for f in flow.heldout:
-            if f.prediction is not None:
-                parts.append("<ul>" + "".join(f"<li>{e(f.file)}: {e(x)}</li>"
-                                              for x in f.prediction.summary()) + "</ul>")
-            if f.artifact is not None:
-                a = f.artifact
-                rows = [f"<tr><td class='l'>spread {e(k)}</td>"
-                        f"<td>{a['before']['spread_m'][k] * 1e3:.3f}</td><td>{v * 1e3:.3f}</td>"
-                        "</tr>" for k, v in a["after"]["spread_m"].items()]
-                rows += [f"<tr><td class='l'>distance error {e(da['placement'])} "
-                         f"{e(da['label'])}</td><td>{db['error_m'] * 1e3:+.3f}</td>"
-                         f"<td>{da['error_m'] * 1e3:+.3f}</td></tr>"
-                         for db, da in zip(a["before"]["distances"], a["after"]["distances"],
-                                           strict=True)]
-                parts.append(f"<h4>{e(f.file)}: artifact metrics (before = the plain nominal "
-                             "robot)</h4><table><tr><th class='l'>socket / distance</th>"
-                             f"<th>before [mm]</th><th>after [mm]</th></tr>{''.join(rows)}"
-                             "</table>")
+    parts.append(heldout_section_html(flow.heldout, flow.accuracy))
     sel = flow.selection
     if sel is not None:
         from kincal.identify.selection import RULE
