@@ -3,6 +3,8 @@ and the closed-form initial guesses against the truth."""
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -179,3 +181,18 @@ def test_pieces_equal_the_whole(key: str) -> None:
     own = list(_own_pieces(block, ROBOT, extra, True))
     assert np.allclose(np.concatenate([o[0] for o in own]), r, rtol=1e-14, atol=0)
     assert np.allclose(np.concatenate([o[1] for o in own]), Je, rtol=1e-14, atol=1e-300)
+
+
+def test_every_row_field_is_declared() -> None:
+    """Each point instrument declares all its per-row attributes (else it would be
+    evaluated whole: correct, but not in pieces)."""
+    for key, (block, _) in BLOCKS.items():
+        if hasattr(block, "_undeclared_rows"):
+            assert block._undeclared_rows() == [], key
+
+
+def test_an_undeclared_row_field_keeps_the_block_whole() -> None:
+    block, extra = BLOCKS["range"]
+    odd = copy.copy(block)
+    odd.weights_per_row = np.ones(N)                     # a plug-in's own per-row data
+    assert len(list(odd.evaluate_chunks(ROBOT, extra, rows=3))) == 1

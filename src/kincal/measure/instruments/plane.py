@@ -87,7 +87,7 @@ class PlaneMeasurement(PointBlock):
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
 
-    row_fields = PointBlock.row_fields + ("plane_index",)
+    row_fields = PointBlock.row_fields + ("plane_index", "plane_labels")
 
     def __init__(self, name: str, q: ArrayLike, plane: Sequence[str], sigma: ArrayLike,
                  planes: dict[str, tuple[Sequence[float], float, bool]],

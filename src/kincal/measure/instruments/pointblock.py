@@ -110,9 +110,9 @@ class PointBlock(MeasurementModel):
     marker: str
     sigma: Array
     obs: Array
-    #: attributes with one entry per row, cut by :meth:`_rows` (a subclass whose
-    #: ``observe`` or ``difference`` reads another per-row attribute adds it)
-    row_fields: tuple[str, ...] = ("q", "obs", "sigma", "station_index")
+    #: attributes with one entry per row, cut by :meth:`_rows`; a subclass with others
+    #: adds them (a block with an undeclared one is evaluated whole, never cut wrongly)
+    row_fields: tuple[str, ...] = ("q", "obs", "sigma", "station_index", "station_labels")
 
     # -- for the subclasses' constructors
     def _init_rows(self, kind: str, name: str, q: ArrayLike, obs: ArrayLike | None,
@@ -194,9 +194,20 @@ class PointBlock(MeasurementModel):
                 setattr(view, f, getattr(self, f)[cs])
         return view
 
+    def _undeclared_rows(self) -> list[str]:
+        """Attributes with one entry per row (by their length) not in ``row_fields``."""
+        N = self.q.shape[0]
+        out = []
+        for key, v in vars(self).items():
+            n = (v.shape[0] if isinstance(v, np.ndarray) and v.ndim else
+                 len(v) if isinstance(v, (list, tuple)) else None)
+            if n == N and key not in self.row_fields:
+                out.append(key)
+        return out
+
     def _pieces(self, rows: int = CHUNK_ROWS) -> Iterator[tuple[slice, PointBlock]]:
         N, k = self.q.shape[0], self.obs.shape[1]
-        if N * k <= rows:
+        if N * k <= rows or self._undeclared_rows():
             yield slice(0, N), self
             return
         for cs in configuration_slices(N, k, rows):

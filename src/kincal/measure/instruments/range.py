@@ -64,7 +64,7 @@ class RangeMeasurement(PointBlock):
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
 
-    row_fields = PointBlock.row_fields + ("offset_index",)
+    row_fields = PointBlock.row_fields + ("offset_index", "mode", "run")
 
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], rho: ArrayLike,
                  sigma: ArrayLike, mode: Sequence[str] | None = None,
