@@ -112,3 +112,19 @@ def test_compensate_writes_in_the_targets_units(tmp_path, capsys):
     assert code == 0, err
     assert (tmp_path / "q.csv").read_text().splitlines()[1].startswith("q1_deg")
     assert (tmp_path / "f.csv").read_text().splitlines()[1] == "x_mm,y_mm,z_mm"
+
+
+def test_simulate_states_its_noise_in_the_console_units(tmp_path, capsys):
+    """The noise simulate applied, in mm (m with --si) like every other console length,
+    not in the instrument's SI unit; an artifact's encoder noise in deg (rad)."""
+    code, out, err = run(capsys, "simulate", "puma560", "-o", tmp_path / "a.csv", "-n", "5",
+                         "--noise", "0.01mm")
+    assert code == 0, err
+    assert "(noise 0.0100 mm)" in " ".join(out.split()) and "1e-05 m" not in out
+    code, out, _ = run(capsys, "simulate", "puma560", "-o", tmp_path / "b.csv", "-n", "5",
+                       "--noise", "0.01mm", "--si")
+    assert code == 0 and "(noise 0.0000100 m)" in " ".join(out.split())
+    code, out, err = run(capsys, "simulate", "puma560", "-i", "cross-bar", "-o",
+                         tmp_path / "c.csv", "--encoder-noise", "0.001deg")
+    assert code == 0, err
+    assert "encoder noise 0.0010 deg per joint" in " ".join(out.split())

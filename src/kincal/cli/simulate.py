@@ -146,16 +146,20 @@ def parse_noise(noise_mm: float | None, noise: str | None, inst: Any,
     return float(value)
 
 
-def noise_used(inst: Any, opts: dict[str, Any], sd: float) -> tuple[float, str]:
-    """The noise the simulation really applies, in SI, and a phrase for people.
+def noise_used(inst: Any, opts: dict[str, Any], sd: float, si: bool = False
+               ) -> tuple[float, str]:
+    """The noise the simulation really applies, in SI, and a phrase for people in the
+    console's units (mm and deg; m and rad with ``si``; pixels as they are).
 
     Artifact instruments use ``encoder_noise_deg`` when it is >= 0, else ``sd`` [rad].
     """
+    cu = Units(si)
     if "encoder_noise_deg" in inst.options:
         enc = opts.get("encoder_noise_deg", inst.options["encoder_noise_deg"][0])
         value = math.radians(enc) if enc >= 0 else sd
-        return value, (f"encoder noise {math.degrees(value):.4g} deg "
-                       f"({value:.4g} rad) per joint")
+        return value, f"encoder noise {cu.value(value, 'rad')} per joint"
+    if inst.noise_unit in ("m", "rad"):
+        return sd, f"noise {cu.value(sd, inst.noise_unit)}"
     return sd, f"noise {sd:g} {inst.noise_unit}"
 
 
@@ -263,7 +267,7 @@ def simulate(
     if encoder_noise is not None and (noise is not None or noise_mm is not None):
         raise KincalError("give either --encoder-noise or --noise, not both")
     sd = parse_noise(noise_mm, noise, inst)
-    used, noise_text = noise_used(inst, opts, sd)
+    used, noise_text = noise_used(inst, opts, sd, si)
     units = {"length": check_unit(length_unit, "length", "--length-unit"),
              "angle": check_unit(angle_unit, "angle", "--angle-unit")}
     rng = np.random.default_rng(seed)
