@@ -299,9 +299,10 @@ def test_exported_robot_files_are_what_kincal_calibrate_writes(fleet, tmp_path, 
     code, out, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h.csv",
                        "--out-dir", tmp_path / "robots")
     assert code == 0 and f"{ROBOTS} calibrated robot file(s)" in _flat(out)
-    code, _, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h2.csv",
-                     "--robots", tmp_path / "old")                # the old spelling, hidden
-    assert code == 0 and sorted(p.name for p in (tmp_path / "old").iterdir()) == \
+    code, out, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h2.csv",
+                     "--robots", f"{tmp_path / 'old'}/")          # the old spelling, hidden
+    assert code == 0 and "//" not in out
+    assert sorted(p.name for p in (tmp_path / "old").iterdir()) == \
         sorted(p.name for p in (tmp_path / "robots").iterdir())
     r = fleet.robots[0]
     latest = fleet.root / r["serial"] / r["dates"][-1] / "tracker.csv"

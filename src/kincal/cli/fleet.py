@@ -393,7 +393,7 @@ def export_cmd(
                             + (f"; parameters -> {escape(parameters_out)}"
                                if parameters_out else "")
                             + (f"; {len(robot_files)} calibrated robot file(s) -> "
-                               f"{escape(str(robots_dir))}/" if robots_dir else ""))
+                               f"{escape(str(robots_dir).rstrip('/'))}/" if robots_dir else ""))
 
 
 def _robot_files(records: list[Any]) -> dict[str, str]:
