@@ -161,6 +161,10 @@ def test_validate_command_with_training_frames_and_before(flow, capsys, tmp_path
     # without --result the tracker is re-registered on the file: still at the noise level
     code, stdout, _ = run(capsys, "validate", flow["cal"], "--data", flow["hold"])
     assert code == 0 and "re-registered" in stdout
+    # ... and without --before no 'before' is defined, only said to be missing
+    shown = " ".join(stdout.split())
+    assert "before: not evaluated (--before NOMINAL gives it)" in shown
+    assert "the nominal robot, the file's frame" not in shown
 
 
 def test_identifiability_command(flow, capsys, tmp_path):

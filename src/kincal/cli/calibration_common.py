@@ -263,7 +263,8 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
     if not files:
         return
     t = Table(title=f"{title}: errors before -> after, one row per file",
-              caption="\n".join(before_lines(f.protocol for f in files)))
+              caption="\n".join(before_lines(f.protocol for f in files if f.before)
+                                 or ["before: not evaluated (--before NOMINAL gives it)"]))
     for c in ("file", "quantity", "n", "RMS before", "RMS after", "max after",
               "predicted RMS", "outside region"):
         t.add_column(c, justify="left" if c in ("file", "quantity") else "right",

@@ -211,7 +211,7 @@ def heldout_section_html(heldout: Sequence[Any], accuracy: Any = None) -> str:
                      "<th>predicted outside</th><th>predicted worse than nominal</th>"
                      f"<th class='l'>protocol note</th></tr>{''.join(rows)}</table>"
                      + "".join(f"<p class='small'>{e(x)}</p>" for x in
-                             before_lines(f.protocol for f in heldout)))
+                             before_lines(f.protocol for f in heldout if f.before)))
         for f in heldout:
             if f.prediction is not None:
                 parts.append("<ul>" + "".join(f"<li>{e(f.file)}: {e(x)}</li>"
