@@ -200,6 +200,11 @@ def test_cli_clik_writes_csv_plots_and_summary(tmp_path):
     assert inv["method"] == "inverse" and dls["method"] == "dls"
     assert inv["peak_speed_ratio_first_over_this"] == [1.0, 1.0, 1.0]
     assert dls["peak_speed_ratio_first_over_this"][1] > 1e3      # theta2 blows up with J^-1
+    # what does not depend on the step: when J^-1's theta2 passes DLS's peak, and when
+    # J^-1 leaves the path (the line meets the singularity at t ~ 1.0 s)
+    ex = dls["first_exceeds_this_peak"]
+    assert ex["joint"] == "theta2" and 0.85 < ex["time_s"] < 0.95
+    assert 0.95 < inv["off_path_time_s"] < 1.05
     assert dls["final_position_error_m"] < 1e-5
     assert dls["max_path_deviation_m"] == pytest.approx(0.130, abs=2e-3)   # the least possible
     np.testing.assert_allclose(out["start_position_m"], SEED003_P_I, atol=1e-15)

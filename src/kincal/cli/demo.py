@@ -37,7 +37,7 @@ def demo(
     out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
     noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
 ) -> None:
-    """A complete calibration in ~10 s: PUMA 560 measured by a simulated laser tracker,
+    """A complete calibration in a few seconds: PUMA 560 measured by a simulated laser tracker,
     calibrated, validated on held-out poses; writes the report into ./kincal-demo/."""
     import numpy as np
 
