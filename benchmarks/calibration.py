@@ -22,14 +22,21 @@ documented recipe (``OptimizationHandler`` + ``least_squares(optimize_accuracy)`
 measurements, one fresh process per N: wall and CPU time, time per measurement, peak
 resident memory (``ru_maxrss``: the whole process, the data included).
 
+**Other instruments** (``--section instruments``): range (3 stations), bearing (2),
+camera (2), plane (3 unknown planes) and fixture blocks of ``--instrument-poses`` poses on
+the PUMA 560, one fresh process each: the CPU time of the calibration and the memory it
+adds to the process (the peak resident set during the fit, reset after simulating, minus
+the resident set before it: the data are not counted).
+
 Timing: every contender once per round, the order rotated, at least five rounds; the
 tables quote medians and the median of the same-round ratios (:mod:`timing`), never
 best-of.  One BLAS thread for everyone.  The machine and its load are printed.
 
 Run (the peers live in the benchmark environment, ``pip install -e ".[bench]"``)::
 
-    python benchmarks/calibration.py [--section peers,pybotics,scaling] [--rounds 5]
-        [--sizes 1000,10000,100000] [--pin-max 10000] [--scaling 1000,...,10000000]
+    python benchmarks/calibration.py [--section peers,pybotics,scaling,instruments]
+        [--rounds 5] [--sizes 1000,10000,100000] [--pin-max 10000]
+        [--scaling 1000,...,10000000] [--instrument-poses 100000]
 """
 
 from __future__ import annotations
@@ -371,10 +378,73 @@ def scaling(sizes: list[int]) -> None:
     print(f"load average after: {load_average()}")
 
 
+#: ``--section instruments``: instrument -> simulator options.
+INSTRUMENTS = {"range": {"stations": 3}, "bearing": {"stations": 2}, "camera": {"cameras": 2},
+               "plane": {"planes": 3}, "fixture": {}}
+
+
+def _status_kib(field: str) -> float:
+    """A ``/proc/self/status`` field (VmRSS, VmHWM) [KiB]."""
+    with open("/proc/self/status", encoding="ascii") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return float(line.split()[1])
+    return float("nan")
+
+
+def instrument_child(name: str, poses: int) -> None:
+    """One instrument in a fresh process: CPU seconds and the fit's added memory (JSON)."""
+    import gc
+
+    from kincal.measure.registry import instruments, simulate_measurements
+    from kincal.measure.simulate import perturb_robot
+    from kincal.robots.files import load_robot
+
+    nominal = load_robot("puma560")
+    rng = np.random.default_rng(1)
+    noise = {"m": 1e-5, "rad": 1e-5, "px": 0.1}[instruments()[name].noise_unit]
+    blocks, _ = simulate_measurements(name, perturb_robot(nominal, rng), rng, poses, noise,
+                                      INSTRUMENTS[name])
+    small, _ = simulate_measurements(name, perturb_robot(nominal, rng), rng, 30, noise,
+                                     INSTRUMENTS[name])
+    calibrate(nominal, small)                             # warm-up (lazy imports)
+    gc.collect()
+    with open("/proc/self/clear_refs", "w", encoding="ascii") as f:
+        f.write("5")                                      # peak RSS := current RSS
+    before = _status_kib("VmRSS")
+    c0 = time.process_time()
+    res = calibrate(nominal, blocks)
+    cpu = time.process_time() - c0
+    rows = sum(b.num_residuals() for b in blocks)
+    print(json.dumps({"instrument": name, "poses": poses, "residuals": rows, "cpu": cpu,
+                      "data_mb": before / 1024, "added_mb": (_status_kib("VmHWM") - before) / 1024,
+                      "params": len(res.estimated), "converged": res.converged}))
+
+
+def instruments_section(poses: int) -> None:
+    """The point instruments' table: one fresh process per instrument."""
+    from timing import load_average, machine
+
+    print(f"\npoint instruments (kincal, PUMA 560, {poses} poses, fresh process each)\n"
+          f"{machine()}")
+    head = (f"{'instrument':<12}{'residuals':>11}{'params':>8}{'CPU [s]':>9}"
+            f"{'process before fit [MB]':>25}{'added by the fit [MB]':>23}")
+    print(head)
+    print("-" * len(head))
+    for name in INSTRUMENTS:
+        out = subprocess.run([sys.executable, __file__, "--instrument-child", name,
+                              "--instrument-poses", str(poses)],
+                             capture_output=True, text=True, check=True).stdout
+        d = json.loads(out.strip().splitlines()[-1])
+        print(f"{name:<12}{d['residuals']:>11}{d['params']:>8}{d['cpu']:>9.2f}"
+              f"{d['data_mb']:>25.0f}{d['added_mb']:>23.0f}", flush=True)
+    print(f"load average after: {load_average()}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--section", default="peers,pybotics,scaling",
-                    help="comma-separated: peers, pybotics, scaling")
+                    help="comma-separated: peers, pybotics, scaling, instruments")
     ap.add_argument("--rounds", type=int, default=5, help="interleaved rounds (>= 5)")
     ap.add_argument("--sizes", default="1000,10000,100000", help="N of the peer comparison")
     ap.add_argument("--robots", default="puma560,panda", help="peer-comparison problems")
@@ -384,10 +454,16 @@ def main() -> None:
     ap.add_argument("--holdout", type=int, default=200)
     ap.add_argument("--scaling", default="10000,100000,1000000",
                     help="comma-separated N of the scaling run")
+    ap.add_argument("--instrument-poses", type=int, default=100000,
+                    help="poses per instrument in the instruments section")
     ap.add_argument("--child", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--instrument-child", default="", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         child(a.child)
+        return
+    if a.instrument_child:
+        instrument_child(a.instrument_child, a.instrument_poses)
         return
     sections = set(a.section.split(","))
     if "peers" in sections:
@@ -397,6 +473,8 @@ def main() -> None:
         pybotics_section(a.poses, a.holdout, a.rounds)
     if "scaling" in sections:
         scaling([int(s) for s in a.scaling.split(",") if s])
+    if "instruments" in sections:
+        instruments_section(a.instrument_poses)
 
 
 if __name__ == "__main__":
