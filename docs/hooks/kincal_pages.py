@@ -8,6 +8,9 @@
   inserts only what the lines between ``# --8<-- [start:STEP]`` and
   ``# --8<-- [end:STEP]`` of the script printed (the same markers the page's
   ``--8<-- "PATH:STEP"`` uses to show those lines). A script that fails stops the build.
+* ``<!-- kincal:file PATH:NAME -->`` shows the figure ``NAME`` (``.png``, ``.svg``) that
+  the script wrote in its folder, or links the page (``.html``, e.g. a report); the
+  file is copied into the site under ``generated/``.
 
 Scripts on the real data sets read them from ``$KINCAL_DATA`` and exit with
 :data:`SKIP` (77) when the data are absent. The page then shows the output recorded in
@@ -29,7 +32,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +41,9 @@ DATA = ROOT.parent / "shared" / "data"
 #: Exit status of a script whose data are absent (automake's "skipped").
 SKIP = 77
 _RUN = re.compile(r"<!-- kincal:run (\S+?)(?::([\w-]+))? -->")
+_FILE = re.compile(r"<!-- kincal:file (\S+?):(\S+) -->")
+#: Files a script writes that a page may show or link (figures, reports).
+_KEEP = (".png", ".svg", ".html")
 _START = re.compile(r"^(\s*)# --8<-- \[start:([\w-]+)\]\s*$")
 _MARK = "@@kincal-step {}@@"
 _MARK_RE = re.compile(r"^@@kincal-step ([\w-]+)@@$", re.M)
@@ -54,6 +60,7 @@ class Run:
     output: str          # stdout and stderr together, with the step markers
     seconds: float
     recorded: str = ""   # the recording's header line when the data were absent
+    files: dict[str, bytes] = field(default_factory=dict)  # figures and reports it wrote
 
     def step(self, name: str | None) -> str:
         """What the script printed in step ``name`` (all of it for ``None``)."""
@@ -112,8 +119,11 @@ def execute(rel: str, env: dict[str, str] | None = None) -> Run:
         res = subprocess.run(cmd, cwd=work, env=env or environment(), stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True, errors="replace",
                              timeout=900)
+        files = {p.relative_to(work).as_posix(): p.read_bytes() for p in sorted(work.rglob("*"))
+                 if p.suffix in _KEEP and p.is_file() and not p.is_symlink()
+                 and len(p.relative_to(work).parts) <= 2}
     output = "\n".join(line.rstrip() for line in res.stdout.replace(tmp, ".").splitlines())
-    return Run(rel, res.returncode, output, time.perf_counter() - t0)
+    return Run(rel, res.returncode, output, time.perf_counter() - t0, files=files)
 
 
 def recording(rel: str) -> Path:
@@ -150,7 +160,7 @@ def record(rel: str) -> Path:
     from kincal import __version__
 
     header = (f"# recorded on {datetime.date.today().isoformat()} with kincal {__version__} "
-              f"on the data sets of {Path(environment()['KINCAL_DATA']).name}/")
+              "on the real data sets (../shared/data)")
     path = recording(rel)
     path.write_text(header + "\n" + run.output, encoding="utf-8")
     return path
@@ -217,8 +227,9 @@ def cli_reference() -> str:
 # -- the hook ------------------------------------------------------------------------------
 
 def scripts_of(markdown: str) -> list[str]:
-    """The example scripts a page runs."""
-    return list(dict.fromkeys(m.group(1) for m in _RUN.finditer(markdown)))
+    """The example scripts a page runs (for their output or the files they write)."""
+    return list(dict.fromkeys([*(m.group(1) for m in _RUN.finditer(markdown)),
+                               *(m.group(1) for m in _FILE.finditer(markdown))]))
 
 
 def on_pre_build(config: Any) -> None:
@@ -227,6 +238,7 @@ def on_pre_build(config: Any) -> None:
     _FUTURES.clear()
     _POOL = ThreadPoolExecutor(max_workers=int(os.environ.get("KINCAL_DOCS_JOBS", "2")))
     docs = Path(config["docs_dir"])
+    _WRITTEN.clear()
     wanted = [s for page in sorted(docs.rglob("*.md"))
               for s in scripts_of(page.read_text(encoding="utf-8"))]
     for rel in dict.fromkeys(wanted):
@@ -253,15 +265,46 @@ def _render(match: re.Match[str]) -> str:
             f"{body}")
 
 
+def generated_path(rel: str, name: str) -> str:
+    """Where a file written by script ``rel`` lands in the site."""
+    return f"generated/{Path(rel).stem}/{name}"
+
+
+def _render_file(match: re.Match[str], page: Any) -> str:
+    rel, name = match.groups()
+    run = _result(rel)
+    if name not in run.files:
+        if run.recorded:
+            return f"*(`{name}` is written by the script; not available in recorded output.)*"
+        raise RuntimeError(f"{page.file.src_uri}: {rel} wrote no {name} "
+                           f"(it wrote: {', '.join(run.files) or 'nothing'})")
+    _WRITTEN[generated_path(rel, name)] = run.files[name]
+    url = "../" * page.url.count("/") + generated_path(rel, name)
+    if name.endswith(".html"):
+        return (f'<a href="{url}">{name}</a> (the file this build\'s run wrote; opens the '
+                "page itself)")
+    return (f'<figure><img src="{url}" alt="{name}" loading="lazy">'
+            f"<figcaption>{name}, as written by this build's run of "
+            f"<code>{Path(rel).name}</code></figcaption></figure>")
+
+
+_WRITTEN: dict[str, bytes] = {}
+
+
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
     if "<!-- kincal:cli-reference -->" in markdown:
         markdown = markdown.replace("<!-- kincal:cli-reference -->", cli_reference())
+    markdown = _FILE.sub(lambda m: _render_file(m, page), markdown)
     return _RUN.sub(_render, markdown)
 
 
 def on_post_build(config: Any) -> None:
     from mkdocs.utils import log
 
+    for rel, data in _WRITTEN.items():
+        out = Path(config["site_dir"]) / rel
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_bytes(data)
     runs = [f.result() for f in _FUTURES.values()]
     for run in sorted(runs, key=lambda r: -r.seconds):
         log.info(f"kincal example {run.script}: "
