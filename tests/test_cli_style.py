@@ -187,3 +187,18 @@ def test_conventions_page_lists_the_dimensionless_options():
     doc = (Path(__file__).resolve().parents[1] / "docs" / "conventions.md").read_text()
     missing = [o for o in sorted(DIMENSIONLESS) if f"`{o}`" not in doc]
     assert not missing, f"docs/conventions.md does not name {missing} as dimensionless"
+
+
+def test_no_document_numbers_in_the_package():
+    """Docstrings (the API reference), library files and messages name the founding documents
+    by what they are (the cross-bar patent, the spherical-manipulator report), never by the
+    project's internal numbers."""
+    from pathlib import Path
+
+    seed = re.compile(r"seed[\s_-]*0\d\d", re.IGNORECASE)
+    root = Path(__file__).resolve().parents[1] / "src" / "kincal"
+    bad = [f"{p.relative_to(root)}:{i}" for p in sorted(root.rglob("*"))
+           if p.suffix in (".py", ".yaml", ".html", ".css")
+           for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+           if seed.search(line)]
+    assert not bad, f"document numbers in {bad}"

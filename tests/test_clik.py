@@ -1,4 +1,4 @@
-"""Differential kinematics and CLIK, including the seed-003 experiment."""
+"""Differential kinematics and CLIK, including the spherical-manipulator report's experiment."""
 
 from __future__ import annotations
 
@@ -12,15 +12,15 @@ from typer.testing import CliRunner
 from kincal.cli import app
 from kincal.errors import KincalError
 from kincal.motion.clik import (
-    SEED003_P_F,
-    SEED003_P_I,
-    SEED003_Q0,
-    SEED003_QF,
+    SPHERICAL_ARM_P_F,
+    SPHERICAL_ARM_P_I,
+    SPHERICAL_ARM_Q0,
+    SPHERICAL_ARM_QF,
     clik,
     generalized_inverse,
     manipulability,
-    run_seed003,
-    seed003_robot,
+    run_spherical_arm,
+    spherical_arm_robot,
 )
 from kincal.motion.ik_closed_form import ik_spherical_rrp
 from kincal.motion.trajectory import CartesianMotion, LinePath, line_motion, quintic
@@ -32,27 +32,27 @@ runner = CliRunner()
 
 @pytest.fixture(scope="module")
 def seed_runs():
-    return run_seed003("inverse"), run_seed003("dls", damping=0.1)
+    return run_spherical_arm("inverse"), run_spherical_arm("dls", damping=0.1)
 
 
-# ---------------------------------------------------------------- seed 003
+# ---------------------------------------------------------------- the spherical arm
 
 
-def test_seed003_endpoints_by_closed_form():
-    robot = seed003_robot()
-    np.testing.assert_allclose(robot.fk(SEED003_Q0)[:3, 3], SEED003_P_I, atol=1e-15)
-    np.testing.assert_allclose(robot.fk(SEED003_QF)[:3, 3], SEED003_P_F, atol=1e-15)
-    cf = ik_spherical_rrp(robot, np.stack([SEED003_P_I, SEED003_P_F]))
-    np.testing.assert_allclose(cf.q[0, 0], SEED003_Q0, atol=1e-14)
-    np.testing.assert_allclose(cf.q[1, 0], SEED003_QF, atol=1e-7)
+def test_spherical_arm_endpoints_by_closed_form():
+    robot = spherical_arm_robot()
+    np.testing.assert_allclose(robot.fk(SPHERICAL_ARM_Q0)[:3, 3], SPHERICAL_ARM_P_I, atol=1e-15)
+    np.testing.assert_allclose(robot.fk(SPHERICAL_ARM_QF)[:3, 3], SPHERICAL_ARM_P_F, atol=1e-15)
+    cf = ik_spherical_rrp(robot, np.stack([SPHERICAL_ARM_P_I, SPHERICAL_ARM_P_F]))
+    np.testing.assert_allclose(cf.q[0, 0], SPHERICAL_ARM_Q0, atol=1e-14)
+    np.testing.assert_allclose(cf.q[1, 0], SPHERICAL_ARM_QF, atol=1e-7)
     # theta2 = 0 at q_f: the 3x3 position Jacobian is singular there (|det J| = d3^2 |s2|)
-    J = robot.jacobian(SEED003_QF)[:3]
+    J = robot.jacobian(SPHERICAL_ARM_QF)[:3]
     assert abs(np.linalg.det(J)) < 1e-15
     q = np.array([0.3, 0.7, 0.4])
     assert abs(np.linalg.det(robot.jacobian(q)[:3])) == pytest.approx(0.4**2 * math.sin(0.7))
 
 
-def test_seed003_dls_reaches_p_f_with_bounded_velocities(seed_runs):
+def test_spherical_arm_dls_reaches_p_f_with_bounded_velocities(seed_runs):
     _, dls = seed_runs
     s = dls.summary()
     print(f"\nDLS (k = 0.1 m, K = 50/s): final |e| = {s['final_position_error_m']:.3e} m, "
@@ -60,17 +60,17 @@ def test_seed003_dls_reaches_p_f_with_bounded_velocities(seed_runs):
           f"the line {s['max_path_deviation_m']:.4f} m")
     assert dls.position_error[-1] < 1e-5
     assert np.abs(dls.qd).max() < 2.0                     # rad/s and m/s
-    np.testing.assert_allclose(dls.q[-1], SEED003_QF, atol=0.02)
+    np.testing.assert_allclose(dls.q[-1], SPHERICAL_ARM_QF, atol=0.02)
     # the line enters the unreachable cylinder rho < d2 = 1 m; the closest reachable
     # point is on its wall, so no method can do better than 1 - 0.8698 m
-    a, d = SEED003_P_I[:2], SEED003_P_F[:2] - SEED003_P_I[:2]
+    a, d = SPHERICAL_ARM_P_I[:2], SPHERICAL_ARM_P_F[:2] - SPHERICAL_ARM_P_I[:2]
     closest = abs(a[0] * d[1] - a[1] * d[0]) / np.linalg.norm(d)
     assert dls.path_deviation().max() == pytest.approx(1.0 - closest, abs=2e-4)
     rho = np.hypot(dls.position[:, 0], dls.position[:, 1])
     assert rho.min() > 1.0 - 1e-9                         # FK can never enter the cylinder
 
 
-def test_seed003_inverse_spikes_in_joint2(seed_runs):
+def test_spherical_arm_inverse_spikes_in_joint2(seed_runs):
     inv, dls = seed_runs
     t_enter = inv.meta["events"][0][0]
     assert 0.95 < t_enter < 1.05
@@ -91,7 +91,7 @@ def test_seed003_inverse_spikes_in_joint2(seed_runs):
 
 
 def test_feasible_line_all_inversions_track():
-    robot = seed003_robot()
+    robot = spherical_arm_robot()
     q0 = np.array([0.2, 0.9, 0.6])
     q1 = np.array([0.6, 1.2, 0.8])
     T0, T1 = robot.fk(q0), robot.fk(q1)
@@ -109,7 +109,7 @@ def test_feasible_line_all_inversions_track():
 
 
 def test_rk4_is_more_accurate_than_euler():
-    robot = seed003_robot()
+    robot = spherical_arm_robot()
     q0 = np.array([0.2, 0.9, 0.6])
     motion = line_motion(robot.fk(q0), robot.fk(np.array([0.6, 1.2, 0.8])), "quintic",
                          duration=1.0)
@@ -159,21 +159,21 @@ def test_manipulability_and_condition():
     J = np.diag([2.0, 0.5, 0.1])
     w, cond, smin = manipulability(J)
     assert w == pytest.approx(0.1) and cond == pytest.approx(20.0) and smin == pytest.approx(0.1)
-    robot = seed003_robot()
+    robot = spherical_arm_robot()
     q = np.array([[0.1, 0.5, 0.7], [0.4, -1.0, 0.3]])
     w2, _, _ = manipulability(robot.jacobian(q)[:, :3])
     np.testing.assert_allclose(w2, np.abs(np.linalg.det(robot.jacobian(q)[:, :3])))
 
 
 def test_bad_settings_raise():
-    robot = seed003_robot()
+    robot = spherical_arm_robot()
     mo = CartesianMotion(LinePath(np.eye(4), np.eye(4)), quintic(1.0))
     with pytest.raises(KincalError, match="inversion"):
-        clik(robot, mo, SEED003_Q0, 0.01, method="magic")  # type: ignore[arg-type]
+        clik(robot, mo, SPHERICAL_ARM_Q0, 0.01, method="magic")  # type: ignore[arg-type]
     with pytest.raises(KincalError, match="positive definite"):
-        clik(robot, mo, SEED003_Q0, 0.01, gain=-1.0)
+        clik(robot, mo, SPHERICAL_ARM_Q0, 0.01, gain=-1.0)
     with pytest.raises(KincalError, match="integrator"):
-        clik(robot, mo, SEED003_Q0, 0.01, integrator="leapfrog")  # type: ignore[arg-type]
+        clik(robot, mo, SPHERICAL_ARM_Q0, 0.01, integrator="leapfrog")  # type: ignore[arg-type]
 
 
 def test_result_csv_has_units(tmp_path, seed_runs):
@@ -188,9 +188,9 @@ def test_result_csv_has_units(tmp_path, seed_runs):
 
 def test_cli_clik_writes_csv_plots_and_summary(tmp_path):
     """kincal clik ROBOT: the spherical arm's line p_i -> p_f, from the command line."""
-    from kincal.motion.clik import SEED003_P_F, SEED003_P_I
+    from kincal.motion.clik import SPHERICAL_ARM_P_F, SPHERICAL_ARM_P_I
 
-    p_f = ",".join(f"{v * 1e3:.9f}" for v in SEED003_P_F) + "mm"
+    p_f = ",".join(f"{v * 1e3:.9f}" for v in SPHERICAL_ARM_P_F) + "mm"
     res = runner.invoke(app, ["clik", "spherical_rrp", "--start", "0,45deg,0.5m",
                               f"--end-position={p_f}", "--out-dir", str(tmp_path),
                               "--dt", "4ms", "--json", "-"])
@@ -207,7 +207,7 @@ def test_cli_clik_writes_csv_plots_and_summary(tmp_path):
     assert 0.95 < inv["off_path_time_s"] < 1.05
     assert dls["final_position_error_m"] < 1e-5
     assert dls["max_path_deviation_m"] == pytest.approx(0.130, abs=2e-3)   # the least possible
-    np.testing.assert_allclose(out["start_position_m"], SEED003_P_I, atol=1e-15)
-    np.testing.assert_allclose(out["end_position_m"], SEED003_P_F, atol=1e-12)
+    np.testing.assert_allclose(out["start_position_m"], SPHERICAL_ARM_P_I, atol=1e-15)
+    np.testing.assert_allclose(out["end_position_m"], SPHERICAL_ARM_P_F, atol=1e-12)
     for name in ("clik_inverse.csv", "clik_dls.csv", "clik_compare.png"):
         assert (tmp_path / name).stat().st_size > 0

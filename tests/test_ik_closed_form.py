@@ -22,10 +22,10 @@ from kincal.spatial import pose_error
 SQ2 = math.sqrt(2.0)
 
 
-def _seed003_arm():
-    """The seed-003 arm built independently from its DH table (d2 = 1 m)."""
+def _spherical_arm():
+    """The spherical arm built independently from its DH table (d2 = 1 m)."""
     return from_dh([DHLink(alpha=-math.pi / 2), DHLink(d=1.0, alpha=math.pi / 2),
-                    DHLink(joint="prismatic")], name="seed003")
+                    DHLink(joint="prismatic")], name="spherical_arm")
 
 
 def test_puma_all_eight_branches_reach_the_pose():
@@ -87,8 +87,8 @@ def test_puma_unreachable_and_limits_flags():
     np.testing.assert_array_equal(inside, sol.within_limits[1])
 
 
-def test_seed003_endpoints_by_closed_form():
-    robot = _seed003_arm()
+def test_spherical_arm_endpoints_by_closed_form():
+    robot = _spherical_arm()
     p_i = np.array([SQ2 / 4, 1.0, SQ2 / 4])
     p_f = np.array([-SQ2 / 2, SQ2 / 2, 0.1])
     np.testing.assert_allclose(robot.fk([0, math.pi / 4, 0.5])[:3, 3], p_i, atol=1e-15)
@@ -101,18 +101,18 @@ def test_seed003_endpoints_by_closed_form():
     np.testing.assert_allclose(sol.q[1, 2], [math.pi / 4, 0, 0.1], atol=1e-7)
 
 
-def test_seed003_formula_matches_the_library_robot():
+def test_spherical_arm_formula_matches_the_library_robot():
     lib = load_robot("spherical_rrp")
     q = np.random.default_rng(2).uniform(-2, 2, size=(200, 3))
     c1, s1, c2, s2 = np.cos(q[:, 0]), np.sin(q[:, 0]), np.cos(q[:, 1]), np.sin(q[:, 1])
     d2, d3 = 1.0, q[:, 2]
     p = np.column_stack([c1 * s2 * d3 - d2 * s1, s1 * s2 * d3 + d2 * c1, c2 * d3])
     np.testing.assert_allclose(lib.fk(q)[:, :3, 3], p, atol=1e-14)
-    np.testing.assert_allclose(_seed003_arm().fk(q), lib.fk(q), atol=1e-14)
+    np.testing.assert_allclose(_spherical_arm().fk(q), lib.fk(q), atol=1e-14)
 
 
 def test_spherical_rrp_branches_and_hole():
-    robot = _seed003_arm()
+    robot = _spherical_arm()
     q = np.random.default_rng(3).uniform(-3, 3, size=(1000, 3))
     p = robot.fk(q)[:, :3, 3]
     sol = ik_spherical_rrp(robot, p)

@@ -6,7 +6,7 @@
   extra ``Ry(beta)``; base and tool as ``Trans Rz Ry Rx``).
 * Published models the DH tables were derived from (ROS-Industrial URDFs of the IRB 120
   and the KR 6 R900 sixx, the Motoman dataset's DH table with its reflector link, the
-  closed form of the seed-003 spherical arm) give the same poses.
+  closed form of the spherical arm) give the same poses.
 * Every analytic derivative (geometric Jacobian in base and tool frame, analytic
   Jacobian for ZYZ and RPY angles, parameter Jacobian) equals central finite differences,
   with random non-zero base and tool frames.
@@ -223,7 +223,7 @@ def test_fk_equals_hand_computation(name):
     assert _max_err(other.fk(q), hand_fk(pert, q)) <= FK_TOL
 
 
-def test_seed003_spherical_arm_closed_form():
+def test_spherical_arm_spherical_arm_closed_form():
     doc = _doc("spherical_rrp")
     d2 = doc["joints"][1]["d"] * LENGTH[doc["units"]["length"]]
     assert d2 == 1.0
@@ -237,7 +237,7 @@ def test_seed003_spherical_arm_closed_form():
     p = np.stack([c1 * s2 * d3 - d2 * s1, s1 * s2 * d3 + d2 * c1, c2 * d3], -1)
     P = robot.fk(q)[:, :3, 3]
     assert _max_err(P, p) <= FK_TOL
-    # Seed 003's endpoints: p_i = p(q(0)), p_f reached at q_f.
+    # The report's endpoints: p_i = p(q(0)), p_f reached at q_f.
     assert _max_err(P[-2], np.array([r2 / 4, 1.0, r2 / 4])) <= FK_TOL
     assert _max_err(P[-1], np.array([-r2 / 2, r2 / 2, 0.1])) <= FK_TOL
 

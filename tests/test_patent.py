@@ -1,4 +1,4 @@
-"""The patent's procedure (seed 001): two stages, data selection by the condition number,
+"""The cross-bar patent's procedure: two stages, data selection by the condition number,
 one dependent parameter per identification - compared with the one-stage solver.
 
 Truth: a simulated PUMA 560 seated by IK in cross placements with 0.001 deg encoder

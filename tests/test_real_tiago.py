@@ -18,7 +18,7 @@ Full calibration, sixteen variants (every choice made without the validation fil
 * ``... all markers``: the four points x1..x4 are one rigid body on the hand, so
   training may use all four (the hand's orientation too); validation stays on point
   1 with the training frames, exactly as in the protocol;
-* ``... + gravity compliance``: a non-geometric term (seed 004): each joint deflects by
+* ``... + gravity compliance``: a non-geometric term (the dual-SCARA thesis): each joint deflects by
   ``k_j tau_j(q)``, ``tau`` the static gravity load computed from the URDF's
   ``<inertial>`` masses (:func:`kincal.robots.urdf.load_urdf_inertials`,
   :func:`kincal.robots.gravity.gravity_torques`) and ``k`` one compliance per joint

@@ -7,7 +7,7 @@ of the stacked scaled Jacobian, from which the indices O1-O5 and kappa follow
 (:mod:`kincal.identify.observability`).  Criteria and algorithms
 (:func:`select_poses`):
 
-* ``"kappa"`` - **greedy addition by the condition number** (seed 001): at every step
+* ``"kappa"`` - **greedy addition by the condition number** (the cross-bar patent): at every step
   the candidate whose addition gives the smallest ``kappa(M + A_i^T A_i)``; no
   exchange (the patent's rule).
 * ``"O1"`` - D-optimality, ``max det M``: greedy addition by the matrix determinant

@@ -1,4 +1,4 @@
-"""The cross-bar patent's identification procedure (seed 001), as an alternative solver.
+"""The cross-bar patent's identification procedure, as an alternative solver.
 
 :func:`calibrate_patent` follows the patent step by step and returns the same
 :class:`~kincal.identify.solver.CalibrationResult` as :func:`~kincal.identify.solver.calibrate`

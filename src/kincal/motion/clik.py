@@ -327,45 +327,49 @@ def clik(robot: Robot, motion: CartesianMotion | Callable[[Array], tuple[Array, 
 
 
 # ---------------------------------------------------------------------------
-# the seed-003 experiment
+# the spherical-manipulator report's experiment
 
 
 SQ2 = math.sqrt(2.0)
-SEED003_D2 = 1.0
-SEED003_P_I = np.array([SQ2 / 4, 1.0, SQ2 / 4])
-SEED003_P_F = np.array([-SQ2 / 2, SQ2 / 2, 0.1])
-SEED003_Q0 = np.array([0.0, math.pi / 4, 0.5])
-SEED003_QF = np.array([math.pi / 4, 0.0, 0.1])
-SEED003_TF = 4.0
-SEED003_DT = 0.002
+SPHERICAL_ARM_D2 = 1.0
+SPHERICAL_ARM_P_I = np.array([SQ2 / 4, 1.0, SQ2 / 4])
+SPHERICAL_ARM_P_F = np.array([-SQ2 / 2, SQ2 / 2, 0.1])
+SPHERICAL_ARM_Q0 = np.array([0.0, math.pi / 4, 0.5])
+SPHERICAL_ARM_QF = np.array([math.pi / 4, 0.0, 0.1])
+SPHERICAL_ARM_TF = 4.0
+SPHERICAL_ARM_DT = 0.002
 
 
-def seed003_robot() -> Robot:
-    """The spherical RRP arm of seed 003 from its DH table: alpha1 = -90, alpha2 = +90 deg,
-    d2 = 1 m, joint 3 prismatic; ``p = [c1 s2 d3 - d2 s1, s1 s2 d3 + d2 c1, c2 d3]``."""
+def spherical_arm_robot() -> Robot:
+    """The spherical RRP arm of the spherical-manipulator report from its DH table:
+    alpha1 = -90, alpha2 = +90 deg, d2 = 1 m, joint 3 prismatic;
+    ``p = [c1 s2 d3 - d2 s1, s1 s2 d3 + d2 c1, c2 d3]``."""
     return from_dh([DHLink(alpha=-math.pi / 2, name="theta1"),
-                    DHLink(d=SEED003_D2, alpha=math.pi / 2, name="theta2"),
-                    DHLink(joint="prismatic", name="d3")], name="spherical_rrp_seed003",
-                   meta={"source": "seed 003 (SEEDS.md): d2 = 1 m"})
+                    DHLink(d=SPHERICAL_ARM_D2, alpha=math.pi / 2, name="theta2"),
+                    DHLink(joint="prismatic", name="d3")], name="spherical_rrp_example",
+                   meta={"source": "the spherical-manipulator report: d2 = 1 m"})
 
 
-def seed003_motion(timing: str = "quintic", duration: float = SEED003_TF) -> CartesianMotion:
+def spherical_arm_motion(timing: str = "quintic",
+                         duration: float = SPHERICAL_ARM_TF) -> CartesianMotion:
     """The straight segment p_i -> p_f in ``duration`` with a rest-to-rest timing law.
 
     Orientation is not part of the task (3-DOF position task); the path's frames
     keep the identity rotation.
     """
     T0, T1 = np.eye(4), np.eye(4)
-    T0[:3, 3], T1[:3, 3] = SEED003_P_I, SEED003_P_F
+    T0[:3, 3], T1[:3, 3] = SPHERICAL_ARM_P_I, SPHERICAL_ARM_P_F
     return CartesianMotion(LinePath(T0, T1), TimingLaw(timing, duration))  # type: ignore[arg-type]
 
 
-def run_seed003(method: Method = "inverse", gain: float | ArrayLike = 50.0,
-                damping: float = 0.1, threshold: float = 0.1, dt: float = SEED003_DT,
-                timing: str = "quintic", integrator: Literal["euler", "rk4"] = "euler",
-                duration: float = SEED003_TF,
-                progress: Callable[[int, int], None] | None = None) -> ClikResult:
-    """Seed 003: the spherical arm follows p_i -> p_f from q(0) = [0, pi/4, 0.5] by CLIK.
+def run_spherical_arm(method: Method = "inverse", gain: float | ArrayLike = 50.0,
+                      damping: float = 0.1, threshold: float = 0.1,
+                      dt: float = SPHERICAL_ARM_DT, timing: str = "quintic",
+                      integrator: Literal["euler", "rk4"] = "euler",
+                      duration: float = SPHERICAL_ARM_TF,
+                      progress: Callable[[int, int], None] | None = None) -> ClikResult:
+    """The spherical-manipulator report's experiment: the arm follows p_i -> p_f from
+    q(0) = [0, pi/4, 0.5] by CLIK.
 
     The position Jacobian has ``|det J| = d3^2 |s2|``: it is singular at theta2 = 0,
     where the tool touches the cylinder ``rho = sqrt(x^2 + y^2) = d2`` around the first
@@ -376,13 +380,14 @@ def run_seed003(method: Method = "inverse", gain: float | ArrayLike = 50.0,
     the least possible) and rejoins the line at p_f.  ``meta["events"]`` holds the
     entry time.
     """
-    res = clik(seed003_robot(), seed003_motion(timing, duration), SEED003_Q0, dt, gain, method,
-               damping, threshold, task="position", integrator=integrator, progress=progress)
+    res = clik(spherical_arm_robot(), spherical_arm_motion(timing, duration), SPHERICAL_ARM_Q0,
+               dt, gain, method, damping, threshold, task="position", integrator=integrator,
+               progress=progress)
     meta = dict(res.meta)
     rho_d = np.hypot(res.position_desired[:, 0], res.position_desired[:, 1])
-    inside = np.flatnonzero(rho_d < SEED003_D2 * (1 - 1e-9))
+    inside = np.flatnonzero(rho_d < SPHERICAL_ARM_D2 * (1 - 1e-9))
     events = [(float(res.t[inside[0]]), "line enters rho < d2")] if inside.size else []
-    meta.update(segment=(SEED003_P_I.tolist(), SEED003_P_F.tolist()), timing=timing,
+    meta.update(segment=(SPHERICAL_ARM_P_I.tolist(), SPHERICAL_ARM_P_F.tolist()), timing=timing,
                 damping_k=damping, threshold=threshold, events=events)
     return _with_meta(res, meta)
 

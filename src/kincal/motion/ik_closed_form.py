@@ -8,9 +8,9 @@ branch for every target as a :class:`ClosedFormSolutions`:
 * :func:`ik_puma560` - 6R with a PUMA-560 geometry (alpha = 90, 0, -90, 90, -90, 0
   deg; a1 = a4 = a5 = d5 = 0; spherical wrist): 8 branches (shoulder left/right x
   elbow up/down x wrist flip).
-* :func:`ik_spherical_rrp` - the spherical RRP arm of seed 003 (alpha1 = -90,
-  alpha2 = +90 deg, a1 = a2 = a3 = 0, prismatic third joint): position only,
-  4 branches (shoulder x sign of the stroke).
+* :func:`ik_spherical_rrp` - the spherical RRP arm of the spherical-manipulator report
+  (alpha1 = -90, alpha2 = +90 deg, a1 = a2 = a3 = 0, prismatic third joint): position
+  only, 4 branches (shoulder x sign of the stroke).
 * :func:`ik_scara` - RRPR SCARA (alpha1 = 0, alpha2 = 0 or 180 deg, alpha3 = 0,
   a3 = 0, parallel vertical axes): 2 branches (elbow left/right).
 
@@ -245,7 +245,7 @@ def _wrist(R36: Array) -> tuple[tuple[Array, Array, Array], ...]:
 
 
 # ---------------------------------------------------------------------------
-# spherical RRP arm (seed 003)
+# spherical RRP arm (the spherical-manipulator report)
 
 
 RRP_BRANCHES = ("left/out", "left/in", "right/out", "right/in")
@@ -256,7 +256,7 @@ def ik_spherical_rrp(robot: Robot, targets: ArrayLike) -> ClosedFormSolutions:
 
     Standard DH with ``alpha1 = -90 deg``, ``alpha2 = +90 deg``, ``a1 = a2 = a3 = 0``,
     joint 3 prismatic (``d3 = q3 + d[3]``); the tool frame may rotate but not
-    translate.  The position is (seed 003, plus a base height ``d1``)
+    translate.  The position is (the spherical-manipulator report, plus a base height ``d1``)
 
         p = [c1 s2 d3 - d2 s1,  s1 s2 d3 + d2 c1,  d1 + c2 d3].
 

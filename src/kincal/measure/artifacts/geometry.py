@@ -12,7 +12,7 @@ are joint readings, and the artifact contributes only what is known about it:
 Built-in artifacts (:meth:`ArtifactGeometry.cross_bar`, :meth:`~ArtifactGeometry.ball_bar`,
 :meth:`~ArtifactGeometry.two_socket`):
 
-* ``cross-bar`` (seed 001): sockets A, B, C, D at the ends of two arms crossing at
+* ``cross-bar`` (the cross-bar patent): sockets A, B, C, D at the ends of two arms crossing at
   their middles, ``|AC| = |BD| = L``, ``AC`` perpendicular to ``BD``;
 * ``ball-bar``: two sockets A, B at a known distance, usually probed once each per
   placement;

@@ -1,7 +1,7 @@
 """Joint compliance: each joint yields in proportion to its static gravity load.
 
 The simplest physical model of gear and harmonic-drive elasticity, or of backlash
-preloaded by gravity (seed 004's non-geometric errors, "level 3"), is a linear torsion
+preloaded by gravity (the dual-SCARA thesis's non-geometric errors, "level 3"), is a linear torsion
 (or axial) spring at each joint: the link side sits at
 
     q_eff = q + k (.) tau(q)

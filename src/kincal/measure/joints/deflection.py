@@ -1,6 +1,6 @@
 """Joint deflection: a non-geometric error model wrapped around any measurement block.
 
-A geometric model (seed 000's DH / URDF parameters) describes where the joint axes
+A geometric model (DH / URDF parameters) describes where the joint axes
 are, not how the link side of a joint follows its motor-side encoder.  Gear and
 harmonic-drive elasticity, or backlash taken up by gravity or by the direction the
 joint last moved in, put the link at

@@ -1,4 +1,6 @@
-"""Seed 003: closed-loop inverse kinematics of a spherical RRP arm along a straight line.
+"""Closed-loop inverse kinematics of a spherical RRP arm along a straight line.
+
+The experiment of the spherical-manipulator report (one of the founding documents).
 
 The arm (standard DH: alpha1 = -90 deg, alpha2 = +90 deg with d2 = 1 m, joint 3
 prismatic) starts at q(0) = [0, pi/4, 0.5], i.e. at p_i = [sqrt(2)/4, 1, sqrt(2)/4] m,
@@ -18,7 +20,7 @@ that cylinder for s in (0.103, 1), down to rho = 0.870 m, and ends on its wall a
   the wall (at most 0.130 m from the line, which is the least any method can do) and
   rejoins the line at p_f with an error below 1e-6 m.
 
-Run:  python examples/seed003_clik.py [--out DIR]
+Run:  python examples/spherical_arm_clik.py [--out DIR]
 """
 
 from __future__ import annotations
@@ -29,31 +31,31 @@ from pathlib import Path
 import numpy as np
 
 from kincal.motion.clik import (
-    SEED003_P_F,
-    SEED003_P_I,
-    SEED003_Q0,
-    SEED003_QF,
+    SPHERICAL_ARM_P_F,
+    SPHERICAL_ARM_P_I,
+    SPHERICAL_ARM_Q0,
+    SPHERICAL_ARM_QF,
     plot_clik,
-    run_seed003,
-    seed003_robot,
+    run_spherical_arm,
+    spherical_arm_robot,
 )
 from kincal.motion.ik_closed_form import ik_spherical_rrp
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("seed003_out"))
+    parser.add_argument("--out", type=Path, default=Path("spherical_arm_out"))
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
-    robot = seed003_robot()
-    print("p(q0) =", robot.fk(SEED003_Q0)[:3, 3], " p_i =", SEED003_P_I)
-    print("p(qf) =", robot.fk(SEED003_QF)[:3, 3], " p_f =", SEED003_P_F)
-    cf = ik_spherical_rrp(robot, SEED003_P_F)
+    robot = spherical_arm_robot()
+    print("p(q0) =", robot.fk(SPHERICAL_ARM_Q0)[:3, 3], " p_i =", SPHERICAL_ARM_P_I)
+    print("p(qf) =", robot.fk(SPHERICAL_ARM_QF)[:3, 3], " p_f =", SPHERICAL_ARM_P_F)
+    cf = ik_spherical_rrp(robot, SPHERICAL_ARM_P_F)
     print("closed-form IK of p_f (branches):", np.round(cf.q[0], 6).tolist())
 
-    runs = [run_seed003("inverse"), run_seed003("dls", damping=0.1),
-            run_seed003("adaptive", damping=0.2, threshold=0.1)]
+    runs = [run_spherical_arm("inverse"), run_spherical_arm("dls", damping=0.1),
+            run_spherical_arm("adaptive", damping=0.2, threshold=0.1)]
     for r in runs:
         r.to_csv(args.out / f"clik_{r.method}.csv")
         s = r.summary()
@@ -63,7 +65,7 @@ def main() -> None:
     inv, dls = runs[0], runs[1]
     print(f"peak |theta2_dot| ratio J^-1 / DLS = "
           f"{np.abs(inv.qd[:, 1]).max() / np.abs(dls.qd[:, 1]).max():.3g}")
-    plot_clik(runs, args.out / "seed003_clik.png",
+    plot_clik(runs, args.out / "spherical_arm_clik.png",
               title="spherical arm: J^-1, DLS and adaptive damping along p_i -> p_f")
     print(f"CSV and plot written to {args.out}/")
 
