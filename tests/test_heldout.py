@@ -158,6 +158,27 @@ def test_validate_gives_the_same_rows_and_flags_the_poses_outside(files, calibra
     assert sum(flags) == pred["outside_joint_ranges"]
 
 
+
+def test_prediction_sentences_follow_the_console_units(files, calibrated, capsys):
+    """With --si the sentences under the held-out table give metres like the table, and
+    the numbers are the same lengths as without it."""
+    import re
+
+    texts = {}
+    for flag in ((), ("--si",)):
+        code, out, err = run(capsys, "validate", files / "cal.yaml", "--data",
+                             files / "one_marker.csv", "--result", files / "res.json",
+                             "--before", "puma560", *flag)
+        assert code == 0, err
+        texts[flag] = " ".join(out.split())
+    pat = r"predicted error there up to ([0-9.e+-]+) (mm|m), nominal ([0-9.e+-]+) (mm|m)"
+    mm, si = re.search(pat, texts[()]), re.search(pat, texts[("--si",)])
+    assert mm and si, texts
+    assert (mm.group(2), mm.group(4), si.group(2), si.group(4)) == ("mm", "mm", "m", "m")
+    assert float(si.group(1)) == pytest.approx(float(mm.group(1)) / 1e3, rel=1e-2)
+    assert float(si.group(3)) == pytest.approx(float(mm.group(3)) / 1e3, rel=1e-2)
+
+
 def _targets(path, robot, q):
     T = robot.fk(q)
     rows = [",".join(f"{v:.9f}" for v in T[i, :3, 3] * 1e3) for i in range(len(q))]

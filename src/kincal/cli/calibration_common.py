@@ -291,7 +291,7 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
         out.print(f"[dim]{escape(f.file)}: {escape(f.note)}[/dim]")
         if f.prediction is not None:
             pm = f.prediction_metrics()
-            for sentence in f.prediction.summary():
+            for sentence in f.prediction.summary(unit=_options.CONSOLE.scale("m")):
                 out.print(f"  {escape(sentence)}")
             if pm is not None:
                 lf, L = _options.CONSOLE.scale("m")

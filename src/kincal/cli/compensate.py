@@ -218,7 +218,7 @@ def _print_prediction(out: Any, pred: Any, comp: Any, table: Any, cu: Any) -> No
     calibrated model is predicted worse than the nominal one, the fallback."""
     import numpy as np
 
-    for sentence in pred.summary("targets"):
+    for sentence in pred.summary("targets", unit=cu.scale("m")):
         out.print(f"predicted: {escape(sentence)}")
     worse = np.flatnonzero(pred.worse_than_nominal)
     if worse.size:

@@ -336,9 +336,16 @@ class Prediction:
         """Outside the joint ranges or the hull."""
         return self.outside_joint_ranges | self.outside_hull
 
-    def summary(self, what: str = "poses") -> list[str]:
+    def summary(self, what: str = "poses",
+                unit: tuple[float, str] = (1e3, "mm")) -> list[str]:
         """Sentences: how many configurations lie outside the training region and the
-        predicted errors there (mm), e.g. the issue's "412 of 587 poses lie outside ..."."""
+        predicted errors there, e.g. "412 of 587 poses lie outside the training joint
+        ranges; predicted error there up to 8 mm, nominal 3 mm".
+
+        ``unit`` is (factor from metres, name) of the lengths printed: ``(1e3, "mm")`` by
+        default, ``(1.0, "m")`` for a console in SI units (``--si``).
+        """
+        f, u = unit
         n = len(self.predicted_m)
         out = []
         for mask, where in ((self.outside_joint_ranges, "outside the training joint ranges"),
@@ -349,14 +356,14 @@ class Prediction:
             if not k:
                 continue
             text = (f"{k} of {n} {what} lie {where}; predicted error there up to "
-                    f"{self.predicted_m[mask].max() * 1e3:.3g} mm")
+                    f"{self.predicted_m[mask].max() * f:.3g} {u}")
             if self.nominal_predicted_m is not None:
-                text += f", nominal {self.nominal_predicted_m[mask].max() * 1e3:.3g} mm"
+                text += f", nominal {self.nominal_predicted_m[mask].max() * f:.3g} {u}"
             out.append(text)
         inside = ~self.outside
         if inside.any():
             out.append(f"{int(inside.sum())} of {n} {what} inside the training region: "
-                       f"predicted error up to {self.predicted_m[inside].max() * 1e3:.3g} mm")
+                       f"predicted error up to {self.predicted_m[inside].max() * f:.3g} {u}")
         worse = int(np.sum(self.worse_than_nominal))
         if worse:
             out.append(f"{worse} of {n} {what}: the calibrated model is predicted worse than "
