@@ -76,3 +76,13 @@ def test_names_in_html_displays_are_escaped() -> None:
     from kincal.io import html_table
 
     assert "&lt;b&gt;" in html_table(["<b>"], [["x"]])
+
+
+def test_the_readme_python_example_is_the_tutorials() -> None:
+    """The README's example and the Python tutorial's (examples/tutorials/python-api.py,
+    run when the site is built) are one text, so neither can drift from the other."""
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), re.S)
+    script = (README.parent / "examples" / "tutorials" / "python-api.py").read_text(
+        encoding="utf-8")
+    step = re.search(r"# --8<-- \[start:example\]\n(.*?)# --8<-- \[end:example\]", script, re.S)
+    assert step and blocks == [step.group(1)]
