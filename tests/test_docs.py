@@ -34,3 +34,26 @@ def test_every_page_is_in_the_navigation() -> None:
     nav = set(_nav_pages(config["nav"]))
     pages = {p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md")}
     assert pages == nav, f"not in the nav: {sorted(pages - nav)}; missing: {sorted(nav - pages)}"
+
+
+def test_the_readme_links_every_page_of_the_site() -> None:
+    """The README is the short entry point: its documentation table links every page."""
+    config = yaml.load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"), Loader=yaml.BaseLoader)
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    linked = set(re.findall(r"\]\(docs/([\w/.-]+\.md)\)", readme))
+    missing = sorted(set(_nav_pages(config["nav"])) - linked)
+    assert not missing, f"README.md links no: {', '.join(missing)}"
+    assert all((DOCS / p).is_file() for p in linked), "README.md links a page that is gone"
+
+
+def test_the_readme_and_getting_started_give_the_same_two_commands() -> None:
+    def commands(text: str) -> list[str]:
+        block = re.search(r"```bash\n(.*?)```", text, re.S)
+        assert block
+        return block.group(1).splitlines()
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    index = (DOCS / "index.md").read_text(encoding="utf-8")
+    assert commands(readme) == commands(index)
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    assert commands(readme)[1].split("&& ", 2)[-1] in ci   # pip install -e ".[test]" && pytest
