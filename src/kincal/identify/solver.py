@@ -21,7 +21,11 @@ the singular values and right singular vectors of ``W^1/2 J D^-1``, ``g = U^T z`
   ``(J^T J + lambda D^2) dx = -J^T r``; ``lambda`` adapted from the gain ratio
   ``rho = actual / predicted reduction``: a step is accepted when ``rho > 1e-4``;
   ``lambda / 10`` when ``rho > 0.75``, ``lambda * 2`` when ``rho < 0.25``; a rejected
-  step multiplies ``lambda`` by 2, 4, 8 ... (starting value ``1e-3 S_max^2``).
+  step multiplies ``lambda`` by 2, 4, 8 ... (starting value ``1e-3 S_max^2``).  The
+  first iteration of a stage, and every one after a very successful step
+  (``rho > 0.75``), first tries the undamped Gauss-Newton step and keeps it when
+  ``rho > 0.25``: from a nominal robot the problem is nearly linear and the full step
+  lands next to the minimum, where a damped first step costs one more linearisation.
 
 Stopping (per stage): the step is small, ``|dx_j| <= tol_step (1 + |x_j|)`` for
 every estimated ``j`` (parameters in m / rad); or the relative cost change is below
@@ -889,7 +893,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         # Levenberg-Marquardt
         if lam < 0:
             lam = 1e-3 * float(S[0] ** 2) if S.size else 1e-3
-            good = False
+            good = True                     # the first trial is the Gauss-Newton step
         S2 = S * S
         keep = S > S[0] * 1e-12
         tiny = False
