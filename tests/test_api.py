@@ -86,3 +86,11 @@ def test_the_readme_python_example_is_the_tutorials() -> None:
         encoding="utf-8")
     step = re.search(r"# --8<-- \[start:example\]\n(.*?)# --8<-- \[end:example\]", script, re.S)
     assert step and blocks == [step.group(1)]
+
+
+def test_plan_repr_quotes_the_median_random_design_of_its_tables():
+    import kincal
+
+    plan = kincal.plan_poses(kincal.load_robot("puma560"), poses=12, candidates=120, grid=2)
+    assert f"median random design {plan.random_prediction.rms * 1e3:.4g} mm" in repr(plan)
+    assert f"{plan.random_prediction.rms * 1e3:.4g} mm)</p>" in plan._repr_html_()

@@ -43,6 +43,9 @@ def test_plan_writes_poses_report_and_json(puma, tmp_path) -> None:
     assert data["criterion"] == "O3" and data["method"].startswith("greedy + exchange")
     assert data["indices"]["O3"] > data["random_indices_median"]["O3"]
     assert data["prediction"]["rms_position_m"] < data["random_prediction_rms_position_m"]
+    # one "median random design" everywhere: the JSON, the table's "random (median)" row
+    random_row = next(line for line in res.output.splitlines() if "random (median)" in line)
+    assert f"{data['random_prediction_rms_position_m'] * 1e3:.4g}" in random_row
     assert len(set(data["candidate_indices"])) == 14
     html = rep.read_text()
     assert "<img" in html and "Observability indices" in html and "Poses (deg / mm)" in html

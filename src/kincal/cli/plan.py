@@ -416,7 +416,7 @@ def plan(
             "identifiable": list(p.problem.names),
             "not_identifiable": p.problem.report.not_identifiable,
             "prediction": pred.to_dict(),
-            "random_prediction_rms_position_m": float(np.median(p.random_rms)),
+            "random_prediction_rms_position_m": float(p.random_prediction.rms),
             "output": output, "report": report})
 
 

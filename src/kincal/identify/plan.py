@@ -55,7 +55,9 @@ class Plan:
         prediction: its :class:`~kincal.identify.prediction.AccuracyPrediction`.
         random_indices, random_rms: observability indices and predicted RMS position
             error [m] of each random design of the same size.
-        random_prediction: the prediction of the median random design.
+        random_prediction: the prediction of the median random design (the design of
+            rank ``len // 2`` by predicted RMS: one real design, so its RMS, 95 % and
+            max belong together; every printout quotes it as "the median").
         random_singular_values: its singular values.
         inputs: the planning inputs in words, for reports.
         dropped: candidate rows dropped (outside the joint limits).
@@ -79,15 +81,15 @@ class Plan:
     def __repr__(self) -> str:
         return (f"Plan({len(self.q)} poses of {self.problem.num_candidates} candidates, "
                 f"{self.inputs.get('criterion', '')}: predicted RMS position error "
-                f"{self.prediction.rms * 1e3:.4g} mm, random designs "
-                f"{float(np.median(self.random_rms)) * 1e3:.4g} mm)")
+                f"{self.prediction.rms * 1e3:.4g} mm, median random design "
+                f"{self.random_prediction.rms * 1e3:.4g} mm)")
 
     def _repr_html_(self) -> str:
         rows = "".join(f"<tr><th style='text-align:left'>{k}</th><td>{v}</td></tr>"
                        for k, v in self.inputs.items())
         return (f"<p><b>Plan</b>: {len(self.q)} poses; predicted RMS position error "
                 f"<b>{self.prediction.rms * 1e3:.4g} mm</b> (median of {RANDOM_DESIGNS} "
-                f"random designs: {float(np.median(self.random_rms)) * 1e3:.4g} mm)</p>"
+                f"random designs: {self.random_prediction.rms * 1e3:.4g} mm)</p>"
                 f"<table>{rows}</table>")
 
 
