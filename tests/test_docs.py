@@ -57,3 +57,21 @@ def test_the_readme_and_getting_started_give_the_same_two_commands() -> None:
     assert commands(readme) == commands(index)
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     assert commands(readme)[1].split("&& ", 2)[-1] in ci   # pip install -e ".[test]" && pytest
+
+
+def test_sphinx_roles_read_as_code_on_the_site() -> None:
+    """The docs hook turns the docstrings' Sphinx roles into plain code (mkdocstrings
+    renders Markdown, where ``:class:`` would show as text)."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("kincal_pages",
+                                                  DOCS / "hooks" / "kincal_pages.py")
+    assert spec is not None and spec.loader is not None
+    hook = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = hook                  # its dataclasses look their module up
+    spec.loader.exec_module(hook)
+    html = ("A :class:<code>~kincal.robots.chain.Robot</code> from :func:"
+            "<code>kincal.robots.files.load_robot</code>; :mod:<code>kincal.io</code>.")
+    assert hook.sphinx_roles(html) == ("A <code>Robot</code> from <code>kincal.robots.files"
+                                       ".load_robot</code>; <code>kincal.io</code>.")

@@ -290,6 +290,21 @@ def _render_file(match: re.Match[str], page: Any) -> str:
 
 _WRITTEN: dict[str, bytes] = {}
 
+#: A Sphinx cross-reference role as Markdown renders a docstring's ``:class:`~a.b.C```.
+_ROLE = re.compile(r":(?:class|func|meth|mod|data|attr|exc|obj):<code>(~?)([^<]+)</code>")
+
+
+def sphinx_roles(html: str) -> str:
+    """The docstrings' Sphinx roles as plain code: ``:class:`~kincal.robots.chain.Robot```
+    reads ``Robot`` (``~``: the last component), ``:mod:`kincal.io``` reads ``kincal.io``;
+    mkdocstrings renders docstrings as Markdown, where the role would show as text."""
+    return _ROLE.sub(lambda m: "<code>" + (m.group(2).rsplit(".", 1)[-1] if m.group(1)
+                                            else m.group(2)) + "</code>", html)
+
+
+def on_page_content(html: str, page: Any, config: Any, files: Any) -> str:
+    return sphinx_roles(html)
+
 
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
     if "<!-- kincal:cli-reference -->" in markdown:

@@ -805,8 +805,8 @@ def write_urdf(robot: Robot, path: str | os.PathLike[str], name: str | None = No
     they are unknown (the file is a kinematic model).  Atomic write; ``"-"`` writes to stdout.
 
     Returns:
-        ``(base_link, tip_link)`` of the written file: ``load_urdf(path, base_link,
-        tip_link).fk(q) == robot.fk(q)``.
+        The written file's first and last link names ``(base_link, tip_link)``, such that
+        ``load_urdf(path, base_link, tip_link).fk(q) == robot.fk(q)``.
     """
     text, base, tip = urdf_text(robot, name)
     atomic_write_text(path, text)
