@@ -488,6 +488,24 @@ def test_point_jacobian_equals_finite_differences(make, K):
     np.testing.assert_allclose(D[:, 0].transpose(2, 1, 0), ref, atol=1e-13)
 
 
+def test_point_jacobian_into_given_arrays():
+    """``out=`` arrays (e.g. reused working memory holding old values) receive exactly the
+    fresh results, over several blocks and a column subset; wrong shapes are refused."""
+    robot = every_kind_robot()
+    Q = np.random.default_rng(4).uniform(-2, 2, (9000, robot.n))
+    m = np.array([[0.02, -0.03, 0.07], [-0.05, 0.01, 0.1]])
+    cols = [5, 0, 9]
+    ref = robot.point_jacobian(Q, m, None, cols, rotation=True)
+    out = (np.full((2, 3, 9000), np.nan), np.full((3, 2, 3, 9000), np.nan),
+           np.full((3, 3, 9000), np.nan))
+    got = robot.point_jacobian(Q, m, None, cols, rotation=True, out=out)
+    for g, o, r in zip(got, out, ref, strict=True):
+        assert g is o
+        np.testing.assert_array_equal(g, r)
+    with pytest.raises(ValueError, match="out"):
+        robot.point_jacobian(Q, m, None, cols, rotation=False, out=out)
+
+
 def test_point_jacobian_blocks_and_shared_parameters():
     """Several blocks of configurations give the values of one; a parameter used by two
     transforms and one used by none (out of chain order) get summed and zero columns."""

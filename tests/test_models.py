@@ -13,6 +13,7 @@ from kincal.measure.base import (
     frame_rotation_axes,
     frame_values,
     lstsq,
+    scratch,
     stack,
     svd_thin,
 )
@@ -320,6 +321,23 @@ def test_compressed_never_forms_the_jacobian():
         tracemalloc.stop()
     assert c.R.shape == (P, P)
     assert peak < 0.25 * M * P * 8, f"peak {peak / 1e6:.1f} MB for a {M * P * 8 / 1e6:.1f} MB J"
+
+
+def test_scratch_memory_is_reused_and_never_escapes():
+    """``scratch`` hands the same memory back for the same name (grown when too small);
+    what compressed() and the residuals return is not such memory: a second evaluation
+    at another theta leaves the first one's results as they were."""
+    a = scratch("test.a", (4, 5))
+    b = scratch("test.a", (2, 3))
+    assert np.shares_memory(a, b) and b.shape == (2, 3) and b.flags.c_contiguous
+    assert not np.shares_memory(scratch("test.a", (40, 50)), a)     # grown: new memory
+    prob, theta, rng = _problem(300)
+    c1, r1 = prob.compressed(theta), prob.residuals(theta)
+    kept = (c1.R.copy(), c1.z.copy(), c1.r.copy(), r1.copy())
+    prob.compressed(theta + rng.normal(0, 1e-3, theta.size))
+    prob.residuals(theta + rng.normal(0, 1e-3, theta.size))
+    for now, then in zip((c1.R, c1.z, c1.r, r1), kept, strict=True):
+        np.testing.assert_array_equal(now, then)
 
 
 def test_measurement_ids_match_the_unique_pairs():

@@ -60,6 +60,7 @@ from kincal.measure.base import (
     frame_matrix,
     frame_rotation_axes,
     frame_values,
+    scratch,
 )
 from kincal.robots.chain import Robot
 from kincal.spatial import log_so3, skew
@@ -259,7 +260,10 @@ class PositionMeasurement(MeasurementModel):
         if out is None:
             out = np.empty((self.N, self.K, 3))
         for cs in configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
-            Y, _, _ = robot.point_jacobian(self.q[cs], m, H, ())
+            L = cs.stop - cs.start
+            Y, _, _ = robot.point_jacobian(self.q[cs], m, H, (), out=(
+                scratch("predict.Y", (self.K, 3, L)), scratch("predict.D", (0, self.K, 3, L)),
+                None))
             out[cs] = Y.transpose(2, 0, 1)
         return out
 
@@ -292,13 +296,20 @@ class PositionMeasurement(MeasurementModel):
         own = [int(c) for c in own_columns]
         for cs in configuration_slices(self.N, step, rows):
             L = cs.stop - cs.start
-            Y, D, Rot = robot.point_jacobian(self.q[cs], m, H, cols, rotation=True)
+            # working arrays (scratch): each piece is folded before the next one is made
+            Y, D, Rot = robot.point_jacobian(
+                self.q[cs], m, H, cols, rotation=True,
+                out=(scratch("pieces.Y", (K, 3, L)), scratch("pieces.D", (len(cols), K, 3, L)),
+                     scratch("pieces.Rot", (3, 3, L))))
             wT = (1.0 / self.sigma[cs]).T                         # (K, L)
-            y = Y.copy() if any(3 <= c < 6 for c in own) else None  # predictions
+            y = None
+            if any(3 <= c < 6 for c in own):                      # predictions
+                y = scratch("pieces.y", (K, 3, L))
+                np.copyto(y, Y)
             Y -= self._y[cs].transpose(1, 2, 0)
             Y *= wT[:, None, :]                                   # whitened residuals
             D *= wT[None, :, None, :]
-            Je = np.empty((len(own), K, 3, L))
+            Je = scratch("pieces.Je", (len(own), K, 3, L))
             for j, c in enumerate(own):
                 if c < 3:                                         # -R_I^T
                     np.multiply(-G[:, c][None, :, None], wT[:, None, :], out=Je[j])
@@ -461,7 +472,8 @@ class PositionMeasurement(MeasurementModel):
             ReT = Re.transpose(2, 0, 1)                            # ReT[c, :, a] = Re[:, a, c]
             # the systems' columns as rows (n, K, 3) of B (no transposed copy to fold):
             # step 1: [vec_col(A); t; m_1 .. m_K | p_e]
-            B = np.zeros((p1 + 1, n, K, 3))
+            B = scratch("initial_guess.B", (p1 + 1, n, K, 3))
+            B[...] = 0.0
             for a in range(3):
                 for b in range(3):
                     B[3 * b + a, :, :, a] = y[:, :, b]

@@ -355,7 +355,8 @@ class Robot:
         return Jp[0] if single else Jp
 
     def point_jacobian(self, q: ArrayLike, points: ArrayLike, left: ArrayLike | None = None,
-                       columns: Sequence[int] | None = None, rotation: bool = False
+                       columns: Sequence[int] | None = None, rotation: bool = False,
+                       out: tuple[Array, Array, Array | None] | None = None
                        ) -> tuple[Array, Array, Array | None]:
         """Points fixed on the tool and their parameter Jacobian, configurations last.
 
@@ -373,6 +374,9 @@ class Robot:
             left: the frame ``H``; default identity.
             columns: parameter indices of the Jacobian columns (default all).
             rotation: also return the tool rotation.
+            out: arrays ``(Y, D, Rot)`` of the shapes below to write the results into
+                (``Rot`` None when not ``rotation``), e.g. working arrays reused from
+                call to call; default fresh ones.
 
         Returns:
             ``Y`` (K, 3, N) [m], ``D`` (C, K, 3, N) with ``D[j, k, i, l] = d y_{l,k,i} /
@@ -385,7 +389,7 @@ class Robot:
         cols = tuple(range(self.num_params)) if columns is None else \
             tuple(int(c) for c in columns)
         return self._plan.points(q2, m, None if left is None else np.asarray(left, float),
-                                 cols, rotation)
+                                 cols, rotation, out)
 
     def frames(self, q: ArrayLike) -> Array:
         """Frames after every joint (for plotting): (N, n + 2, 4, 4) base, joints, tool."""
@@ -836,7 +840,8 @@ class _Plan:
         return sel
 
     def points(self, q: Array, points: Array, left: Array | None, columns: tuple[int, ...],
-               rotation: bool) -> tuple[Array, Array, Array | None]:
+               rotation: bool, out: tuple[Array, Array, Array | None] | None = None
+               ) -> tuple[Array, Array, Array | None]:
         """Tool points, their parameter Jacobian and the tool rotation, configurations last.
 
         For the points ``m_k`` (K, 3) in the tool frame and a constant frame ``H`` in
@@ -861,9 +866,16 @@ class _Plan:
         tool rotation in ``H``'s frame (``Rot[c, i, l] = (R_H R_e(q_l))[i, c]``).
         """
         N, K, C = q.shape[0], points.shape[0], len(columns)
-        Y = np.empty((K, 3, N))
-        Dout = np.empty((C, K, 3, N))
-        Rot = np.empty((3, 3, N)) if rotation else None
+        if out is None:
+            Y, Dout = np.empty((K, 3, N)), np.empty((C, K, 3, N))
+            Rot = np.empty((3, 3, N)) if rotation else None
+        else:
+            Y, Dout, Rot = out
+            if (Y.shape != (K, 3, N) or Dout.shape != (C, K, 3, N)
+                    or (Rot is None) == rotation or (rotation and Rot.shape != (3, 3, N))
+                    or not (Y.flags.c_contiguous and Dout.flags.c_contiguous)):
+                raise ValueError(f"out: C-ordered arrays of shapes {(K, 3, N)}, {(C, K, 3, N)}"
+                                 f" and {(3, 3, N) if rotation else None} expected")
         if N == 0:
             return Y, Dout, Rot
         sel = self._selection(columns) if C else None
