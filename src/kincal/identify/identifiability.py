@@ -283,24 +283,28 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
         X = Rinv @ (Q.T @ C)
         rels = np.linalg.norm(C - B @ X, axis=0) / np.maximum(np.linalg.norm(C, axis=0),
                                                                1e-300)
+    if chosen and others:
+        # coefficients in parameter units: d theta_i ~ sum_b c_b d theta_b (all at once)
+        absX = np.abs(X)
+        kept = (absX > COEF_TOL * np.maximum(absX.max(axis=0), 1e-300)).T.tolist()
+        coef = (X * (norms[others] if scale else big)
+                / (norms[chosen] if scale else big)[:, None]).T.tolist()
+        base_names = [names[j] for j in chosen]
+        rel_list = rels.tolist()
     for n_i, i in enumerate(others):
         if chosen:
-            x = X[:, n_i]
-            rel = float(rels[n_i])
-            keep = np.abs(x) > COEF_TOL * max(np.abs(x).max(), 1e-300)
-            # coefficient in parameter units: d theta_i ~ sum c_b d theta_b
-            col_norm_i = norms[i] if scale else big
-            comb = {names[chosen[j]]: float(x[j] * col_norm_i
-                                            / (norms[chosen[j]] if scale else big))
-                    for j in np.flatnonzero(keep)}
+            rel = rel_list[n_i]
+            comb = {b: c for b, c, k in zip(base_names, coef[n_i], kept[n_i], strict=True) if k}
         else:
             rel, comb = 1.0, {}
         dependent[names[i]] = list(comb)
         combinations[names[i]] = comb
         residual[names[i]] = rel
     if chosen:
-        sB = np.linalg.svd(Rf, compute_uv=False)
-        sU = singular_values(J[:, chosen])
+        # Js[:, chosen] = Q Rf (Q orthonormal): Rf has the singular values of the scaled
+        # base columns, and Rf diag(column norms) those of the unscaled ones (J[:, chosen])
+        sB = sv if r == P else np.linalg.svd(Rf, compute_uv=False)
+        sU = np.linalg.svd(Rf * (norms[chosen] if scale else big), compute_uv=False)
         cond_s = float(sB[0] / sB[-1]) if sB[-1] > 0 else np.inf
         cond_u = float(sU[0] / sU[-1]) if sU[-1] > 0 else np.inf
         # variance inflation of each base parameter (scaled): diag((B^T B)^-1)
