@@ -363,7 +363,7 @@ def scaling(sizes: list[int]) -> None:
 
     print(f"\nscaling (kincal, PUMA 560, position measurements, fresh process per N)\n"
           f"{machine()}")
-    head = (f"{'N':>9}{'time [s]':>10}{'CPU [s]':>9}{'time/N [us]':>13}{'peak RSS [MB]':>15}"
+    head = (f"{'N':>9}{'time [s]':>10}{'CPU [s]':>9}{'time/N [us]':>13}{'peak RSS [MiB]':>15}"
             f"{'iterations':>12}{'params':>8}{'RMS [mm]':>10}")
     print(head)
     print("-" * len(head))
