@@ -33,7 +33,7 @@ import dataclasses
 import difflib
 import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -609,9 +609,3 @@ def merge_setups(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[s
             out[k] = v
     return out
 
-
-def setup_where(setup: Setup | None) -> Callable[..., str]:
-    """``setup.where`` or, without a setup, a function giving the option's name."""
-    if setup is None:
-        return lambda *path: _fmt_path(tuple(path))
-    return setup.where
