@@ -90,15 +90,8 @@ def map_values(h: Any, twin: Any, values: Any) -> dict[str, float]:
     matched by the name after the block prefix (``marker`` = ``marker1``)."""
     if twin is None or values is None:
         return {}
-    tspec = twin.parameters()
-    known = {_suffix(twin, n): float(v) for n, v in zip(tspec.names, values, strict=True)}
-    out = {}
-    for n in h.parameters().names:
-        for a in _aliases(_suffix(h, n)):
-            if a in known:
-                out[n] = known[a]
-                break
-    return out
+    return known_by_name(h, {f"{h.name}.{_suffix(twin, n)}": float(v)
+                             for n, v in zip(twin.parameters().names, values, strict=True)})
 
 
 @dataclass
