@@ -113,9 +113,8 @@ def fold_specs(robot: Any, blocks_by_candidate: Sequence[Sequence[Any]],
     specs = []
     for c, (cand, blocks) in enumerate(zip(cands, blocks_by_candidate, strict=True)):
         opts = dict(options)
-        names = set(tolerances)
-        prior = {n: s * cand.scale for n, s in tolerances.items()} if cand.scale else {}
-        opts["prior"] = {n: s for n, s in prior.items() if n in names} or None
+        opts["prior"] = {n: s * cand.scale for n, s in tolerances.items()} \
+            if cand.scale and tolerances else None
         full = (None,) * len(blocks)
         specs.append(FoldSpec(c, -1, robot, tuple(blocks), full, full, opts,
                               dict(tolerances)))
@@ -243,24 +242,18 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
     specs = fold_specs(robot, [wrapped[c.terms] for c in cands], cands, parts, tolerances,
                        options)
     results = gather_results(mapper(run_fold, specs))
-    by: dict[int, list[FoldResult]] = {i: [] for i in range(n)}
-    for r in results:
-        by[r.candidate].append(r)
+    pooled_by = pool_errors(results, n)
     kinds: list[str] = []
     for r in results:
         kinds += [k for k in r.errors if k not in kinds]
     first = [k for k in ("position_m", "coincidence_m") if k in kinds]
     kind = (first + kinds)[0] if kinds else ""
     rms, rms_all, errs, trusted, reasons = [], [], [], [], []
-    for i in range(n):
-        rs = sorted(by[i], key=lambda r: r.fold)
+    for i, pooled in enumerate(pooled_by):
+        rs = [r for r in results if r.candidate == i]
         full = next(r for r in rs if r.fold < 0)
         folds_ok = all(r.converged for r in rs if r.fold >= 0)
-        pooled: dict[str, list[Array]] = {}
-        for r in rs:
-            for k, v in r.errors.items():
-                pooled.setdefault(k, []).append(v)
-        every = {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in pooled.items()}
+        every = pooled_rms(pooled)
         e = np.concatenate(pooled[kind]) if kind in pooled else np.zeros(0)
         errs.append(e)
         rms.append(every.get(kind, math.nan))
