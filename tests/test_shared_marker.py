@@ -130,3 +130,30 @@ def test_panda_both_placements_with_one_ball(capsys, tmp_path):
         other = np.array([sep[f"{b}.probe.{c}"]["estimate"] for c in "xyz"])
         assert np.linalg.norm(other - tool) < 2e-3               # the same ball, within mm
     assert out["shared"]["metrics"]["train"]["rms_coincidence_m"] < 0.3e-3
+
+
+def test_tool_point_block_keeps_the_inner_fast_path():
+    """The wrapped block's pieces (the position block's own system_pieces, in several
+    pieces) give the triangle and residuals of its dense evaluation at marker 0."""
+    from kincal.measure.base import stack
+    from kincal.measure.models import PositionMeasurement
+    from kincal.workflow.shared import ToolPointBlock
+
+    robot = load_robot("puma560")
+    rng = np.random.default_rng(5)
+    q = random_configurations(robot, 25, rng)
+    y = simulate_positions(robot, q, rng, NOISE, [1.0, 0.2, 0.3, 0.1, -0.2, 0.4]).positions
+    block = ToolPointBlock(PositionMeasurement(q, y, NOISE, "tracker"))
+    prob, theta = stack(robot, [block])
+    theta = theta + rng.normal(0.0, 1e-3, theta.size)
+    cols = [0, 3, 7, *range(prob.num_robot, len(theta))]
+    c = prob.compressed(theta, columns=cols, rows=12)
+    robot_t, (extra,) = prob.split(theta)
+    r, Jr, Je = block.evaluate(robot_t, extra)
+    J = np.hstack([Jr, Je])[:, cols]
+    assert np.allclose(c.R.T @ c.R, J.T @ J, rtol=1e-9, atol=1e-6 * np.abs(J.T @ J).max())
+    assert np.allclose(c.R.T @ c.z, J.T @ r, rtol=1e-9, atol=1e-9 * np.abs(J.T @ r).max())
+    assert np.allclose(prob.residuals(theta, spare_rows=2)[:-2], r, rtol=1e-12, atol=1e-12)
+    pieces = list(block.evaluate_chunks(robot_t, extra, rows=12))
+    assert len(pieces) > 1
+    assert np.allclose(np.concatenate([p[3] for p in pieces]), Je, rtol=1e-12, atol=1e-12)

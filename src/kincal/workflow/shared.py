@@ -25,14 +25,14 @@ tool are wrapped the same way, so they use it too.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import MeasurementModel, ParamSpec
+from kincal.measure.base import CHUNK_ROWS, MeasurementModel, ParamSpec
 
 Array = NDArray[np.float64]
 
@@ -83,6 +83,21 @@ class ToolPointBlock(MeasurementModel):
                  ) -> tuple[Array, Array | None, Array | None]:
         r, Jr, Je = self.inner.evaluate(robot, self._full(extra), jacobian)
         return r, Jr, None if Je is None else Je[:, self._keep]
+
+    def evaluate_chunks(self, robot: Any, extra: Array, rows: int = CHUNK_ROWS
+                        ) -> Iterator[tuple[slice, Array, Array, Array]]:
+        for sl, r, Jr, Je in self.inner.evaluate_chunks(robot, self._full(extra), rows):
+            yield sl, r, Jr, Je[:, self._keep]
+
+    def system_pieces(self, robot: Any, extra: Array, robot_columns: NDArray[np.intp],
+                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS
+                      ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
+        """The inner block's pieces (its fast path), own columns mapped past the marker."""
+        own = np.flatnonzero(self._keep)[np.asarray(own_columns, dtype=np.intp)]
+        yield from self.inner.system_pieces(robot, self._full(extra), robot_columns, own, rows)
+
+    def residuals_into(self, robot: Any, extra: Array, out: Array) -> None:
+        self.inner.residuals_into(robot, self._full(extra), out)
 
     def residual_owner(self) -> NDArray[np.intp]:
         return self.inner.residual_owner()
