@@ -21,6 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kincal.compensation.configuration import Configurator, kuka_configuration
+from kincal.compensation.filter import TargetRequest, filter_targets
 from kincal.compensation.programs import fanuc, krl, rapid, urscript
 from kincal.compensation.programs.base import read_frames
 from kincal.compensation.programs.driver import filter_program, read_program
@@ -244,6 +245,28 @@ def test_kuka_status_and_turn_choose_the_branch():
     # HOME is S 2 (basic area, elbow as at HOME, A5 >= 0)
     home = np.radians([0, -90, 90, 0, 30, 0])
     assert tuple(conf.signs(home[None])[0]) == (1, 1, 1)
+
+
+def test_singularity_warnings_name_the_right_targets_after_a_branch_is_refused():
+    """A calibrated A5 offset of +1 deg: the target at A5 = 0.5 deg flips the wrist (its
+    configuration is refused), the one at 1.5 deg lands at 0.5 deg (near the wrist
+    singularity), the one at 40 deg is far from every singularity."""
+    nom = load_robot("kr6")
+    cal = nom.with_params({"theta_offset[5]": nom.params()["theta_offset[5]"]
+                           + math.radians(1.0)})
+    conf = Configurator.of(nom, controller_map(nom))
+    q = np.array([[0.3, -1.2, 1.4, 0.4, math.radians(0.5), 0.2],
+                  [0.1, -1.4, 1.6, -0.3, math.radians(1.5), 0.5],
+                  [-0.2, -1.3, 1.2, 0.3, math.radians(40.0), -0.4]])
+    requests = []
+    for F, s in zip(nom.fk(q), conf.signs(q), strict=True):
+        S = int((s[0] < 0) + 2 * (s[1] > 0) + 4 * (s[2] < 0))
+        requests.append(TargetRequest("pose", flange=F, config=kuka_configuration(S, None)))
+    res = filter_targets(cal, nom, requests)
+    assert list(res.ok) == [False, True, True]
+    assert "another branch" in res.reason[0]
+    assert res.warnings[1] == ["near a singularity"]
+    assert res.warnings[2] == []
 
 
 def test_reference_poses_of_the_built_in_robots():

@@ -283,7 +283,7 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
                 warnings[i].append("branch change")
         good = good[same | np.array([confs[i] is None for i in good], bool)]
         flange_out[work[~ok[work]]] = flange_in[work[~ok[work]]]
-        m = conf_obj.margins(q_good)
+        m = conf_obj.margins(q_cal[good])
         L = check_wrist_family(nominal)
         r3 = math.hypot(L[2].a, L[3].d)
         near = (m[:, 0] < SINGULARITY_MARGINS[0]) | (m[:, 1] / r3 < SINGULARITY_MARGINS[1]) \
