@@ -107,16 +107,18 @@ class DialectOps:
     pad: bool = False
 
 
+def _numbered_frames(prog: Any, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
+    """(user, tool) of a target whose frames are numbers of the frames file (KRL, FANUC)."""
+    origin = f"{t.name} ({Path(t.file).name}:{t.line})"
+    return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
+
+
 def _ops(dialect: str) -> DialectOps:
     if dialect == "krl":
         from kincal.compensation.programs import krl
 
-        def frames(prog: Any, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
-            origin = f"{t.name} ({Path(t.file).name}:{t.line})"
-            return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
-
         return DialectOps(krl.read_krl, krl.pose_of, krl.pose_values,
-                          ("a1", "a2", "a3", "a4", "a5", "a6"), frames, krl.digits,
+                          ("a1", "a2", "a3", "a4", "a5", "a6"), _numbered_frames, krl.digits,
                           krl.config_values)
     if dialect == "rapid":
         from kincal.compensation.programs import rapid
@@ -131,12 +133,8 @@ def _ops(dialect: str) -> DialectOps:
                           urscript.config_values)
     from kincal.compensation.programs import fanuc
 
-    def frames_f(prog: Any, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
-        origin = f"{t.name} ({Path(t.file).name}:{t.line})"
-        return fr.get("base", t.base_key, origin), fr.get("tool", t.tool_key, origin)
-
     return DialectOps(fanuc.read_ls, fanuc.pose_of, fanuc.pose_values, fanuc.JOINT_KEYS,
-                      frames_f, lambda k: 0 if k.startswith("turn") else 3,
+                      _numbered_frames, lambda k: 0 if k.startswith("turn") else 3,
                       fanuc.config_values, pad=True)
 
 
