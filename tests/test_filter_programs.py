@@ -339,6 +339,20 @@ def test_bad_content_gives_one_line_with_file_line_column_and_writes_nothing(bad
     assert not (tmp_path / "o").exists()
 
 
+def test_a_report_file_that_is_an_input_is_refused_before_anything_is_written(tmp_path,
+                                                                              capsys):
+    """--csv / --json on the program or the frames file: exit 2, one line, inputs intact."""
+    src = _copy(tmp_path, "weld_seam.src")
+    frames = tmp_path / "krl_frames.yaml"
+    before = src.read_bytes(), frames.read_bytes()
+    for opt, victim in (("--csv", src), ("--json", frames)):
+        code, _, err = run(capsys, "filter", src, "--robot", "kr6", "--nominal", "kr6",
+                           "--frames", frames, "-o", tmp_path / "o" / "out.src", opt, victim)
+        assert code == 2 and f"option {opt}:" in err and "also the input of" in err, err
+    assert (src.read_bytes(), frames.read_bytes()) == before
+    assert not (tmp_path / "o").exists()
+
+
 def test_krl_module_names_follow_the_new_file_name(tmp_path, calibrated, capsys):
     """The controller requires DEF name( of a .src and DEFDAT name of its .dat to match the
     file name: -o seam_cal.src renames both (and nothing else: the bytes are the filtered

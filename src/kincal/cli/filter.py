@@ -81,9 +81,12 @@ def filter_cmd(
     robot reaches the original target."""
     from kincal.compensation.programs.base import read_frames
     from kincal.compensation.programs.driver import filter_program
-    from kincal.io import atomic_write_bytes, atomic_write_text, write_json
+    from kincal.io import atomic_write_bytes, atomic_write_text, check_outputs, write_json
 
     out = out_console(json_out)
+    check_outputs({"-o": output, "--csv": csv_out, "--json": json_out},
+                  {"PROGRAM": [program], "--robot": [robot], "--nominal": [nominal],
+                   "--frames": frames, "--result": result})
     if joint_targets not in ("taught", "offline"):
         raise KincalError(f"option --joint-targets: use taught or offline, not {joint_targets!r}")
     if not Path(program).is_file():
