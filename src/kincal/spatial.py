@@ -98,6 +98,14 @@ def matrix_to_rpy(R: ArrayLike) -> Array:
     return np.stack([np.arctan2(-m12, m11), np.arctan2(-R[..., 2, 0], m00), yaw], -1)
 
 
+def quat_to_matrix(q: ArrayLike) -> Array:
+    """Rotation of a quaternion ``[w, x, y, z]`` (normalised first)."""
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def zyz_to_matrix(zyz: ArrayLike) -> Array:
     """``R = Rz(phi) Ry(theta) Rz(psi)`` from ``(phi, theta, psi)`` [rad]; (..., 3)."""
     e = np.asarray(zyz, dtype=float)

@@ -36,7 +36,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
-from kincal.spatial import log_so3, matrix_to_rpy
+from kincal.measure.models import project_so3
+from kincal.spatial import log_so3, matrix_to_rpy, quat_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -92,15 +93,6 @@ def _stamp(msg: object, fallback_ns: int) -> float:
         if t > 0:
             return t
     return fallback_ns * 1e-9
-
-
-def _quat_matrix(x: float, y: float, z: float, w: float) -> Array:
-    q = np.array([w, x, y, z], dtype=float)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def read_bag_streams(path: str, joints_topic: str, point: str | None = None,
@@ -174,13 +166,13 @@ def read_bag_streams(path: str, joints_topic: str, point: str | None = None,
                         v, r = tr.transform.translation, tr.transform.rotation
                         mt.append(_stamp(tr, t_ns))
                         mp.append([v.x, v.y, v.z])
-                        mR.append(_quat_matrix(r.x, r.y, r.z, r.w))
+                        mR.append(quat_to_matrix([r.w, r.x, r.y, r.z]))
             elif pose:
                 ps = msg.pose
                 mt.append(_stamp(msg, t_ns))
                 mp.append([ps.position.x, ps.position.y, ps.position.z])
                 o = ps.orientation
-                mR.append(_quat_matrix(o.x, o.y, o.z, o.w))
+                mR.append(quat_to_matrix([o.w, o.x, o.y, o.z]))
             else:
                 mt.append(_stamp(msg, t_ns))
                 mp.append([msg.point.x, msg.point.y, msg.point.z])
@@ -217,12 +209,6 @@ def _still_runs(t: Array, q: Array, speed: float) -> list[tuple[int, int]]:
     return runs
 
 
-def _mean_rotation(R: Array) -> Array:
-    U, _, Vt = np.linalg.svd(R.mean(axis=0))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
-
-
 def find_postures(s: BagSession, opt: StillOptions = StillOptions()
                   ) -> tuple[list[Posture], list[str]]:
     """The static postures of a session and one line per dropped standstill."""
@@ -254,7 +240,7 @@ def find_postures(s: BagSession, opt: StillOptions = StillOptions()
         sigma_rot = math.nan
         if s.meas_R is not None:
             Rs = s.meas_R[msel]
-            R = _mean_rotation(Rs)
+            R = project_so3(Rs.mean(axis=0))
             w = log_so3(Rs @ R.T)
             sigma_rot = max(math.sqrt(float(np.mean(w.var(axis=0, ddof=1))) / n), 1e-7)
         postures.append(Posture(a, b, s.joint_q[jsel].mean(axis=0), p.mean(axis=0), R,

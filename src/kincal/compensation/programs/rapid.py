@@ -37,7 +37,7 @@ from kincal.compensation.programs.base import (
     position,
     read_program_text,
 )
-from kincal.spatial import homogeneous
+from kincal.spatial import homogeneous, quat_to_matrix
 
 JOINT_KEYS = ("j1", "j2", "j3", "j4", "j5", "j6")
 _DECL = re.compile(r"(?:\b(?:LOCAL|TASK)\s+)?\b(CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|"
@@ -125,14 +125,6 @@ def _frame(path: str, text: str, node: Any, at: int, what: str) -> Array:
     p = [s.value for s in _numbers(path, text, node[0], 3, at, f"{what} position")]
     q = [s.value for s in _numbers(path, text, node[1], 4, at, f"{what} orientation")]
     return homogeneous(quat_to_matrix(np.array(q)), np.array(p) * 1e-3)
-
-
-def quat_to_matrix(q: Array) -> Array:
-    """Rotation of a quaternion ``[w, x, y, z]`` (normalised first)."""
-    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def matrix_to_quat(R: Array) -> Array:
