@@ -500,6 +500,11 @@ def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
     code, _, err = run(capsys, "export", "puma560", tmp_path / "puma.txt")
     assert code == 2 and "name it .yaml, .yml or .urdf" in err
     assert not (tmp_path / "puma.txt").exists()
+    urdf_before = Path(urdf).read_bytes()
+    for args in (["-o", urdf], ["-o", tmp_path / "p.yaml", "--json", urdf]):
+        code, _, err = run(capsys, "export", urdf, *args)
+        assert code == 2 and "also the input of ROBOT" in err, err
+    assert Path(urdf).read_bytes() == urdf_before
 
 
 def test_instrument_file_with_a_look_alike_column_is_an_error(capsys, tmp_path):

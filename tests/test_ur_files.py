@@ -187,3 +187,23 @@ def test_import_ur_command(true_ur5e, tmp_path, capsys):
     assert code == 0, err
     back = load_robot(str(tmp_path / "from_yaml.yaml"))
     assert np.abs(back.fk(q) - truth.fk(q))[:, :3, 3].max() < 1e-9
+
+
+def test_import_and_ur_kinematics_refuse_to_write_over_their_input(true_ur5e, tmp_path,
+                                                                   capsys):
+    """-o / --kinematics / --json on the file being read: exit 2, one line, input intact."""
+    _, _, conf, _ = true_ur5e
+    before = conf.read_bytes()
+    for opt in ("-o", "--kinematics", "--json"):
+        args = ["import", "ur", conf, "--nominal", "ur5e", "-o", tmp_path / "cal.yaml"]
+        code, _, err = run(capsys, *(args[:-2] + [opt, conf] if opt == "-o" else
+                                     args + [opt, conf]))
+        assert code == 2 and f"option {opt}:" in err and "also the input of FILE" in err, err
+    assert conf.read_bytes() == before
+    assert run(capsys, "import", "ur", conf, "--nominal", "ur5e", "-o",
+               tmp_path / "cal.yaml")[0] == 0
+    robot_before = (tmp_path / "cal.yaml").read_bytes()
+    code, _, err = run(capsys, "ur-kinematics", tmp_path / "cal.yaml", "--nominal", "ur5e",
+                       "-o", tmp_path / "cal.yaml")
+    assert code == 2 and "also the input of ROBOT" in err, err
+    assert (tmp_path / "cal.yaml").read_bytes() == robot_before

@@ -27,6 +27,7 @@ from kincal.cli.calibration_common import (
     out_console,
 )
 from kincal.errors import KincalError
+from kincal.io import check_outputs
 
 
 @app.command("export")
@@ -53,6 +54,7 @@ def export_cmd(
     if output is None:
         raise KincalError("`kincal export` needs -o OUT.yaml or -o OUT.urdf")
     console = out_console(json_out)
+    check_outputs({"-o": output, "--json": json_out}, {"ROBOT": [robot]})
     suffix = Path(output).suffix.lower()
     if suffix not in (".yaml", ".yml", ".urdf"):
         raise KincalError(f"cannot tell the format of {output!r}: name it .yaml, .yml or "

@@ -59,11 +59,13 @@ def import_ur(
     kincal robot file."""
     import numpy as np
 
-    from kincal.io import atomic_write_text
+    from kincal.io import atomic_write_text, check_outputs
     from kincal.robots.files import robot_yaml_text
     from kincal.robots.ur import kinematics_yaml, read_calibration_conf, read_kinematics_yaml
 
     out = out_console(json_out)
+    check_outputs({"-o": output, "--kinematics": kinematics, "--json": json_out},
+                  {"FILE": [file], "--nominal": [nominal]})
     nom = serial(load(nominal), "import ur")
     if not Path(file).is_file():
         raise KincalError("no such file", source=file)
@@ -102,10 +104,11 @@ def ur_kinematics(
 ) -> None:
     """Write a calibrated UR as the ROS kinematics YAML (ur_description's
     default_kinematics.yaml format), every joint origin near its nominal value."""
-    from kincal.io import atomic_write_text
+    from kincal.io import atomic_write_text, check_outputs
     from kincal.robots.ur import kinematics_yaml
 
     out = out_console(json_out)
+    check_outputs({"-o": output, "--json": json_out}, {"ROBOT": [robot], "--nominal": [nominal]})
     r = serial(load(robot), "ur-kinematics")
     nom = serial(load(nominal), "ur-kinematics")
     text = kinematics_yaml(r, nom)
@@ -165,7 +168,7 @@ def import_bag(
     joint states and an instrument's stream averaged over each standstill."""
     import numpy as np
 
-    from kincal.io import atomic_write_text, write_json
+    from kincal.io import atomic_write_text, check_outputs, write_json
     from kincal.measure.bags import (
         StillOptions,
         find_postures,
@@ -175,6 +178,7 @@ def import_bag(
     from kincal.units import parse_quantity
 
     out = out_console(json_out)
+    check_outputs({"-o": output, "--json": json_out}, {"BAG": [bag]})
     opt = StillOptions(
         still_speed=_speed(still_speed, "--still-speed"),
         still_time=parse_quantity(still_time, "time", "--still-time", positive=True),
