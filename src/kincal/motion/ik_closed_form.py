@@ -140,6 +140,8 @@ def _finish(robot: Robot, theta: Array, reachable: NDArray[np.bool_], links: lis
 
 PUMA_BRANCHES = tuple(f"{s}/{e}/{w}" for s in ("left", "right") for e in ("up", "down")
                       for w in ("noflip", "flip"))
+#: PUMA branches from :func:`spherical_wrist_angles`' (noflip, theta5 >= 0, is its second).
+_PUMA_ORDER = [1, 0, 3, 2, 5, 4, 7, 6]
 
 
 def _check_puma(robot: Robot) -> list[DHLink]:
@@ -177,71 +179,90 @@ def ik_puma560(robot: Robot, targets: ArrayLike) -> ClosedFormSolutions:
       At ``s5 = 0`` only ``theta4 +- theta6`` is defined; ``theta4 = 0`` is chosen.
 
     Branch order: shoulder (left, right) x elbow (up, down) x wrist (noflip, flip).
+    The PUMA is a member of the spherical-wrist family: the angles are those of
+    :func:`spherical_wrist_angles` (its wrist pair in the other order).
     """
     L = _check_puma(robot)
-    T = _strip_frames(robot, _poses(targets), L[5])
+    theta, reach = spherical_wrist_angles(L, _strip_frames(robot, _poses(targets), L[5]))
+    return _finish(robot, theta[:, _PUMA_ORDER], reach[:, _PUMA_ORDER], L, PUMA_BRANCHES)
+
+
+def _rz_rx(t: Array, alpha: float) -> Array:
+    """``Rz(t) Rx(alpha)`` (N, 3, 3), the rotation of a standard-DH link."""
+    c, s = np.cos(t), np.sin(t)
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    z = np.zeros_like(c)
+    return np.stack([np.stack([c, -s * ca, s * sa], -1), np.stack([s, c * ca, -c * sa], -1),
+                     np.stack([z, z + sa, z + ca], -1)], -2)
+
+
+def _r03(L: list[DHLink], t1: Array, t23: Array) -> Array:
+    """Rotation of frame 3: ``Rz(t1) Rx(alpha1) Rz(t2 + t3) Rx(alpha3)`` (alpha2 = 0)."""
+    return _rz_rx(t1, L[0].alpha) @ _rz_rx(t23, L[2].alpha)
+
+
+def _wrist(M: Array, sigma: float, tau: float) -> tuple[tuple[Array, Array, Array], ...]:
+    """Both ``(theta4, theta5, theta6)`` with ``M = Rz(t4) Ry(sigma t5) Rz(tau t6)``."""
+    m13, m23, m33 = M[:, 0, 2], M[:, 1, 2], M[:, 2, 2]
+    m31, m32 = M[:, 2, 0], M[:, 2, 1]
+    sn = np.hypot(m13, m23)
+    lock = sn < 1e-12
+    up = np.arctan2(M[:, 1, 0], M[:, 0, 0])              # M = Rz(t4 + psi), cos = 1
+    down = -np.arctan2(-M[:, 1, 0], -M[:, 0, 0])         # M = Rz(t4 - psi) Ry(pi)
+    psi_lock = np.where(m33 > 0, up, down)
+    out = []
+    for sgn in (1.0, -1.0):
+        th = np.arctan2(sgn * sn, m33)
+        phi = np.where(lock, 0.0, np.arctan2(sgn * m23, sgn * m13))
+        psi = np.where(lock, psi_lock, np.arctan2(sgn * m32, -sgn * m31))
+        out.append((phi, sigma * th, tau * psi))
+    return tuple(out)
+
+
+def spherical_wrist_angles(L: list[DHLink], T: Array) -> tuple[Array, Array]:
+    """DH angles ``theta`` (N, 8, 6) and ``reachable`` (N, 8) of a 6R arm with a spherical
+    wrist (the family and derivation of :mod:`kincal.motion.ik_wrist`) for targets T
+    (N, 4, 4) of the frame after ``Tz(d6)`` (:func:`_strip_frames`).
+
+    Branch order: shoulder (``a1 + u > 0``, ``< 0``) x elbow (``+acos``, ``-acos``) x
+    wrist (the two signs of the ZYZ middle angle).
+    """
     N = T.shape[0]
-    d1, a2, a3, d4, d6 = L[0].d, L[1].a, L[2].a, L[3].d, L[5].d
+    s1 = float(np.sin(L[0].alpha))
+    a1, d1, a2, a3, d6 = L[0].a, L[0].d, L[1].a, L[2].a, L[5].d
+    e = -float(np.sin(L[2].alpha)) * L[3].d
     w = L[1].d + L[2].d
+    sigma = -float(np.sin(L[3].alpha))
+    tau = float(np.round(np.cos(L[3].alpha + L[4].alpha)))
     R = T[:, :3, :3]
     pw = T[:, :3, 3] - d6 * R[:, :, 2]
     rho = np.hypot(pw[:, 0], pw[:, 1])
     phi = np.arctan2(pw[:, 1], pw[:, 0])
     ok_sh = rho >= abs(w)
     with np.errstate(invalid="ignore", divide="ignore"):
-        asn = np.arcsin(np.clip(w / np.where(rho > 0, rho, np.inf), -1, 1))
+        asn = np.arcsin(np.clip(s1 * w / np.where(rho > 0, rho, np.inf), -1, 1))
     root = np.sqrt(np.maximum(rho**2 - w**2, 0.0))
-    v = pw[:, 2] - d1
+    v = s1 * (pw[:, 2] - d1)
     theta = np.zeros((N, 8, 6))
     reach = np.zeros((N, 8), bool)
-    r3 = np.hypot(a3, d4)
-    beta = np.arctan2(d4, a3)
-    for s, (t1, u) in enumerate(((phi + asn, root), (phi + np.pi - asn, -root))):
-        K = (u**2 + v**2 - a2**2 - a3**2 - d4**2) / (2 * a2)
+    r3 = np.hypot(a3, e)
+    beta = np.arctan2(e, a3)
+    post = rotx(L[3].alpha + L[4].alpha).T
+    for s, (t1, r) in enumerate(((phi + asn, root), (phi + np.pi - asn, -root))):
+        u = r - a1
+        K = (u**2 + v**2 - a2**2 - a3**2 - e**2) / (2 * a2)
         ok_el = ok_sh & (np.abs(K) <= r3 * (1 + 1e-12))
         ac = np.arccos(np.clip(K / r3, -1, 1))
         for el, t3 in enumerate((-beta + ac, -beta - ac)):
             c3, s3 = np.cos(t3), np.sin(t3)
-            X, Y = a2 + a3 * c3 - d4 * s3, a3 * s3 + d4 * c3
+            X, Y = a2 + a3 * c3 - e * s3, a3 * s3 + e * c3
             t2 = np.arctan2(v, u) - np.arctan2(Y, X)
-            R36 = np.swapaxes(_r03(t1, t2, t3), 1, 2) @ R
-            for fl, (t4, t5, t6) in enumerate(_wrist(R36)):
+            M = np.swapaxes(_r03(L, t1, t2 + t3), 1, 2) @ R @ post
+            for fl, (t4, t5, t6) in enumerate(_wrist(M, sigma, tau)):
                 b = 4 * s + 2 * el + fl
                 theta[:, b] = np.stack([t1, t2, t3, t4, t5, t6], 1)
                 reach[:, b] = ok_el
-    return _finish(robot, theta, reach, L, PUMA_BRANCHES)
-
-
-def _r03(t1: Array, t2: Array, t3: Array) -> Array:
-    """Rotation of frame 3: ``Rz(t1) Rx(90) Rz(t2 + t3) Rx(-90)`` (alpha2 = 0)."""
-    c1, s1, c23, s23 = np.cos(t1), np.sin(t1), np.cos(t2 + t3), np.sin(t2 + t3)
-    z = np.zeros_like(c1)
-    # Rz(t1) Rx(90) = [[c1, 0, s1], [s1, 0, -c1], [0, 1, 0]]
-    # Rz(t23) Rx(-90) = [[c23, 0, -s23], [s23, 0, c23], [0, -1, 0]]
-    A = np.stack([np.stack([c1, z, s1], -1), np.stack([s1, z, -c1], -1),
-                  np.stack([z, z + 1, z], -1)], -2)
-    B = np.stack([np.stack([c23, z, -s23], -1), np.stack([s23, z, c23], -1),
-                  np.stack([z, z - 1, z], -1)], -2)
-    return A @ B
-
-
-def _wrist(R36: Array) -> tuple[tuple[Array, Array, Array], ...]:
-    """Both solutions of ``R36 = Rz(t4) Ry(-t5) Rz(t6)``: (t4, t5, t6) for s5 >= 0, s5 < 0."""
-    r13, r23, r33 = R36[:, 0, 2], R36[:, 1, 2], R36[:, 2, 2]
-    r31, r32 = R36[:, 2, 0], R36[:, 2, 1]
-    sn = np.hypot(r13, r23)
-    lock = sn < 1e-12
-    # In the lock, R36 = Rz(t4 + t6) (c5 = 1) or Rz(t4 - t6) Ry(pi) (c5 = -1); take t4 = 0.
-    g_up = np.arctan2(R36[:, 1, 0], R36[:, 0, 0])
-    g_dn = np.arctan2(-R36[:, 0, 1], R36[:, 1, 1])
-    t6_lock = np.where(r33 > 0, g_up, -g_dn)
-    out = []
-    for sgn in (1.0, -1.0):
-        t5 = np.arctan2(sgn * sn, r33)
-        t4 = np.where(lock, 0.0, np.arctan2(-sgn * r23, -sgn * r13))
-        t6 = np.where(lock, t6_lock, np.arctan2(-sgn * r32, sgn * r31))
-        out.append((t4, t5, t6))
-    return tuple(out)
+    return theta, reach
 
 
 # ---------------------------------------------------------------------------

@@ -41,17 +41,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.motion.ik_closed_form import (
     ClosedFormSolutions,
-    NotThisFamily,
     _dh_table,
     _finish,
     _is,
     _poses,
     _require,
     _strip_frames,
+    spherical_wrist_angles,
 )
 from kincal.robots.chain import Robot
 from kincal.robots.dh import DHLink
-from kincal.spatial import rotx, rotz
 
 Array = NDArray[np.float64]
 
@@ -76,28 +75,6 @@ def check_wrist_family(robot: Robot) -> list[DHLink]:
     return L
 
 
-def _r03(L: list[DHLink], t1: Array, t23: Array) -> Array:
-    return rotz(t1) @ rotx(L[0].alpha) @ rotz(t23) @ rotx(L[2].alpha)
-
-
-def _wrist(M: Array, sigma: float, tau: float) -> tuple[tuple[Array, Array, Array], ...]:
-    """Both ``(theta4, theta5, theta6)`` with ``M = Rz(t4) Ry(sigma t5) Rz(tau t6)``."""
-    m13, m23, m33 = M[:, 0, 2], M[:, 1, 2], M[:, 2, 2]
-    m31, m32 = M[:, 2, 0], M[:, 2, 1]
-    sn = np.hypot(m13, m23)
-    lock = sn < 1e-12
-    up = np.arctan2(M[:, 1, 0], M[:, 0, 0])              # M = Rz(t4 + psi), cos = 1
-    down = -np.arctan2(-M[:, 1, 0], -M[:, 0, 0])         # M = Rz(t4 - psi) Ry(pi)
-    psi_lock = np.where(m33 > 0, up, down)
-    out = []
-    for sgn in (1.0, -1.0):
-        th = np.arctan2(sgn * sn, m33)
-        phi = np.where(lock, 0.0, np.arctan2(sgn * m23, sgn * m13))
-        psi = np.where(lock, psi_lock, np.arctan2(sgn * m32, -sgn * m31))
-        out.append((phi, sigma * th, tau * psi))
-    return tuple(out)
-
-
 def ik_spherical_wrist(robot: Robot, targets: ArrayLike) -> ClosedFormSolutions:
     """All 8 closed-form solutions for poses (N, 4, 4) [m]; branches :data:`WRIST_BRANCHES`.
 
@@ -106,42 +83,7 @@ def ik_spherical_wrist(robot: Robot, targets: ArrayLike) -> ClosedFormSolutions:
     wrapped to (-pi, pi] or moved by 2 pi into the joint limits where that fits.
     """
     L = check_wrist_family(robot)
-    T = _strip_frames(robot, _poses(targets), L[5])
-    N = T.shape[0]
-    s1 = float(np.sin(L[0].alpha))
-    a1, d1, a2, a3, d6 = L[0].a, L[0].d, L[1].a, L[2].a, L[5].d
-    e = -float(np.sin(L[2].alpha)) * L[3].d
-    w = L[1].d + L[2].d
-    sigma = -float(np.sin(L[3].alpha))
-    tau = float(np.round(np.cos(L[3].alpha + L[4].alpha)))
-    R = T[:, :3, :3]
-    pw = T[:, :3, 3] - d6 * R[:, :, 2]
-    rho = np.hypot(pw[:, 0], pw[:, 1])
-    phi = np.arctan2(pw[:, 1], pw[:, 0])
-    ok_sh = rho >= abs(w)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        asn = np.arcsin(np.clip(s1 * w / np.where(rho > 0, rho, np.inf), -1, 1))
-    root = np.sqrt(np.maximum(rho**2 - w**2, 0.0))
-    v = s1 * (pw[:, 2] - d1)
-    theta = np.zeros((N, 8, 6))
-    reach = np.zeros((N, 8), bool)
-    r3 = np.hypot(a3, e)
-    beta = np.arctan2(e, a3)
-    post = rotx(L[3].alpha + L[4].alpha).T
-    for s, (t1, r) in enumerate(((phi + asn, root), (phi + np.pi - asn, -root))):
-        u = r - a1
-        K = (u**2 + v**2 - a2**2 - a3**2 - e**2) / (2 * a2)
-        ok_el = ok_sh & (np.abs(K) <= r3 * (1 + 1e-12))
-        ac = np.arccos(np.clip(K / r3, -1, 1))
-        for el, t3 in enumerate((-beta + ac, -beta - ac)):
-            c3, s3 = np.cos(t3), np.sin(t3)
-            X, Y = a2 + a3 * c3 - e * s3, a3 * s3 + e * c3
-            t2 = np.arctan2(v, u) - np.arctan2(Y, X)
-            M = np.swapaxes(_r03(L, t1, t2 + t3), 1, 2) @ R @ post
-            for fl, (t4, t5, t6) in enumerate(_wrist(M, sigma, tau)):
-                b = 4 * s + 2 * el + fl
-                theta[:, b] = np.stack([t1, t2, t3, t4, t5, t6], 1)
-                reach[:, b] = ok_el
+    theta, reach = spherical_wrist_angles(L, _strip_frames(robot, _poses(targets), L[5]))
     return _finish(robot, theta, reach, L, WRIST_BRANCHES)
 
 
@@ -153,10 +95,7 @@ def arm_indicators(robot: Robot, q: ArrayLike) -> Array:
     (times the upper-arm length's sign), and the wrist flip.  Each is 0 at its
     singularity (wrist centre on axis 1, arm stretched or folded, axes 4 and 6 aligned).
     """
-    try:
-        L = check_wrist_family(robot)
-    except NotThisFamily:
-        raise
+    L = check_wrist_family(robot)
     qq = np.atleast_2d(np.asarray(q, dtype=float))
     th = qq + np.array([link.theta_offset for link in L])
     e = -float(np.sin(L[2].alpha)) * L[3].d
