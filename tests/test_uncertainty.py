@@ -149,3 +149,14 @@ def test_validation_protocols():
                      "max_position_m": 4.0, "n": 2}
     cv = cross_validate(robot, train, folds=4, rng=np.random.default_rng(0))
     assert len(cv["folds"]) == 4 and cv["rms_position_m"] < 3 * np.sqrt(3) * 1e-5
+
+
+def test_propagated_variance_is_the_trace_of_the_propagated_covariance():
+    from kincal.identify.uncertainty import propagated_variance
+
+    rng = np.random.default_rng(3)
+    G = rng.normal(size=(4, 2, 3, 5))
+    A = rng.normal(size=(5, 5))
+    C = A @ A.T
+    want = np.array([[np.trace(G[a, b] @ C @ G[a, b].T) for b in range(2)] for a in range(4)])
+    assert np.allclose(propagated_variance(G, C), want, rtol=1e-12, atol=0)

@@ -55,6 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.identify.solver import CalibrationResult
+from kincal.identify.uncertainty import propagated_variance
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
 from kincal.robots.chain import Robot
 
@@ -136,7 +137,7 @@ def predicted_position_std(result: CalibrationResult, q_eval: ArrayLike,
     """
     G = _position_jacobian(result, q_eval, point, block)
     C = result.covariance
-    return np.sqrt(np.clip(np.einsum("mip,pq,miq->m", G, C, G), 0.0, None))
+    return np.sqrt(np.clip(propagated_variance(G, C), 0.0, None))
 
 
 def predicted_rms(result: CalibrationResult, q_eval: ArrayLike, block: str | None = None,
@@ -531,13 +532,13 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
     a = R @ m
     G = J[:, :3, :] - np.cross(a[:, :, None], J[:, 3:, :], axis=1)
     C = model.covariance
-    var = np.einsum("nip,pq,niq->n", G, C, G)
+    var = propagated_variance(G, C)
     if not known:
         Cpp = model.point_covariance
         Crp = model.cross_covariance if model.cross_covariance is not None else \
             np.zeros((len(model.parameters), 3))
-        var = var + np.einsum("nij,jk,nik->n", R, Cpp, R) \
-            + 2.0 * np.einsum("nip,pk,nik->n", G, Crp, R)
+        var = var + propagated_variance(R, Cpp) \
+            + 2.0 * np.einsum("nik,nik->n", G @ Crp, R)
     std = np.sqrt(np.clip(var, 0.0, None))
     std_tcp = std
     y = None
@@ -545,7 +546,7 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
     if not known and inst is not None:
         std, y = _instrument_std(inst, robot, q)
     Jw = J[:, 3:, :]
-    std_w = np.sqrt(np.clip(np.einsum("nip,pq,niq->n", Jw, C, Jw), 0.0, None))
+    std_w = np.sqrt(np.clip(propagated_variance(Jw, C), 0.0, None))
     P = T[:, :3, 3] + a
     floor = float(model.floor_m)
     reg = model.region
@@ -593,6 +594,5 @@ def _instrument_std(inst: Mapping[str, Any], robot: Robot, q: Array) -> tuple[Ar
             raise KincalError(f"predicted accuracy: no parameter {n!r} in robot "
                               f"{robot.name!r} or instrument {name!r}")
     G = np.stack(cols, axis=1).reshape(len(q), 3, -1) if cols else np.zeros((len(q), 3, 0))
-    C = np.asarray(inst["covariance"], dtype=float)
-    var = np.einsum("nip,pq,niq->n", G, C, G)
+    var = propagated_variance(G, inst["covariance"])
     return np.sqrt(np.clip(var, 0.0, None)), r.reshape(len(q), 3)

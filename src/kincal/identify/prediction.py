@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.identify.observability import DesignProblem
-from kincal.identify.uncertainty import inverse_normal_matrix
+from kincal.identify.uncertainty import inverse_normal_matrix, propagated_variance
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -212,18 +212,18 @@ def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike,
         frame = "instrument"
         if problem.kind == "pose":
             Go = G[:, 3:6] * ((problem.sigma_orientation or 1.0) / problem.sigma)
-            ori = np.sqrt(np.clip(np.einsum("eip,pq,eiq->e", Go, cov, Go), 0.0, None))
+            ori = np.sqrt(np.clip(propagated_variance(Go, cov), 0.0, None))
             G = G[:, :3]
         E = len(q_eval)
         G = G.reshape(E, -1, 3, L)                              # (E, K, 3, L)
-        var = np.einsum("ekip,pq,ekiq->ek", G, cov, G).mean(axis=1)
+        var = propagated_variance(G, cov).mean(axis=1)
     else:
         robot = problem.robot
         idx = [i for i, n in enumerate(problem.names) if n in robot.param_names]
         Jp = robot.param_jacobian(q_eval, [problem.names[i] for i in idx])
         G = Jp[:, :3] + np.cross(Jp[:, 3:], (T[:, :3, :3] @ marker)[:, :, None], axis=1)
         C = cov[np.ix_(idx, idx)]
-        var = np.einsum("eip,pq,eiq->e", G, C, G)
+        var = propagated_variance(G, C)
         frame = "base"
     std = np.sqrt(np.clip(var, 0.0, None))
     return AccuracyPrediction(list(problem.names), list(problem.units), cov,

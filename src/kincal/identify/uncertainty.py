@@ -28,7 +28,7 @@ from kincal.measure.base import svd_thin
 Array = NDArray[np.float64]
 
 __all__ = ["covariance", "standard_errors", "correlation", "cramer_rao",
-           "inverse_normal_matrix"]
+           "inverse_normal_matrix", "propagated_variance"]
 
 
 def inverse_normal_matrix(J: ArrayLike, rcond: float = 1e-12) -> Array:
@@ -77,3 +77,14 @@ def correlation(cov: ArrayLike) -> Array:
     C = np.where(np.outer(s, s) > 0, C, 0.0)
     np.fill_diagonal(C, np.where(s > 0, 1.0, 0.0))
     return C
+
+
+def propagated_variance(G: ArrayLike, cov: ArrayLike) -> Array:
+    """``trace(G_n C G_n^T)`` for every leading index ``n``: the summed variance of the
+    quantities ``y_n = G_n theta`` (``G`` (..., r, p), ``C`` (p, p)) -> (...).
+
+    One matrix product ``G C`` and a row-wise dot, ``sum_iq (G C)_iq G_iq``: a three-way
+    ``einsum`` of the same sum is evaluated term by term, several times slower.
+    """
+    G = np.asarray(G, dtype=float)
+    return np.einsum("...ip,...ip->...", G @ np.asarray(cov, dtype=float), G)
