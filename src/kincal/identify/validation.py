@@ -280,12 +280,12 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     except KincalError as exc:
         return FoldResult(spec.candidate, spec.fold, {}, False, False, f"failed: {exc}")
     errors: dict[str, list[Array]] = {}
+    extras = res.extras()
     for b, u in zip(spec.blocks, spec.test, strict=True):
         if u is None:
             continue
         held = _subset(b, u)
-        v = validate(res.robot, [held], extras=res.extras())
-        e = np.array([v["extras"][held.name][n] for n in held.parameters().names])
+        e = _parameters_of(res.robot, held, extras, 0, True)     # as validate() takes them
         for k, x in held.errors(res.robot, e).items():
             errors.setdefault(k, []).append(np.ravel(np.asarray(x, dtype=float)))
     verdict = judge(res, spec.tolerances)
