@@ -35,7 +35,7 @@ from kincal.identify.design import (
     select_poses,
 )
 from kincal.identify.observability import DEFAULT_MARKER, design_problem
-from kincal.identify.prediction import predict_accuracy, workspace_grid
+from kincal.identify.prediction import evaluation_rows, predict_accuracy, workspace_grid
 from kincal.robots.chain import Robot
 
 __all__ = ["Plan", "plan_poses", "RANDOM_DESIGNS"]
@@ -153,11 +153,12 @@ def plan_poses(robot: Robot, *, instrument: str = "position", poses: int = 30,
     design = select_poses(problem, poses, criterion, min_distance=min_distance,
                           exchange=exchange, progress=progress)
     q_eval = workspace_grid(robot, grid, margin=0.1)
-    pred = predict_accuracy(problem, design, q_eval)
+    ev = evaluation_rows(problem, q_eval)          # the grid's rows: the same for every design
+    pred = predict_accuracy(problem, design, ev)
     rnd, rms, preds = [], [], []
     for _ in range(RANDOM_DESIGNS):
         d = random_design(problem, poses, rng, min_distance=min_distance)
-        p = predict_accuracy(problem, d, q_eval)
+        p = predict_accuracy(problem, d, ev)
         rnd.append(d)
         rms.append(p.rms)
         preds.append(p)

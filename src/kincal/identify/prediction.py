@@ -46,7 +46,8 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["AccuracyPrediction", "predict_accuracy", "workspace_grid", "prediction_figure"]
+__all__ = ["AccuracyPrediction", "predict_accuracy", "workspace_grid", "prediction_figure",
+           "EvaluationRows", "evaluation_rows"]
 
 #: Largest number of configurations :func:`workspace_grid` builds.
 MAX_GRID = 50_000
@@ -178,7 +179,53 @@ def _row_weights(problem: DesignProblem, r: int, noise: float | None,
     return w
 
 
-def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike,
+@dataclass(frozen=True)
+class EvaluationRows:
+    """What :func:`predict_accuracy` needs of the evaluation configurations, whatever the
+    design (:func:`evaluation_rows`; one for many designs of one problem).
+
+    Attributes:
+        q: (E, n) the configurations; ``points``: (E, 3) the measured point there [m].
+        G: ``d y / d theta`` [m per parameter unit]: (E, K, 3, L) in the instrument frame,
+            or (E, 3, L_r) in the base frame over the robot parameters ``columns``.
+        Go: (E, 3, L) the orientation rows [rad per unit] (pose instruments), else None.
+        frame: ``"instrument"`` or ``"base"``.
+        columns: base frame: the robot parameters' indices among the problem's names.
+    """
+
+    q: Array
+    points: Array
+    G: Array
+    Go: Array | None
+    frame: str
+    columns: NDArray[np.intp] | None = None
+
+
+def evaluation_rows(problem: DesignProblem, q_eval: ArrayLike) -> EvaluationRows:
+    """The :class:`EvaluationRows` of ``problem`` at the configurations ``q_eval``."""
+    q_eval = np.atleast_2d(np.asarray(q_eval, dtype=float))
+    if q_eval.shape[1] != problem.robot.n:
+        raise KincalError(f"evaluation configurations must have {problem.robot.n} joint values")
+    T = problem.robot.fk(q_eval)
+    marker = np.asarray(problem.meta.get("marker", [[0.0, 0.0, 0.0]]), dtype=float)[0]
+    points = T[:, :3, 3] + T[:, :3, :3] @ marker
+    if problem.rows_for is not None:
+        G = problem.base_rows(q_eval) * problem.sigma          # [m per parameter unit]
+        Go = None
+        if problem.kind == "pose":
+            Go = G[:, 3:6] * ((problem.sigma_orientation or 1.0) / problem.sigma)
+            G = G[:, :3]
+        E, L = len(q_eval), G.shape[-1]
+        return EvaluationRows(q_eval, points, G.reshape(E, -1, 3, L), Go, "instrument")
+    robot = problem.robot
+    idx = np.array([i for i, n in enumerate(problem.names) if n in robot.param_names],
+                   dtype=np.intp)
+    Jp = robot.param_jacobian(q_eval, [problem.names[i] for i in idx])
+    G = Jp[:, :3] + np.cross(Jp[:, 3:], (T[:, :3, :3] @ marker)[:, :, None], axis=1)
+    return EvaluationRows(q_eval, points, G, None, "base", idx)
+
+
+def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike | EvaluationRows,
                      noise: float | None = None, orientation_noise: float | None = None
                      ) -> AccuracyPrediction:
     """Predict the parameter covariance and the position error after calibration.
@@ -187,7 +234,8 @@ def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike,
         problem: the design problem (base set, instrument, stated noise).
         poses: a :class:`~kincal.identify.design.PoseDesign`, candidate indices, or
             (m, n) configurations (position / pose designs only).
-        q_eval: (E, n) evaluation configurations, e.g. :func:`workspace_grid`.
+        q_eval: (E, n) evaluation configurations, e.g. :func:`workspace_grid`, or their
+            :func:`evaluation_rows` (made once for many designs).
         noise: position noise (std per coordinate) [m]; default the problem's.
         orientation_noise: pose instruments: rotation noise per component [rad].
 
@@ -200,36 +248,19 @@ def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike,
     m, r, L = J.shape
     Jw = (J * _row_weights(problem, r, noise, orientation_noise)[:, None]).reshape(m * r, L)
     cov = inverse_normal_matrix(Jw)
-    q_eval = np.atleast_2d(np.asarray(q_eval, dtype=float))
-    if q_eval.shape[1] != problem.robot.n:
-        raise KincalError(f"evaluation configurations must have {problem.robot.n} joint values")
-    T = problem.robot.fk(q_eval)
-    marker = np.asarray(problem.meta.get("marker", [[0.0, 0.0, 0.0]]), dtype=float)[0]
-    points = T[:, :3, 3] + T[:, :3, :3] @ marker
+    ev = q_eval if isinstance(q_eval, EvaluationRows) else evaluation_rows(problem, q_eval)
     ori = None
-    if problem.rows_for is not None:
-        G = problem.base_rows(q_eval) * problem.sigma          # [m per parameter unit]
-        frame = "instrument"
-        if problem.kind == "pose":
-            Go = G[:, 3:6] * ((problem.sigma_orientation or 1.0) / problem.sigma)
-            ori = np.sqrt(np.clip(propagated_variance(Go, cov), 0.0, None))
-            G = G[:, :3]
-        E = len(q_eval)
-        G = G.reshape(E, -1, 3, L)                              # (E, K, 3, L)
-        var = propagated_variance(G, cov).mean(axis=1)
+    if ev.frame == "instrument":
+        if ev.Go is not None:
+            ori = np.sqrt(np.clip(propagated_variance(ev.Go, cov), 0.0, None))
+        var = propagated_variance(ev.G, cov).mean(axis=1)
     else:
-        robot = problem.robot
-        idx = [i for i, n in enumerate(problem.names) if n in robot.param_names]
-        Jp = robot.param_jacobian(q_eval, [problem.names[i] for i in idx])
-        G = Jp[:, :3] + np.cross(Jp[:, 3:], (T[:, :3, :3] @ marker)[:, :, None], axis=1)
-        C = cov[np.ix_(idx, idx)]
-        var = propagated_variance(G, C)
-        frame = "base"
+        var = propagated_variance(ev.G, cov[np.ix_(ev.columns, ev.columns)])
     std = np.sqrt(np.clip(var, 0.0, None))
     return AccuracyPrediction(list(problem.names), list(problem.units), cov,
-                              np.sqrt(np.clip(np.diag(cov), 0.0, None)), q_eval, points, std,
+                              np.sqrt(np.clip(np.diag(cov), 0.0, None)), ev.q, ev.points, std,
                               ori, float(noise if noise is not None else problem.sigma), m,
-                              frame)
+                              ev.frame)
 
 
 def prediction_figure(pred: AccuracyPrediction, baseline: AccuracyPrediction | None = None,
