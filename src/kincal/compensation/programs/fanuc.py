@@ -33,7 +33,6 @@ from kincal.compensation.programs.base import (
 JOINT_KEYS = ("j1", "j2", "j3", "j4", "j5", "j6")
 _POINT = re.compile(r"^P\[(\d+)(?:\s*:\s*\"([^\"]*)\")?\]\s*\{", re.MULTILINE)
 _GROUP = re.compile(r"\bGP(\d+)\s*:")
-_NUMTXT = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
 _CART = re.compile(r"\b([XYZWPR])\s*=\s*(\S+)\s*(mm|deg)\b")
 _JOINT = re.compile(r"\bJ([1-9])\s*=\s*(\S+)\s*(mm|deg)\b")
 _UF = re.compile(r"\bUF\s*:\s*(\d+)")

@@ -37,6 +37,7 @@ from kincal.compensation.programs.base import (
     position,
     read_program_text,
 )
+from kincal.compensation.programs.numbers import NUMBER
 from kincal.spatial import homogeneous, quat_to_matrix
 
 JOINT_KEYS = ("j1", "j2", "j3", "j4", "j5", "j6")
@@ -44,7 +45,6 @@ _DECL = re.compile(r"(?:\b(?:LOCAL|TASK)\s+)?\b(CONST|PERS|VAR)\s+(robtarget|joi
                    r"wobjdata)\s+([A-Za-z]\w*)\s*:=\s*", re.IGNORECASE)
 _MOVE = re.compile(r"\b(MoveJ|MoveL|MoveC|MoveAbsJ|MoveJDO|MoveLDO|MoveCDO|MoveJSync|MoveLSync|"
                    r"MoveCSync|TriggJ|TriggL|TriggC|MoveExtJ)\b\s*", re.IGNORECASE)
-_NUM_ATOM = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
 
 
 def code_of(text: str) -> str:
@@ -92,7 +92,7 @@ def parse_list(path: str, text: str, code: str, start: int) -> tuple[Any, int]:
             items.append(code[pos:end + 1])
             pos = end + 1
         else:
-            m = _NUM_ATOM.match(code, pos)
+            m = NUMBER.match(code, pos)
             if m is not None:
                 items.append(number_slot(path, text, m.start(), m.end(), "value"))
                 pos = m.end()
