@@ -130,10 +130,10 @@ class Configurator:
                          np.where(a5 < 0, -1.0, 1.0)], 1)
 
     def margins(self, q: Array) -> Array:
-        """(N, 3) distances to the three singularities: ``|a1 + u|`` [m], ``|Y| / |a2|``
-        (the sine of the elbow's angle from stretched), ``|sin theta5|``."""
-        ind = np.abs(arm_indicators(self.robot, q))
-        return ind
+        """(N, 3) distances to the three singularities: ``|a1 + u|`` [m], ``|Y|`` [m]
+        (``|Y| / |(a3, e)|`` is the sine of the elbow's angle from stretched or folded),
+        ``|sin theta5|`` (:func:`~kincal.motion.ik_wrist.arm_indicators`)."""
+        return np.abs(arm_indicators(self.robot, q))
 
     def select(self, candidates: Array, valid: NDArray[np.bool_],
                confs: list[Configuration | None]) -> tuple[Array, NDArray[np.bool_]]:
