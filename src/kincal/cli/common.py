@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -99,11 +98,3 @@ def matrix_table(M: np.ndarray, title: str, row_labels: list[str] | None = None,
         t.add_row(*(([row_labels[i]] if row_labels else []) + cells))
     return t
 
-
-def fmt_value(value: float, unit: str) -> str:
-    """Human display of a parameter value: metres as mm, radians with degrees."""
-    if unit == "m":
-        return f"{value * 1e3:.4f} mm"
-    if unit == "rad":
-        return f"{value:.6f} rad ({math.degrees(value):.4f}°)"
-    return f"{value:g} {unit}"
