@@ -18,13 +18,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli import options as _options
-from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink re-exported)
+from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink, is_fivebar re-exported)
     BaseLink,
     JsonOut,
     RobotArg,
     TipLink,
     console,
     err_console,
+    is_fivebar,
 )
 from kincal.cli.options import console_quantity
 from kincal.errors import KincalError
@@ -109,10 +110,6 @@ def print_cross_validation(out: Any, cv: dict[str, Any]) -> None:
             out.print(f"{cv['folds']}-fold cross-validation on the training file (seed "
                       f"{cv['seed']}, split by {cv['split']}): RMS {escape(name)} "
                       f"{v * f:.4g} {escape(unit)} on held-out folds")
-
-
-def is_fivebar(robot: Any) -> bool:
-    return type(robot).__name__ == "FiveBar"
 
 
 def serial(robot: Any, command: str) -> Any:

@@ -54,6 +54,11 @@ def _is_float(s: str) -> bool:
         return False
 
 
+def is_fivebar(robot: Any) -> bool:
+    """Whether ``robot`` is the five-bar parallel robot (its commands differ)."""
+    return type(robot).__name__ == "FiveBar"
+
+
 def robot_arg(spec: str, base_link: str | None = None, tip_link: str | None = None) -> Any:
     """Load ROBOT (library name, YAML or URDF path) for a command."""
     from kincal.workflow.robots import load_any_robot

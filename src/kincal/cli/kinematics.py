@@ -17,21 +17,16 @@ from kincal.cli.common import (
     TipLink,
     console,
     err_console,
+    is_fivebar,
     joint_vector,
     matrix_table,
     robot_arg,
 )
-from kincal.cli.options import SiOpt, Units
+from kincal.cli.options import DegOpt, SiOpt, Units
 from kincal.io import write_json
 
 QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: rad for revolute, "
                                    "m for prismatic joints (see --deg).")]
-DegOpt = Annotated[bool, typer.Option("--deg", help="Revolute joint values are in degrees "
-                                      "(prismatic stay in metres).")]
-
-
-def _is_fivebar(robot: object) -> bool:
-    return type(robot).__name__ == "FiveBar"
 
 
 @app.command()
@@ -46,7 +41,7 @@ def robots(json_out: JsonOut = None) -> None:
     rows = []
     for name in library_names():
         r = load_any_robot(name)
-        if _is_fivebar(r):
+        if is_fivebar(r):
             kinds, conv = "2 actuated", "fivebar"
         else:
             kinds = "".join("R" if j.kind == "revolute" else "P" for j in r.joints)
@@ -96,7 +91,7 @@ def show(robot: RobotArg, base_link: BaseLink = None, tip_link: TipLink = None,
     """Show a robot's joints and its named parameters with units (mm and degrees; --si: m
     and rad), where its numbers come from, and its notes."""
     r = robot_arg(robot, base_link, tip_link)
-    if _is_fivebar(r):
+    if is_fivebar(r):
         from kincal.cli.fivebar import show_fivebar
 
         show_fivebar(r, console if json_out != "-" else err_console, Units(si), json_out)
@@ -122,7 +117,7 @@ def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, si: SiOpt = False,
     import numpy as np
 
     r = robot_arg(robot, base_link, tip_link)
-    if _is_fivebar(r):
+    if is_fivebar(r):
         from kincal.cli.fivebar import fk_fivebar
 
         fk_fivebar(r, joint_vector(r, q, deg), json_out)

@@ -24,6 +24,7 @@ from kincal.cli.common import (
     RobotArg,
     console,
     err_console,
+    is_fivebar,
     joint_vector,
     parse_vector,
     point_vector,
@@ -88,7 +89,7 @@ def ik(robot: RobotArg,
     import numpy as np
 
     r = robot_arg(robot)
-    if type(r).__name__ == "FiveBar":
+    if is_fivebar(r):
         if position is None:
             raise KincalError("a five-bar takes --position x,y")
         from kincal.cli.fivebar import ik_fivebar
@@ -371,7 +372,7 @@ def clik_command(
     if g.size not in (1, 3):
         raise KincalError("option --gain: give 1 or 3 values")
     r = robot_arg(robot)
-    if type(r).__name__ == "FiveBar":
+    if is_fivebar(r):
         raise KincalError("`kincal clik` works on serial robots")
     q0 = joint_vector(r, start, deg, "--start")
     p_end = point_vector(end_position, "--end-position", ["length"] * 3)
