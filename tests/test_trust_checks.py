@@ -197,3 +197,13 @@ def test_default_calibration_of_the_narrow_file_names_what_the_prior_holds(narro
     doc = json.loads(j.read_text())
     assert doc["verdict"]["trusted"] and len(doc["held_by_prior"]) == 3
     assert doc["held_by_prior"][0]["joint"] == "q5"
+
+
+def test_the_weak_parameter_table_follows_si(narrow_file, capsys, tmp_path):
+    """--si prints the prior-held table in m and rad like every other table of calibrate."""
+    code, stdout, err = run(capsys, "calibrate", "puma560", "--data", narrow_file, "--si",
+                            "-o", tmp_path / "cal.yaml")
+    assert code == 0, err
+    text = " ".join(stdout.split())
+    assert "(moves 0.0167" in text and "3.49 rad)" in text        # q5's 0.957 of 200 deg
+    assert "0.957" not in text and " deg" not in text

@@ -397,13 +397,13 @@ def print_weak(out: Console, weak: Sequence[Any]) -> None:
                      overflow="fold")
 
     def show(v: float, unit: str) -> str:
-        f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(unit, (1.0, unit))
+        f, u = _options.CONSOLE.scale(unit)
         return f"{v * f:.3g} {u}" if math.isfinite(v) else "-"
 
     for w in weak:
         if w.joint is not None and w.joint_range is not None:
             have, full = w.joint_range
-            f, u = (180 / math.pi, "deg") if w.joint_kind == "revolute" else (1e3, "mm")
+            f, u = _options.CONSOLE.scale("rad" if w.joint_kind == "revolute" else "m")
             how = (f"{w.joint} over its range (moves {have * f:.3g} of {full * f:.3g} {u}): "
                    f"{show(w.with_joint or math.nan, w.unit)}")
         elif w.partner is not None:
