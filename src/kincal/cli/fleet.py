@@ -22,6 +22,7 @@ from rich.table import Table
 from kincal.cli.app import app
 from kincal.cli.calibration_common import JsonOpt, out_console
 from kincal.cli.common import err_console
+from kincal.cli.options import SeedOpt
 from kincal.errors import KincalError
 
 fleet_app = typer.Typer(
@@ -206,7 +207,7 @@ def simulate_cmd(
                                        "YYYY-MM-DD.")] = "2026-01-05",
     interval: Annotated[int, typer.Option("--interval", min=1, help="Days between "
                                           "sessions.")] = 91,
-    seed: Annotated[int, typer.Option("--seed", min=0, help="Random seed.")] = 0,
+    seed: SeedOpt = 0,
     json_out: JsonOpt = None,
 ) -> None:
     """Write a simulated fleet of ROBOT: each robot with its own errors, measured by a
