@@ -24,7 +24,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.common import console, err_console, parse_vector, point_vector, robot_arg
+from kincal.cli.common import (
+    RobotArg,
+    console,
+    err_console,
+    parse_vector,
+    point_vector,
+    robot_arg,
+)
 from kincal.cli.options import SeedOpt, SiOpt, legacy_quantity, use_si
 from kincal.errors import KincalError
 
@@ -213,8 +220,7 @@ class _Bar:
 
 @app.command()
 def plan(
-    robot: Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or a "
-                                         "path to a YAML or URDF robot file.")],
+    robot: RobotArg,
     output: Annotated[str, typer.Option("-o", "--output", help="CSV of the selected poses "
                                         "(columns named as the robot's joints with units, "
                                         "e.g. q1_rad).")],

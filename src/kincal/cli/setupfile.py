@@ -22,7 +22,7 @@ from typing import Annotated, Any
 import typer
 
 from kincal.cli.app import app
-from kincal.cli.common import BaseLink, TipLink, console
+from kincal.cli.common import BaseLink, RobotArg, TipLink, console
 from kincal.errors import KincalError
 
 ConfigOpt = Annotated[str | None, typer.Option(
@@ -326,8 +326,7 @@ def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequen
 
 @app.command("init")
 def init_cmd(
-    robot: Annotated[str, typer.Argument(help="Built-in robot name (see `kincal robots`), or "
-                                         "a path to a YAML robot file or a URDF file.")],
+    robot: RobotArg,
     data: Annotated[list[str], typer.Option("--data", "-d", help="Training measurement file "
                                             "(repeatable); a folder of per-socket files is "
                                             "read as MUKCa data.")],
