@@ -477,7 +477,8 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
     """Print and return the ISO 9283 figures of every position block, before and after."""
     import math
 
-    from kincal.cli.calibration_common import CONSOLE_UNITS, scaled
+    from kincal.cli.calibration_common import scaled
+    from kincal.cli.options import console_units
     from kincal.identify.iso9283 import block_figures, group_positions
     from kincal.identify.validation import validate
     from kincal.measure.models import PositionMeasurement
@@ -497,7 +498,7 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
         after, dist_a = figures(robot)
         bef, dist_b = figures(before) if before is not None else (None, None)
         name = Path(getattr(b, "source_path", b.name)).name
-        lf, L = CONSOLE_UNITS().scale("m")
+        lf, L = console_units().scale("m")
         t = Table(title=f"ISO 9283 on {escape(name)} ({escape(robot.name)}"
                         + (f", before: {escape(before.name)})" if before is not None else ")"))
         cols = ["position", "cycles"] + ([f"AP before [{L}]"] if bef else []) + \

@@ -17,7 +17,6 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from kincal.cli import options as _options
 from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink, is_fivebar re-exported)
     BaseLink,
     JsonOut,
@@ -27,7 +26,7 @@ from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink, is_
     err_console,
     is_fivebar,
 )
-from kincal.cli.options import console_quantity
+from kincal.cli.options import console_quantity, console_units
 from kincal.errors import KincalError
 from kincal.workflow.session import joint_masses  # noqa: F401  (re-exported)
 
@@ -89,6 +88,8 @@ def fold_engine(scheduler: str | None, workers: int | None) -> Iterator[Any]:
 
     with DaskEngine(scheduler=scheduler, workers=workers) as engine:
         yield engine
+
+
 def out_console(json_path: str | None) -> Console:
     """Tables go to stdout unless the JSON does (``--json -``)."""
     return err_console if json_path == "-" else console
@@ -222,7 +223,7 @@ def scaled(v: float | None, factor: float) -> str:
     """``v * factor`` for a table cell (4 decimals in mm / deg, 7 in SI with ``--si``)."""
     if v is None or not math.isfinite(v):
         return "-"
-    return f"{v * factor:.{7 if _options.CONSOLE.si else 4}f}"
+    return f"{v * factor:.{7 if console_units().si else 4}f}"
 
 
 def print_errors(out: Console, comparisons: Sequence[Any]) -> None:
@@ -288,10 +289,10 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
         out.print(f"[dim]{escape(f.file)}: {escape(f.note)}[/dim]")
         if f.prediction is not None:
             pm = f.prediction_metrics()
-            for sentence in f.prediction.summary(unit=_options.CONSOLE.scale("m")):
+            for sentence in f.prediction.summary(unit=console_units().scale("m")):
                 out.print(f"  {escape(sentence)}")
             if pm is not None:
-                lf, L = _options.CONSOLE.scale("m")
+                lf, L = console_units().scale("m")
                 parts = [f"{where} {scaled(pm[f'measured_rms_{where}_m'], lf)} {L} (predicted "
                          f"{scaled(pm[f'predicted_rms_{where}_m'], lf)})"
                          for where in ("inside", "outside") if pm[f"{where}_n"]]
@@ -314,17 +315,12 @@ def _print_artifact(out: Console, f: Any) -> None:
     out.print(t)
 
 
-def CONSOLE_UNITS() -> Any:  # noqa: N802  (reads like the constant it returns)
-    """The running command's console units (``--si``)."""
-    return _options.CONSOLE
-
-
 def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
     """Estimated parameters: nominal, estimate, change, std (mm / deg); with a prior
     (MAP estimate), its standard deviation ``prior (1σ)`` per parameter."""
     d = res.to_dict()
     with_prior = any(p.get("prior_std") is not None for p in d["parameters"])
-    u = CONSOLE_UNITS()
+    u = console_units()
     t = Table(title=f"Estimated parameters ({d['estimated_count']} of {len(d['parameters'])}; "
               f"lengths {u.length_unit}, angles {u.angle_unit})")
     cols = ["parameter", "nominal", "estimate", "change", "std (1σ)"]
@@ -335,7 +331,7 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
     for p in d["parameters"]:
         if not everything and not p["estimated"]:
             continue
-        factor, _ = CONSOLE_UNITS().scale(p["unit"])
+        factor, _ = u.scale(p["unit"])
         f = (lambda v, k=factor: scaled(v, k)) if p["unit"] in ("m", "rad") else \
             (lambda v: f"{v:g}")
         cells = [escape(p["name"]), f(p["nominal"]), f(p["estimate"]),
@@ -397,13 +393,13 @@ def print_weak(out: Console, weak: Sequence[Any]) -> None:
                      overflow="fold")
 
     def show(v: float, unit: str) -> str:
-        f, u = _options.CONSOLE.scale(unit)
+        f, u = console_units().scale(unit)
         return f"{v * f:.3g} {u}" if math.isfinite(v) else "-"
 
     for w in weak:
         if w.joint is not None and w.joint_range is not None:
             have, full = w.joint_range
-            f, u = _options.CONSOLE.scale("rad" if w.joint_kind == "revolute" else "m")
+            f, u = console_units().scale("rad" if w.joint_kind == "revolute" else "m")
             how = (f"{w.joint} over its range (moves {have * f:.3g} of {full * f:.3g} {u}): "
                    f"{show(w.with_joint or math.nan, w.unit)}")
         elif w.partner is not None:
@@ -425,7 +421,7 @@ def print_patent(out: Console, info: Any) -> None:
         out.print(f"patent data selection (condition growth <= {d['condition_growth']:g}): "
                   f"kept [bold]{len(d['kept'])} of {n_all}[/bold] placements; discarded: "
                   f"{escape(dropped)}")
-    u = CONSOLE_UNITS()
+    u = console_units()
     moved = d["cycle_corrections_m"][-1] if d["cycle_corrections_m"] else float("nan")
     out.print(f"patent procedure: {d['cycles']} cycle(s) of {len(d['stages'])} stages, "
               + ("converged" if d["converged"] else "[red]NOT converged[/red]")

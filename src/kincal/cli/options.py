@@ -110,6 +110,11 @@ def use_si(si: bool, deg: bool = False) -> Units:
     return CONSOLE
 
 
+def console_units() -> Units:
+    """The running command's console units (``--si``; set by :func:`use_si`)."""
+    return CONSOLE
+
+
 def console_quantity(key: str) -> tuple[str, float, str]:
     """``"position_m" -> ("position", 1e3, "mm")`` (``("position", 1.0, "m")`` with
     ``--si``): an error kind's name, SI-to-console factor and console unit."""
