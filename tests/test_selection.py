@@ -149,3 +149,19 @@ def test_select_auto_from_the_command_line(capsys, tmp_path, sim):
                for p in doc["parameters"])
     code, _, err = run(capsys, "calibrate", "puma560", "--data", path, "--select", "maybe")
     assert code == 2 and "--select" in err
+
+
+def test_select_table_follows_si(capsys, tmp_path, sim):
+    """--si: the selection table's cross-validated RMS in m, like the other tables."""
+    nominal, play, _, _ = sim
+    path = tmp_path / "play.csv"
+    write_table(path, play.q, [(c, play.positions[:, k], "length") for k, c in
+                               enumerate("xyz")], robot=nominal,
+                tags={"instrument": "position", "name": "tracker"}, length_unit="mm",
+                angle_unit="deg")
+    code, out, err = run(capsys, "calibrate", "puma560", "--data", path, "--select", "auto",
+                         "--folds", "4", "--prior", "scale=1", "--joint-model", "hysteresis",
+                         "--si")
+    assert code == 0, err
+    table = out[out.index("Model selection"):]
+    assert "[m]" in table.split("<- chosen")[0] and "[mm]" not in out

@@ -303,15 +303,17 @@ def print_heldout(out: Console, files: Sequence[Any], title: str = "Held-out fil
 
 def _print_artifact(out: Console, f: Any) -> None:
     a = f.artifact
+    lf, L = console_units().scale("m")
+    d = 3 + 3 * console_units().si                     # um resolution in mm or m
     t = Table(title=f"{f.file}: artifact metrics (before = the plain nominal robot)")
-    for c in ("socket / distance", "before [mm]", "after [mm]"):
+    for c in ("socket / distance", f"before [{L}]", f"after [{L}]"):
         t.add_column(c, justify="left" if c.startswith("socket") else "right")
     for site, v in a["after"]["spread_m"].items():
-        t.add_row(escape(f"spread {site}"), f"{a['before']['spread_m'][site] * 1e3:.3f}",
-                  f"{v * 1e3:.3f}")
+        t.add_row(escape(f"spread {site}"), f"{a['before']['spread_m'][site] * lf:.{d}f}",
+                  f"{v * lf:.{d}f}")
     for db, da in zip(a["before"]["distances"], a["after"]["distances"], strict=True):
         t.add_row(escape(f"distance error {da['placement']} {da['label']}"),
-                  f"{db['error_m'] * 1e3:+.3f}", f"{da['error_m'] * 1e3:+.3f}")
+                  f"{db['error_m'] * lf:+.{d}f}", f"{da['error_m'] * lf:+.{d}f}")
     out.print(t)
 
 
@@ -361,9 +363,8 @@ def print_identifiability(out: Console, res: Any, limit: int = 8) -> None:
 def print_selection(out: Console, sel: Any) -> None:
     """The ``--select auto`` table: every candidate's cross-validated RMS, the choice."""
     from kincal.identify.selection import RULE
-    from kincal.report.metrics import quantity
 
-    name, f, unit = quantity(sel.kind) if sel.kind else ("error", 1.0, "")
+    name, f, unit = console_quantity(sel.kind) if sel.kind else ("error", 1.0, "")
     t = Table(title=f"Model selection: {sel.folds}-fold cross-validation on the training "
               f"files (seed {sel.seed})", caption=f"rule: {RULE}")
     for c in ("joint model", "prior", f"CV RMS {name} [{unit}]", "not eligible because"):
