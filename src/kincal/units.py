@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from kincal.errors import KincalError
 
 __all__ = ["UNITS", "DIMENSIONS", "MAX_SI", "units_of", "factor", "to_si", "from_si", "unit_list",
-           "split_value", "parse_quantity", "parse_quantities"]
+           "display_scale", "split_value", "parse_quantity", "parse_quantities"]
 
 #: Every unit kincal reads or writes: ``{suffix: (dimension, factor to SI)}``.
 UNITS: dict[str, tuple[str, float]] = {
@@ -90,6 +90,16 @@ def to_si(value: float, unit: str) -> float:
 def from_si(value: float, unit: str) -> float:
     """SI ``value`` -> ``unit`` (``from_si(0.002, "mm") == 2``)."""
     return value / factor(unit)
+
+
+def display_scale(unit: str) -> tuple[float, str]:
+    """Factor and label to show an SI value to people: m -> mm, rad -> deg; any other
+    unit as it is (``display_scale("m") == (1e3, "mm")``)."""
+    if unit == "m":
+        return 1e3, "mm"
+    if unit == "rad":
+        return 180.0 / math.pi, "deg"
+    return 1.0, unit
 
 
 def _a(word: str | None) -> str:

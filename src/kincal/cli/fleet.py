@@ -24,6 +24,7 @@ from kincal.cli.calibration_common import JsonOpt, out_console
 from kincal.cli.common import err_console
 from kincal.cli.options import SeedOpt
 from kincal.errors import KincalError
+from kincal.units import display_scale
 
 fleet_app = typer.Typer(
     name="fleet", no_args_is_help=True, add_completion=False, rich_markup_mode=None,
@@ -227,7 +228,7 @@ def simulate_cmd(
     for r in got.robots:
         if r["drift"]:
             d = r["drift"]
-            f, u = (1e3, "mm") if d["unit"] == "m" else (180 / math.pi, "deg")
+            f, u = display_scale(d["unit"])
             out.print(f"  {r['serial']}: {d['parameter']} {d['change'] * f:+.4g} {u} between "
                       f"{d['from']} and {d['to']} ({d['sigmas']:g} predicted σ)")
         if r["broken"]:

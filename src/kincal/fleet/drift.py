@@ -32,6 +32,7 @@ import numpy as np
 
 from kincal.errors import KincalError
 from kincal.robots.chain import ROLES
+from kincal.units import display_scale
 
 __all__ = ["ParameterChange", "Drift", "compare", "z_threshold", "fleet_drift"]
 
@@ -58,8 +59,7 @@ class ParameterChange:
     def text(self, why: bool = True) -> str:
         """``d[3] +0.4200 mm, 11.0σ: joint 3 hit something?`` (without the guess when
         ``why`` is False)."""
-        f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(self.unit,
-                                                                        (1.0, self.unit))
+        f, u = display_scale(self.unit)
         text = f"{self.name} {self.change * f:+.4g} {u}, {abs(self.z):.1f}σ"
         return f"{text}: {hint(self.name, self.role)}" if why else text
 

@@ -14,20 +14,16 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 from kincal.robots.chain import ROLES
+from kincal.units import display_scale
 
 __all__ = ["history_csv", "parameters_csv", "history_json"]
 
 _SUMMARY = ("id", "fleet", "serial", "date", "status", "reason", "kincal_version",
             "created_at", "fingerprint", "robot", "iterations", "sigma0")
-
-
-def _display(unit: str) -> tuple[float, str]:
-    return {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(unit, (1.0, unit))
 
 
 def history_csv(records: Sequence[Mapping[str, Any]]) -> str:
@@ -40,13 +36,13 @@ def history_csv(records: Sequence[Mapping[str, Any]]) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow([*_SUMMARY, "rms_train_mm", "rms_validation_mm", "rms_cv_mm",
-                *(f"{n} [{_display(u)[1]}]" for n, u in names.items())])
+                *(f"{n} [{display_scale(u)[1]}]" for n, u in names.items())])
     for r in records:
         est = {p["name"]: p["estimate"] for p in r["parameters"]}
         w.writerow([*("" if r.get(k) is None else r.get(k) for k in _SUMMARY),
                     *("" if r.get(k) is None else f"{r[k] * 1e3:.6g}"
                       for k in ("rms_train_m", "rms_validation_m", "rms_cv_m")),
-                    *("" if n not in est else f"{est[n] * _display(u)[0]:.10g}"
+                    *("" if n not in est else f"{est[n] * display_scale(u)[0]:.10g}"
                       for n, u in names.items())])
     return buf.getvalue()
 

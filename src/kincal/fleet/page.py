@@ -25,7 +25,8 @@ import numpy as np
 
 from kincal._version import __version__
 from kincal.report.html import _CSS, _img
-from kincal.report.plots import _plt, _png, display_scale
+from kincal.report.plots import _plt, _png
+from kincal.units import display_scale
 
 __all__ = ["fleet_page", "accuracy_plot", "history_plot"]
 

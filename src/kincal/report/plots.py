@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kincal.units import display_scale
+
 Array = NDArray[np.float64]
 
 _BEFORE, _AFTER, _TRUTH = "#c0504d", "#1f77b4", "#2ca02c"
@@ -61,15 +63,6 @@ def _png(fig: Any, dpi: int = DPI) -> bytes:
 def _layout(fig: Any) -> None:
     """A fixed layout (tight_layout costs seconds on many axes)."""
     fig.subplots_adjust(left=0.09, right=0.97, bottom=0.16, top=0.9, hspace=0.45, wspace=0.3)
-
-
-def display_scale(unit: str) -> tuple[float, str]:
-    """Factor and label to show an SI value to people: m -> mm, rad -> deg."""
-    if unit == "m":
-        return 1e3, "mm"
-    if unit == "rad":
-        return 180.0 / math.pi, "deg"
-    return 1.0, unit
 
 
 def parameter_history(history: Array, names: Sequence[str], units: Sequence[str],
