@@ -211,3 +211,18 @@ def test_cli_clik_writes_csv_plots_and_summary(tmp_path):
     np.testing.assert_allclose(out["end_position_m"], SPHERICAL_ARM_P_F, atol=1e-12)
     for name in ("clik_inverse.csv", "clik_dls.csv", "clik_compare.png"):
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_cli_clik_joint_speed_units(tmp_path):
+    """Joint speeds in deg/s by default and with --deg (also with --si), rad/s with --si
+    alone; the printed numbers follow their unit."""
+    from kincal.motion.clik import SPHERICAL_ARM_P_F
+
+    p_f = ",".join(f"{v * 1e3:.9f}" for v in SPHERICAL_ARM_P_F) + "mm"
+    args = ["clik", "spherical_rrp", "--start", "0,45deg,0.5m", f"--end-position={p_f}",
+            "--out-dir", str(tmp_path), "--dt", "20ms"]
+    for extra, unit in (([], "deg"), (["--si"], "rad"), (["--si", "--deg"], "deg")):
+        res = runner.invoke(app, args + extra, env={"COLUMNS": "250"})
+        assert res.exit_code == 0, res.output
+        assert f"max |theta1'| [{unit}/s]" in res.stdout, (extra, res.stdout)
+        assert "max |d3'| [m/s]" in res.stdout

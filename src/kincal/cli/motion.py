@@ -446,30 +446,34 @@ def _clik_summary(robot: Any, results: list[Any], out: Path, p0: np.ndarray,
             "compare_plot": str(out / "clik_compare.png"), "runs": runs}
 
 
+def _joint_speed_unit(units: Units, unit: str) -> tuple[float, str]:
+    """(factor from SI, unit) of a joint speed: deg/s by default and with --deg, rad/s
+    with --si alone; prismatic joints in m/s."""
+    if unit != "rad":
+        return 1.0, "m"
+    return (180 / math.pi, "deg") if units.deg or not units.si else (1.0, "rad")
+
+
 def _print_clik(summary: dict[str, Any], units: Units) -> None:
-    L, A = units.length_unit, units.angle_unit
+    L = units.length_unit
     names, kinds = summary["joint_names"], summary["joint_units"]
     t = Table(title=f"{escape(summary['robot'])}: CLIK along the line "
               f"{', '.join(units.length(v, 1) for v in summary['start_position_m'])} -> "
               f"{', '.join(units.length(v, 1) for v in summary['end_position_m'])} {L}")
     cols = ["method", f"final |e| \\[{L}]", f"max dist. from line \\[{L}]"]
     for n, u in zip(names, kinds, strict=True):
-        su = (A if units.deg or not units.si else "rad") if u == "rad" else "m"
-        cols.append(escape(f"max |{n}'| [{su}/s]"))
+        cols.append(escape(f"max |{n}'| [{_joint_speed_unit(units, u)[1]}/s]"))
     cols += ["peak at \\[s]", "min manipulability"]
     for c in cols:
         t.add_column(c, justify="left" if c == "method" else "right")
     for s in summary["runs"]:
-        speeds = []
-        for v, u in zip(s["max_abs_qd"], kinds, strict=True):
-            f = (180 / math.pi if (units.deg or not units.si) else 1.0) if u == "rad" else 1.0
-            speeds.append(f"{v * f:.4g}")
+        speeds = [f"{v * _joint_speed_unit(units, u)[0]:.4g}"
+                  for v, u in zip(s["max_abs_qd"], kinds, strict=True)]
         t.add_row(s["method"], units.length(s["final_position_error_m"], 6),
                   units.length(s["max_path_deviation_m"], 3), *speeds,
                   f"{s['peak_time_s']:.3f}", f"{s['min_manipulability']:.3g}")
     console.print(t)
     runs = summary["runs"]
-    names, kinds = summary["joint_names"], summary["joint_units"]
     for s in runs:
         t_off = s["off_path_time_s"]
         console.print(f"{s['method']}: " + (
@@ -479,10 +483,7 @@ def _print_clik(summary: dict[str, Any], units: Units) -> None:
     for s in runs[1:]:
         ex = s["first_exceeds_this_peak"]
         if ex["time_s"] is not None:
-            u = names.index(ex["joint"])
-            f = (180 / math.pi if (units.deg or not units.si) else 1.0) \
-                if kinds[u] == "rad" else 1.0
-            su = (A if units.deg or not units.si else "rad") if kinds[u] == "rad" else "m"
+            f, su = _joint_speed_unit(units, kinds[names.index(ex["joint"])])
             console.print(escape(
                 f"{runs[0]['method']}: {ex['joint']}' passes {s['method']}'s peak "
                 f"({ex['peak'] * f:.4g} {su}/s) at t = {ex['time_s']:.3f} s; past a "
