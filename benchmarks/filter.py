@@ -17,13 +17,12 @@ robot cannot reach them on the asked branch: the workspace boundary).
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
+from timing import interleaved
 
 from kincal.compensation.configuration import Configurator
 from kincal.compensation.programs.driver import filter_program
@@ -97,24 +96,21 @@ def main() -> None:
         for name, (robot, _) in runs.items():
             nom = load_robot(robot)
             robots[name] = (nom, perturb_robot(nom, np.random.default_rng(1)))
-        times: dict[str, list[float]] = {k: [] for k in runs}
+        t = interleaved({name: lambda path=path, name=name: filter_program(
+            str(path), robots[name][1], robots[name][0]) for name, (_, path) in runs.items()},
+            rounds=args.repeats, warmup=False)
         filtered: dict[str, int] = {}
-        for _ in range(args.repeats):
-            for name, (_, path) in runs.items():
-                nom, cal = robots[name]
-                t0 = time.perf_counter()
-                res = filter_program(str(path), cal, nom)
-                times[name].append(time.perf_counter() - t0)
-                poses = [r for r in res.reports if r.kind == "pose"]
-                filtered[name] = sum(r.status == "filtered" for r in poses)
-                if filtered[name] < 0.99 * len(poses):
-                    sys.exit(f"{name}: only {filtered[name]} of {len(poses)} targets filtered")
+        for name in runs:
+            poses = [r for r in t.results[name].reports if r.kind == "pose"]
+            filtered[name] = sum(r.status == "filtered" for r in poses)
+            if filtered[name] < 0.99 * len(poses):
+                sys.exit(f"{name}: only {filtered[name]} of {len(poses)} targets filtered")
         print(f"filtering a program with {args.targets} Cartesian targets "
               f"({args.repeats} interleaved repeats)")
         print("| program | median | min - max | targets/s | filtered |")
         print("|---|---|---|---|---|")
-        for name, ts in times.items():
-            med = statistics.median(ts)
+        for name, ts in t.wall.items():
+            med = t.median(name)
             print(f"| {name} | {med:.2f} s | {min(ts):.2f} - {max(ts):.2f} s | "
                   f"{args.targets / med:,.0f} | {filtered[name]} |")
 

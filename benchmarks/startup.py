@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import statistics
 import subprocess
 import sys
-import time
+
+from timing import interleaved
 
 LIGHT = [
     ["--help"],
@@ -35,13 +35,10 @@ def _kincal() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "kincal.cli"]
 
 
-def _time(cmd: list[str]) -> float:
-    t0 = time.perf_counter()
+def _run(cmd: list[str]) -> None:
     done = subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    dt = time.perf_counter() - t0
     if done.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed: {done.stderr.decode()[-300:]}")
-    return dt
 
 
 def main() -> None:
@@ -60,19 +57,16 @@ def main() -> None:
         commands += [[name, "--help"] for name in typer.main.get_command(app).commands]
     for c in commands:
         cases["kincal " + " ".join(c)] = kincal + c
-    times: dict[str, list[float]] = {k: [] for k in cases}
-    for cmd in cases.values():                        # warm the file cache once
-        _time(cmd)
-    for _ in range(max(5, args.repeats)):
-        for k, cmd in cases.items():
-            times[k].append(_time(cmd))
-    base = statistics.median(times["python -c 'import numpy'"])
+    # one untimed run each warms the file cache; then rounds in rotated order
+    t = interleaved({k: lambda cmd=cmd: _run(cmd) for k, cmd in cases.items()},
+                    rounds=max(5, args.repeats))
+    base = t.median("python -c 'import numpy'")
     width = max(map(len, cases))
     print(f"start-up time, median of {max(5, args.repeats)} interleaved rounds "
           f"({sys.executable}, {kincal[0]})")
     print(f"{'command':<{width}}  {'median':>8}  {'x numpy':>8}  {'< 0.3 s':>7}")
-    for k, ts in times.items():
-        m = statistics.median(ts)
+    for k in cases:
+        m = t.median(k)
         ok = "" if k.startswith("python") else ("yes" if m < TARGET else "NO")
         print(f"{k:<{width}}  {m * 1e3:6.0f} ms  {m / base:8.2f}  {ok:>7}")
 
