@@ -8,10 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import run
+from cli_helpers import run, write_tracker
 from test_compliance import perturbed_puma
 
-from kincal.measure.files import write_table
 from kincal.measure.joints.hysteresis import approach_directions
 from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.robots.files import load_robot
@@ -26,10 +25,7 @@ def _session(path, true, q, rng):
     """A tracker file of the true robot with play, rows in the order measured."""
     sim = simulate_positions(true, q + H_TRUE * approach_directions(q), rng, NOISE,
                              INSTRUMENT, MARKER)
-    y = sim.positions
-    write_table(path, q, [(c, y[:, k], "length") for k, c in enumerate("xyz")],
-                robot=true, tags={"instrument": "position", "name": "tracker"},
-                length_unit="mm", angle_unit="deg")
+    write_tracker(path, true, q, sim.positions)
 
 
 @pytest.fixture(scope="module")

@@ -20,10 +20,9 @@ import math
 
 import numpy as np
 import pytest
-from cli_helpers import run
+from cli_helpers import run, write_tracker
 from test_compliance import perturbed_puma
 
-from kincal.measure.files import write_table
 from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.measure.standard_instruments import _frame_T
 from kincal.robots.files import load_robot, write_robot_yaml
@@ -32,14 +31,6 @@ NOISE = 2e-5
 INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]
 MARKERS = np.array([[0.05, 0.0, 0.1], [-0.05, 0.0, 0.1], [0.0, 0.05, 0.12],
                     [0.0, -0.05, 0.08]])
-
-
-def write(path, robot, q, y, markers=4):
-    cols = [(f"{c}{k + 1}" if markers > 1 else c, y[:, k, i], "length")
-            for k in range(markers) for i, c in enumerate("xyz")]
-    write_table(path, q, cols, robot=robot, tags={"instrument": "position",
-                                                  "name": "tracker"},
-                length_unit="mm", angle_unit="deg")
 
 
 def in_box(robot, n, rng, width=0.3):
@@ -56,23 +47,23 @@ def files(tmp_path_factory):
     true = perturbed_puma(nominal, rng)
     q_train = in_box(nominal, 40, rng)
     y = simulate_positions(true, q_train, rng, NOISE, INSTRUMENT, MARKERS).positions
-    write(d / "train.csv", nominal, q_train, y)
+    write_tracker(d / "train.csv", nominal, q_train, y)
     q_val = np.vstack([in_box(nominal, 10, rng, 0.2), random_configurations(nominal, 10, rng)])
     y1 = simulate_positions(true, q_val, rng, NOISE, INSTRUMENT, MARKERS[:1]).positions
-    write(d / "one_marker.csv", nominal, q_val, y1.reshape(-1, 1, 3), markers=1)
+    write_tracker(d / "one_marker.csv", nominal, q_val, y1.reshape(-1, 1, 3))
     # the tracker moved by 0.3 m and 25 deg
     M = _frame_T(np.array([0.3, -0.1, 0.05, math.radians(25), math.radians(3), 0.0]))
     q_m = in_box(nominal, 25, rng)
     ym = simulate_positions(true, q_m, rng, NOISE, INSTRUMENT, MARKERS[:1]).positions
     ym = ym.reshape(-1, 1, 3) @ M[:3, :3].T + M[:3, 3]
-    write(d / "moved.csv", nominal, q_m, ym, markers=1)
+    write_tracker(d / "moved.csv", nominal, q_m, ym)
     # moved, and only the first joint turns: the marker's height along its axis is not
     # separable from the tracker frame
     q_f = in_box(nominal, 25, rng)
     q_f[:, 1:] = q_f[0, 1:]
     yf = simulate_positions(true, q_f, rng, NOISE, INSTRUMENT, MARKERS[:1]).positions
-    write(d / "fixed_wrist.csv", nominal, q_f, yf.reshape(-1, 1, 3) @ M[:3, :3].T + M[:3, 3],
-          markers=1)
+    write_tracker(d / "fixed_wrist.csv", nominal, q_f,
+                  yf.reshape(-1, 1, 3) @ M[:3, :3].T + M[:3, 3])
     write_robot_yaml(true, d / "true.yaml")
     return d
 
@@ -206,7 +197,7 @@ def test_compensate_predicts_and_falls_back_to_nominal(files, calibrated, capsys
     # calibrate on data of the nominal robot: nothing to correct
     q = in_box(nominal, 40, rng)
     y = simulate_positions(nominal, q, rng, NOISE, INSTRUMENT, MARKERS).positions
-    write(tmp_path / "nom.csv", nominal, q, y)
+    write_tracker(tmp_path / "nom.csv", nominal, q, y)
     code, _, err = run(capsys, "calibrate", "puma560", "--data", tmp_path / "nom.csv", "-o",
                        tmp_path / "same.yaml", "--json", tmp_path / "same.json")
     assert code == 0, err

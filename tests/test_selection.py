@@ -14,7 +14,7 @@ import pickle
 
 import numpy as np
 import pytest
-from cli_helpers import run
+from cli_helpers import run, write_tracker
 from test_cli_joint_model import H_TRUE, INSTRUMENT, MARKER, NOISE
 from test_compliance import perturbed_puma
 
@@ -32,7 +32,6 @@ from kincal.identify.selection import (
 )
 from kincal.identify.tolerances import resolve_tolerances
 from kincal.measure.base import stack
-from kincal.measure.files import write_table
 from kincal.measure.joints.hysteresis import approach_directions
 from kincal.measure.models import PositionMeasurement
 from kincal.measure.simulate import random_configurations, simulate_positions
@@ -130,10 +129,7 @@ def test_nothing_to_split_chooses_nothing_and_says_why(sim):
 def test_select_auto_from_the_command_line(capsys, tmp_path, sim):
     nominal, play, _, _ = sim
     path = tmp_path / "play.csv"
-    write_table(path, play.q, [(c, play.positions[:, k], "length") for k, c in
-                               enumerate("xyz")], robot=nominal,
-                tags={"instrument": "position", "name": "tracker"}, length_unit="mm",
-                angle_unit="deg")
+    write_tracker(path, nominal, play.q, play.positions)
     j = tmp_path / "res.json"
     code, out, err = run(capsys, "calibrate", "puma560", "--data", path, "--select", "auto",
                          "--folds", "4", "--prior", "scale=1", "--json", j)
@@ -155,10 +151,7 @@ def test_select_table_follows_si(capsys, tmp_path, sim):
     """--si: the selection table's cross-validated RMS in m, like the other tables."""
     nominal, play, _, _ = sim
     path = tmp_path / "play.csv"
-    write_table(path, play.q, [(c, play.positions[:, k], "length") for k, c in
-                               enumerate("xyz")], robot=nominal,
-                tags={"instrument": "position", "name": "tracker"}, length_unit="mm",
-                angle_unit="deg")
+    write_tracker(path, nominal, play.q, play.positions)
     code, out, err = run(capsys, "calibrate", "puma560", "--data", path, "--select", "auto",
                          "--folds", "4", "--prior", "scale=1", "--joint-model", "hysteresis",
                          "--si")

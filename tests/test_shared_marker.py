@@ -14,10 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import run
+from cli_helpers import run, write_tracker
 from test_compliance import perturbed_puma
 
-from kincal.measure.files import write_table
 from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.robots.files import load_robot
 
@@ -37,10 +36,7 @@ def files(tmp_path_factory):
                         ("c", [0.3, 1.5, -0.2, 0.5, 0.1, -0.7])):
         q = random_configurations(nominal, 30, rng)
         y = simulate_positions(true, q, rng, NOISE, frame, MARKER).positions
-        write_table(d / f"{name}.csv", q, [(c, y[:, k], "length") for k, c in
-                                         enumerate("xyz")],
-                    robot=nominal, tags={"instrument": "position", "name": f"tracker_{name}"},
-                    length_unit="mm", angle_unit="deg")
+        write_tracker(d / f"{name}.csv", nominal, q, y, f"tracker_{name}")
     return d
 
 
