@@ -19,7 +19,6 @@ from kincal.workflow.config import (
     CALIBRATION_KEYS,
     SetupError,
     load_setup,
-    merge_setups,
     parse_setup,
     read_yaml,
 )
@@ -135,6 +134,8 @@ def test_alias_bombs_cost_nothing(tmp_path):
 
 
 def test_parse_setup_from_a_mapping_with_a_prefix(sim):
+    from kincal.fleet.manifest import layer
+
     """What a fleet manifest does: a sub-mapping with the lines of its own file."""
     p = write(sim / "fleet.yaml", """
 defaults: {robot: puma560, calibration: {max_iter: 50}}
@@ -144,14 +145,15 @@ robots:
     calibration: {cross_validate: ten}
 """)
     doc = read_yaml(p)
-    session = merge_setups(doc.data["defaults"], doc.data["robots"][0])
-    assert session["calibration"] == {"max_iter": 50, "cross_validate": "ten"}
+    defaults = parse_setup(doc.data["defaults"], sim)
+    assert layer(defaults, parse_setup({"data": ["train.csv"], "calibration": {
+        "cross_validate": 10}}, sim)).calibration == {"max_iter": 50, "cross_validate": 10}
     with pytest.raises(SetupError) as e:
-        parse_setup(session, sim, source=str(p), lines=doc.lines, prefix=("robots", 0),
-                    extra_keys=("serial",))
+        parse_setup(doc.data["robots"][0], sim, source=str(p), lines=doc.lines,
+                    prefix=("robots", 0), extra_keys=("serial",))
     assert str(e.value) == (f"{p}: line 6: robots[0].calibration.cross_validate: must be a "
                             "whole number, got 'ten'")
-    ok = parse_setup(merge_setups(doc.data["defaults"], {"data": ["train.csv"]}), sim)
+    ok = layer(defaults, parse_setup({"data": ["train.csv"]}, sim))
     assert ok.calibration == {"max_iter": 50} and ok.source is None
 
 

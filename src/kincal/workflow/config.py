@@ -21,8 +21,9 @@ the folder its paths are relative to), both into a typed :class:`Setup`; errors 
 line naming the file, the line and the key (``setup.yaml: line 12: data[0].units:
 ...``).  :data:`CALIBRATION_KEYS` is the schema of ``calibration:`` - one key per
 ``kincal calibrate`` option, by its long name - and :data:`OUTPUT_KEYS` of
-``outputs:``.  A fleet manifest's ``defaults:`` and sessions use the same keys
-(:func:`merge_setups` layers them).
+``outputs:``.  A fleet manifest's ``defaults:`` and sessions use the same keys; the
+manifest parses each level with :func:`parse_setup` (its own line numbers) and layers the
+parsed setups (:func:`kincal.fleet.manifest.layer`).
 
 Layer rule: part of :mod:`kincal.workflow`; imports the layers below it, never the CLI.
 """
@@ -43,7 +44,7 @@ from kincal.units import UNITS, parse_quantity
 from kincal.workflow.sources import FORMATS, DataSource, instrument_tags
 
 __all__ = ["Setup", "YamlDocument", "SetupError", "read_yaml", "load_setup", "parse_setup",
-           "merge_setups", "hold_robot", "CALIBRATION_KEYS", "OUTPUT_KEYS", "SETUP_KEYS",
+           "hold_robot", "CALIBRATION_KEYS", "OUTPUT_KEYS", "SETUP_KEYS",
            "DATA_KEYS", "Key"]
 
 KeyPath = tuple[str | int, ...]
@@ -593,19 +594,4 @@ def load_setup(path: str | os.PathLike[str]) -> Setup:
     if doc.data is None:
         raise SetupError("line 1: the setup file is empty", source=doc.source)
     return parse_setup(doc.data, Path(path).parent, source=doc.source, lines=doc.lines)
-
-
-def merge_setups(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    """``override`` layered on ``base`` (parsed mappings): nested mappings
-    (``calibration``, ``outputs``, ``hold``) merge key by key, anything else is replaced.
-
-    How a fleet manifest's ``defaults:`` and one robot session combine.
-    """
-    out = dict(base)
-    for k, v in override.items():
-        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping):
-            out[k] = merge_setups(out[k], v)
-        else:
-            out[k] = v
-    return out
 
