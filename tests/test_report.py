@@ -12,7 +12,12 @@ import pytest
 from kincal.identify.solver import calibrate
 from kincal.measure.registry import simulate_measurements
 from kincal.measure.simulate import perturb_robot
-from kincal.report.html import identifiability_sentences, render_html, write_html_report
+from kincal.report.html import (
+    identifiability_details,
+    identifiability_summary,
+    render_html,
+    write_html_report,
+)
 from kincal.report.metrics import ErrorComparison, error_metrics, merge_errors, result_json
 from kincal.report.plots import display_scale, parameter_history
 from kincal.robots.files import load_robot
@@ -61,7 +66,7 @@ def test_result_json_keys_and_missing_validation(small_result):
 
 def test_identifiability_sentences_name_the_hidden_parameters(small_result):
     res, _, _ = small_result
-    s = identifiability_sentences(res)
+    s = identifiability_summary(res) + identifiability_details(res)
     assert s[0].startswith(f"{len(res.identifiability.identifiable)} of {len(res.names)}")
     assert any(x.startswith("base.x cannot be told apart from tracker.x") for x in s)
     assert any("Condition number" in x for x in s)

@@ -92,12 +92,6 @@ def identifiability_details(result: Any) -> list[str]:
     return out
 
 
-def identifiability_sentences(result: Any) -> list[str]:
-    """Summary then details (:func:`identifiability_summary`,
-    :func:`identifiability_details`), as one list."""
-    return identifiability_summary(result) + identifiability_details(result)
-
-
 def _short_list(names: Sequence[str], limit: int = 12) -> str:
     more = len(names) - limit
     return ", ".join(names[:limit]) + (f" and {more} more" if more > 0 else "")
