@@ -143,6 +143,7 @@ from kincal.identify.uncertainty import correlation, inverse_normal_matrix, stan
 from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
 from kincal.robots.chain import Robot
 from kincal.spatial import wrap_angle
+from kincal.units import display_scale
 
 Array = NDArray[np.float64]
 
@@ -182,7 +183,6 @@ def _stage_label(spec: str | Sequence[str]) -> str:
 
 # --------------------------------------------------------------------------- display
 #: SI unit -> (factor, unit) for people: lengths in mm, angles in degrees.
-_DISPLAY = {"m": (1e3, "mm"), "rad": (float(np.degrees(1.0)), "deg"), "px": (1.0, "px")}
 
 
 def format_error(key: str, value: float, what: str = "") -> str:
@@ -194,8 +194,8 @@ def format_error(key: str, value: float, what: str = "") -> str:
     """
     name, _, unit = key.rpartition("_")
     mid = f" {what}" if what else ""
-    if name and unit in _DISPLAY:
-        f, u = _DISPLAY[unit]
+    if name and unit in ("m", "rad", "px"):
+        f, u = display_scale(unit)
         digits = 5 if unit == "rad" else 4
         return f"{name}{mid} {value * f:.{digits}f} {u}"
     return f"{key}{mid} {value:.6g}"
@@ -397,7 +397,7 @@ class CalibrationResult:
             if not all_parameters and n not in self.estimated:
                 continue
             unit = self.problem.units[i]
-            f, u = _DISPLAY.get(unit, (1.0, unit))
+            f, u = display_scale(unit)
             std = f"{self.std[i] * f:10.4f}" if n in self.estimated else f"{'-':>10}"
             if self.prior:
                 std += f"{self.prior[n] * f:10.4f}" if n in self.prior else f"{'-':>10}"
@@ -429,7 +429,7 @@ class CalibrationResult:
         for i, n in enumerate(self.names):
             if n not in self.estimated:
                 continue
-            f, u = _DISPLAY.get(self.problem.units[i], (1.0, self.problem.units[i]))
+            f, u = display_scale(self.problem.units[i])
             held = " (held by the prior)" if n in self.held_by_prior else ""
             rows.append([n, u, f"{self.theta0[i] * f:.5f}", f"{self.theta[i] * f:.5f}",
                          f"{(self.theta[i] - self.theta0[i]) * f:.5f}",

@@ -24,6 +24,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from kincal.units import display_scale
 from kincal.workflow.result import FlowResult
 
 __all__ = ["artifact_figures", "patent_section_html", "figures_section_html",
@@ -137,8 +138,8 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
         if same["rows"]:
             rows = []
             for r in same["rows"]:
-                f, u = {"m": (1e3, "mm"), "rad": (180 / math.pi, "deg")}.get(
-                    (units or {}).get(r["name"], ""), (1.0, "SI"))
+                unit = (units or {}).get(r["name"], "")
+                f, u = display_scale(unit) if unit else (1.0, "SI")
                 rows.append(f"<tr><td class='l'>{e(r['name'])}</td><td>{r['a'] * f:.5f}</td>"
                             f"<td>{r['b'] * f:.5f}</td><td>{r['diff'] * f:.2e}</td>"
                             f"<td class='l'>{u}</td><td>{r['sigmas']:.3g}</td></tr>")
