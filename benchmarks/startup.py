@@ -60,7 +60,7 @@ def main() -> None:
     # one untimed run each warms the file cache; then rounds in rotated order
     t = interleaved({k: lambda cmd=cmd: _run(cmd) for k, cmd in cases.items()},
                     rounds=max(5, args.repeats))
-    base = t.median("python -c 'import numpy'")
+    base = "python -c 'import numpy'"
     width = max(map(len, cases))
     print(f"start-up time, median of {max(5, args.repeats)} interleaved rounds "
           f"({sys.executable}, {kincal[0]})")
@@ -68,7 +68,7 @@ def main() -> None:
     for k in cases:
         m = t.median(k)
         ok = "" if k.startswith("python") else ("yes" if m < TARGET else "NO")
-        print(f"{k:<{width}}  {m * 1e3:6.0f} ms  {m / base:8.2f}  {ok:>7}")
+        print(f"{k:<{width}}  {m * 1e3:6.0f} ms  {t.ratio(k, base):8.2f}  {ok:>7}")
 
 
 if __name__ == "__main__":
