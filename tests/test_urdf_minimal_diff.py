@@ -93,3 +93,20 @@ def test_tiago_calibrated_urdf_changes_only_chain_origins(tmp_path):
     back = load_urdf(out, tip_link="wrist_ft_tool_link")
     q = random_q(robot, 50, np.random.default_rng(4))
     assert np.abs(back.fk(q) - cal.fk(q)).max() < 1e-12
+
+
+def test_a_missing_origin_is_added_with_the_files_line_ending():
+    """A CRLF URDF stays CRLF where an <origin> is inserted; an LF file stays LF."""
+    from kincal.robots.urdf_text import set_origin
+
+    def fmt(values):
+        return " ".join(repr(float(v)) for v in values)
+
+    lines = ['<robot name="r">', '  <joint name="j1" type="revolute">', '    <parent link="a"/>',
+             '    <child link="b"/>', "  </joint>", "</robot>", ""]
+    for eol in ("\r\n", "\n"):
+        text = eol.join(lines)
+        out = set_origin(text, "j1", [0.0, 0.0, 0.1], [0.0, 0.0, 0.0], fmt)
+        assert out == text.replace(f'type="revolute">{eol}',
+                                   f'type="revolute">{eol}    <origin xyz="0.0 0.0 0.1"/>{eol}')
+        assert out.count("\n") == out.count(eol) == text.count(eol) + 1

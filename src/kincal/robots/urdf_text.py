@@ -78,16 +78,18 @@ def set_origin(text: str, joint: str, xyz: Sequence[float], rpy: Sequence[float]
 
     ``fmt(values) -> str`` writes numbers (shortest round-trip form).  Unchanged numbers
     keep their text; a missing attribute is added (``rpy`` only when not all zero); a
-    missing ``<origin>`` is added as the joint's first child.
+    missing ``<origin>`` is added as the joint's first child, on a line of its own with
+    the file's line ending (CRLF stays CRLF).
     """
     masked = mask_comments(text)
     start, head_end, end = element_span(masked, "joint", joint)
     m = re.search(r"<origin\b[^>]*?/?>", masked[head_end:end])
     if m is None:
-        indent = re.search(r"\n([ \t]*)<", masked[head_end:end])
-        pad = indent.group(1) if indent else "  "
+        indent = re.search(r"(\r?\n)([ \t]*)<", masked[head_end:end])
+        newline, pad = (indent.group(1), indent.group(2)) if indent else (
+            "\r\n" if "\r\n" in text else "\n", "  ")
         attrs = f'xyz="{fmt(xyz)}"' + (f' rpy="{fmt(rpy)}"' if any(rpy) else "")
-        return text[:head_end] + f"\n{pad}<origin {attrs}/>" + text[head_end:]
+        return text[:head_end] + f"{newline}{pad}<origin {attrs}/>" + text[head_end:]
     o0, o1 = head_end + m.start(), head_end + m.end()
     tag = text[o0:o1]
     for name, values in (("xyz", xyz), ("rpy", rpy)):
