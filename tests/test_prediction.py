@@ -129,9 +129,10 @@ def test_predicted_error_agrees_with_a_monte_carlo(puma, planned) -> None:
         true = perturb_robot(puma, rng)
         block = simulate_positions(true, design.q, rng, NOISE, instrument=instrument,
                                    markers=marker)
-        # LM stops after ~4 iterations, when the scaled step is below 1e-8 (0.01 um)
+        # LM stops after 2-4 iterations, within 1e-3 standard errors of the minimum or
+        # on a scaled step below 1e-8 (0.01 um)
         res = calibrate(puma, [block], max_iter=8, tol_step=1e-8, trust_sigma=True)
-        assert res.converged and res.history[-1].step <= 1e-8
+        assert res.converged, res.message
         truth = simulate_positions(true, q_eval, rng, 0.0, instrument=instrument,
                                    markers=marker).positions
         e = PositionMeasurement(q_eval, truth, NOISE).errors(

@@ -11,7 +11,8 @@ import pytest
 from kincal.errors import KincalError
 from kincal.identify.identifiability import analyze
 from kincal.identify.solver import Calibration, CalibrationResult, calibrate, match_names
-from kincal.measure.base import stack
+from kincal.measure.base import StackedProblem, stack
+from kincal.measure.models import PositionMeasurement
 from kincal.measure.simulate import (
     instrument_values,
     perturb_robot,
@@ -40,6 +41,23 @@ def make_block(true, q, rng, kind, noise=0.0):
     if kind == "pose":
         return simulate_poses(true, q, rng, noise, noise, INSTRUMENT, TARGET)
     return simulate_positions(true, q, rng, noise, INSTRUMENT, MARKER)
+
+
+def tight_minimum(res):
+    """scipy's least_squares from the result's start over its estimated parameters, with
+    the tightest tolerances and the analytic Jacobian: the exact minimum to compare with."""
+    from scipy.optimize import least_squares
+
+    prob, th0 = res.problem, res.theta0
+    est = [prob.names.index(n) for n in res.estimated]
+
+    def fun(x, jac=False):
+        th = th0.copy()
+        th[est] = x
+        return prob.residuals_and_jacobian(th)[1][:, est] if jac else prob.residuals(th)
+
+    return est, least_squares(fun, th0[est], jac=lambda x: fun(x, True), x_scale="jac",
+                              xtol=1e-15, ftol=1e-15, gtol=1e-15).x
 
 
 def base_set(robot, kind, q, rng):
@@ -267,8 +285,6 @@ def test_levenberg_marquardt_stops_with_one_failed_trial():
     """At the minimum the last trial step fails and is already shorter than tol_step:
     the stage ends there (one residual evaluation per iteration in all), at the
     solution scipy's least_squares finds with the tightest tolerances."""
-    from scipy.optimize import least_squares
-
     rng = np.random.default_rng(7)
     robot = puma()
     q = random_configurations(robot, 40, rng)
@@ -281,24 +297,58 @@ def test_levenberg_marquardt_stops_with_one_failed_trial():
         return evaluate(robot, extra, jacobian)
 
     blk.evaluate = counted
-    res = calibrate(robot, [blk])
+    res = calibrate(robot, [blk], tol_std=0.0)         # the step rules alone
     # Which of the two step rules ends the stage depends on the last bits of the BLAS in
     # use (the last accepted step may already be below tol_step); either way no trial
     # evaluation may be wasted at the minimum.
     assert res.converged and ("no descent step longer than tol_step" in res.message
                               or "step below tol_step" in res.message), res.message
     assert calls[0] <= res.iterations                  # was 11 extra at the last iteration
-    prob, th0 = res.problem, res.theta0
-    est = [prob.names.index(n) for n in res.estimated]
+    est, ref = tight_minimum(res)
+    assert np.max(np.abs(res.theta[est] - ref) / (1 + np.abs(ref))) < 1e-10
 
-    def fun(x, jac=False):
-        th = th0.copy()
-        th[est] = x
-        return prob.residuals_and_jacobian(th)[1][:, est] if jac else prob.residuals(th)
 
-    ref = least_squares(fun, th0[est], jac=lambda x: fun(x, True), x_scale="jac",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    assert np.max(np.abs(res.theta[est] - ref.x) / (1 + np.abs(ref.x))) < 1e-10
+@pytest.mark.parametrize("noise", [1e-5, 1e-3])
+def test_stage_stops_within_tol_std_standard_errors(noise, monkeypatch):
+    """The default stop: the remaining Gauss-Newton step is at most ``tol_std`` standard
+    errors long, so the estimate is that close to the exact minimum (scipy's, with the
+    tightest tolerances) in every parameter, and the stage saves the linearisations the
+    step rules would still build.  Also with stated sigmas 100x too small (noise 1 mm,
+    sigma 10 um): the distance is measured in the smaller of the stated and the
+    a-posteriori standard errors."""
+    rng = np.random.default_rng(11)
+    robot = puma()
+    true = perturb_robot(robot, rng)
+    blk = make_block(true, random_configurations(robot, 200, rng), rng, "position",
+                     noise=noise)
+    if noise > 1e-5:                                    # stated 10 um, measured 1 mm
+        blk = PositionMeasurement(blk.q, blk._y, 1e-5, blk.name)
+    builds = [0]
+    compressed = StackedProblem.compressed
+
+    def counted(self, *args, **kw):
+        builds[0] += 1
+        return compressed(self, *args, **kw)
+
+    monkeypatch.setattr(StackedProblem, "compressed", counted)
+    res = calibrate(robot, [blk])
+    n_default = builds[0]
+    builds[0] = 0
+    tight = calibrate(robot, [blk], tol_std=0.0)
+    n_tight = builds[0]
+    assert res.converged and "below tol_std = 0.001 standard errors" in res.message
+    # stated sigmas 100x too small: the rule measures in them, 100x stricter than the
+    # a-posteriori standard errors, and saves nothing here
+    assert n_default < n_tight if noise <= 1e-5 else n_default <= n_tight, (n_default, n_tight)
+    assert res.estimated == tight.estimated
+    est, ref = tight_minimum(res)
+    # the standard errors the rule measures in: sigma0 = min(a-posteriori, 1)
+    se = res.std[est] / res.sigma0 * min(res.sigma0, 1.0)
+    assert np.max(np.abs(res.theta[est] - ref) / se) <= 1e-3
+    # without the rule the step rules hold it to tol_step (1e-10 relative)
+    assert np.max(np.abs(tight.theta[est] - ref) / (1 + np.abs(ref))) < 1e-10
+    # the residuals kept with the last triangle are those at the returned estimate
+    assert np.allclose(res.residuals, res.problem.residuals(res.theta), rtol=0, atol=1e-9)
 
 
 # --------------------------------------------------------------------------- summary

@@ -27,12 +27,19 @@ the singular values and right singular vectors of ``W^1/2 J D^-1``, ``g = U^T z`
   ``rho > 0.25``: from a nominal robot the problem is nearly linear and the full step
   lands next to the minimum, where a damped first step costs one more linearisation.
 
-Stopping (per stage): the step is small, ``|dx_j| <= tol_step (1 + |x_j|)`` for
-every estimated ``j`` (parameters in m / rad); or the relative cost change is below
-``tol_cost``; or a Levenberg-Marquardt trial step that fails is already that small
-(every more damped one is shorter still, so the stage is at a minimum to within
-``tol_step``: one evaluation instead of a dozen doublings of ``lambda``); or
-``max_iter`` iterations.
+Stopping (per stage): the remaining Gauss-Newton step is statistically negligible,
+``|z| <= tol_std s0``, with ``z`` the triangle's right-hand side at the current point and
+``s0^2 = min(2 cost / (M - p), 1)`` (the a-posteriori variance factor, or the stated
+sigmas' when that is smaller): the step's length in the metric of the covariance,
+``|R dx| = |z|``, is then at most ``tol_std`` standard errors, so with the default
+``1e-3`` the minimum is a thousandth of a standard error away in any direction and the
+next linearisation is not built (plain least squares only: the robust losses' weights
+must settle as well, so they stop by the other rules; ``tol_std=0`` turns it off); or
+the step is small, ``|dx_j| <= tol_step (1 + |x_j|)`` for every estimated ``j``
+(parameters in m / rad); or the relative cost change is below ``tol_cost``; or a
+Levenberg-Marquardt trial step that fails is already that small (every more damped one
+is shorter still, so the stage is at a minimum to within ``tol_step``: one evaluation
+instead of a dozen doublings of ``lambda``); or ``max_iter`` iterations.
 
 Robust losses (``"huber"``, ``"cauchy"``) are iteratively reweighted least squares
 per *measurement* (all residuals of one point / pose share a weight): with
@@ -159,6 +166,11 @@ MAX_RESELECT = 3
 #: Re-solves of the last stage while the noise scale settles, and its relative tolerance.
 MAX_NOISE_ITER = 20
 NOISE_RTOL = 5e-3
+#: A stage keeps the residual vector of its current point next to its triangle when the
+#: vector is at most this large [bytes], so a stage that ends there does not evaluate
+#: it again; larger problems keep one residual vector at a time (memory O(P^2 + piece)
+#: beyond the data and that vector).
+KEEP_RESIDUALS_BYTES = 8 << 20
 
 
 # --------------------------------------------------------------------------- names
@@ -802,7 +814,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
                ids: Array | None, dims: Array | None, history: list[IterationRecord],
                progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0,
-               start: CompressedSystem | None = None) -> _StageEnd:
+               start: CompressedSystem | None = None, tol_std: float = 0.0) -> _StageEnd:
     """Iterate one stage to convergence from ``theta`` over the columns ``est``.
 
     ``prob`` is a :class:`StackedProblem` or a :class:`_WithPrior` whose ``n_fixed``
@@ -817,11 +829,14 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     # trial's residuals in the same pass over the data (no forward kinematics evaluated
     # twice at the same theta).  The current residuals are dropped while a step is tried
     # (one residual vector in memory; the triangle ``here`` at the current point is kept,
-    # and its cost stands for theirs) and evaluated again only on the rare exits that end
-    # the stage at the current point.
+    # and its cost stands for theirs) and evaluated again only on the exits that end the
+    # stage at the current point, unless the vector is small enough to keep
+    # (KEEP_RESIDUALS_BYTES: ``r_here``, the residuals where ``here`` was built).
     speculate = loss == "linear"
+    keep_r = speculate and 8 * prob.num_residuals() <= KEEP_RESIDUALS_BYTES
     C, start = start, None                  # no reference to a residual vector is kept
     r: Array | None = None if C is None else C.r
+    r_here = r if keep_r else None
     if r is None and not (speculate and C is not None):
         r = prob.residuals(theta)
     w = (np.broadcast_to(np.float64(1.0), (prob.num_residuals(),)) if speculate
@@ -836,7 +851,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     def current() -> Array:
         nonlocal r
         if r is None:
-            r = prob.residuals(theta)
+            r = r_here if r_here is not None and here_theta is theta else prob.residuals(theta)
         return r
 
     def done(converged: bool, iterations: int, message: str) -> _StageEnd:
@@ -871,10 +886,12 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
     Dmax = np.zeros(len(est))
     C_new: CompressedSystem | None = None
     r_new: Array | None = None
+    dof = prob.num_residuals() - len(est)
     for it in range(1, max_iter + 1):
         if here is None:
             C = prob.compressed(theta, w, est)
             r, here, here_theta = C.r, dataclasses.replace(C, r=None), theta
+            r_here = r if keep_r else None
         # [W^1/2 J | W^1/2 r] = Q [[R, z], [0, rho]]: R D^-1 = U S V^T, g = U^T z
         D = np.linalg.norm(here.R, axis=0)
         Dmax = np.maximum(Dmax, D)
@@ -883,6 +900,13 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         cost = cost_here()
         if not np.isfinite(cost):
             return done(False, it - 1, f"stage {label!r}: the residuals are not finite")
+        # the full Gauss-Newton step moves |R dx| = |z| (at most): within tol_std
+        # standard errors the stage is at its minimum (s0^2 = 2 cost / dof, or 1 if
+        # smaller: never looser than the stated sigmas' standard errors)
+        if (speculate and here_theta is theta and dof > 0
+                and float(here.z @ here.z) <= tol_std**2 * min(2.0 * cost / dof, 1.0)):
+            return done(True, it - 1, f"stage {label!r}: the remaining step is below "
+                                      f"tol_std = {tol_std:g} standard errors")
         C = r = C_new = r_new = None                        # see `speculate` above
         if method == "gauss-newton":
             U, S, Vt = np.linalg.svd(A)
@@ -903,6 +927,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             theta, r = new, r_new
             if C_new is not None:
                 here, here_theta = dataclasses.replace(C_new, r=None), theta
+                r_here = r if keep_r else None
             elif not (speculate and step <= tol_step):
                 here = None
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
@@ -992,6 +1017,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         theta, r = new, r_new                    # C_new: the triangle there, if built
         if C_new is not None:
             here, here_theta = dataclasses.replace(C_new, r=None), theta
+            r_here = r if keep_r else None
         elif not (speculate and tiny):
             here = None
         w_old = w
@@ -1012,6 +1038,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
               loss: str = "linear", loss_scale: float = 3.0, max_iter: int = 100,
               tol_step: float = 1e-10, tol_cost: float = 1e-14,
               progress: Callable[[IterationRecord], Any] | None = None, *,
+              tol_std: float = 1e-3,
               trust_sigma: bool = False, tol_rank: float | None = None,
               initial: dict[str, float] | None = None,
               prior: Mapping[str, float] | str | None = None,
@@ -1031,6 +1058,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         loss: ``"linear"``, ``"huber"`` or ``"cauchy"`` (IRLS per measurement).
         loss_scale: robust threshold in units of the robust residual scale.
         max_iter, tol_step, tol_cost: stopping rules per stage (see module docstring).
+        tol_std: a stage stops when its remaining Gauss-Newton step is at most this
+            many standard errors long (module docstring, "Stopping"); 0 turns it off.
         progress: called with every :class:`IterationRecord`.
         trust_sigma: use ``sigma0 = 1`` for the covariance instead of the a-posteriori
             estimate.
@@ -1115,7 +1144,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         aug = with_prior(idx)
         first = None if at is None else aug.extend(_columns(at, idx), theta_start)
         return _run_stage(aug, theta_start, idx, label, method, loss, loss_scale, max_iter,
-                          tol_step, tol_cost, ids, dims, history, progress, aug.rows, first)
+                          tol_step, tol_cost, ids, dims, history, progress, aug.rows, first,
+                          tol_std)
 
     def ended(stage: _StageEnd, columns: Iterable[int]) -> tuple[CompressedSystem, bool]:
         """The measurements' triangle (robust weights, no prior rows) where ``stage``
