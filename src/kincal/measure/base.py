@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -261,7 +261,8 @@ class MeasurementModel(ABC):
         yield slice(0, r.size), r, Jr, Je  # type: ignore[misc]
 
     def system_pieces(self, robot: Robot, extra: Array, robot_columns: NDArray[np.intp],
-                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS
+                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS, *,
+                      robot_out: Callable[[int], Array | None] | None = None
                       ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
         """The residuals and the Jacobian columns a least-squares step needs, in pieces.
 
@@ -275,6 +276,10 @@ class MeasurementModel(ABC):
         :meth:`evaluate_chunks`; blocks with a faster path override it.  A piece's
         arrays may be working memory the next piece reuses
         (:func:`scratch`): use them before asking for the next.
+
+        ``robot_out``, when given, maps a piece's ``n`` to a C-contiguous
+        (len(robot_columns), n) array (or None) that a block may compute ``Jr`` into
+        and yield (the caller's own buffer: no copy); blocks are free to ignore it.
         """
         for sl, r, Jr, Je in self.evaluate_chunks(robot, extra, rows):
             yield sl, None, r, Jr[:, robot_columns].T, Je[:, own_columns].T
@@ -314,7 +319,11 @@ class StackedProblem:
     def split(self, theta: Array) -> tuple[Robot, list[Array]]:
         """The robot with ``theta``'s robot part, and each block's parameter values."""
         theta = np.asarray(theta, dtype=float)
-        robot = self.robot.with_params(theta[: self.num_robot])
+        values = theta[: self.num_robot]
+        # the robot itself when its values are unchanged (robots are immutable): its
+        # compiled chain is reused
+        robot = self.robot if np.array_equal(values, self.robot.param_values) \
+            else self.robot.with_params(values)
         return robot, [theta[s] for s in self.slices]
 
     def index(self, name: str) -> int:
@@ -475,6 +484,7 @@ class StackedProblem:
         where[cols] = np.arange(p)
         rob_src = np.flatnonzero(where[:P] >= 0)
         rob_dst = where[rob_src]
+        dst_r = _as_slice(rob_dst)
         r = np.empty(M + spare_rows) if keep_residuals else None
         rw2 = 0.0
         # [W^1/2 J | W^1/2 r]^T piece by piece into B (p + 1, n) (row-major, i.e. the
@@ -482,15 +492,28 @@ class StackedProblem:
         T = np.zeros((p + 1, p + 1), order="F")
         nb = min(8, p + 1)
         robot, extras = self.split(theta)
+        # the robot columns go straight into the fold buffer when they are a run of its
+        # rows (a block may compute them there: no copy)
+        handed: list[Array] = []
+
+        def robot_rows(n: int) -> Array | None:
+            handed[:] = [scratch("compressed.B", (p + 1, n))[dst_r]]
+            return handed[0]
+
+        into = robot_rows if isinstance(dst_r, slice) and rob_src.size else None
         offset = 0
         for i, (b, e) in enumerate(zip(self.blocks, extras, strict=True)):
             m = b.num_residuals()
             own = self.slices[i]
             own_src = np.flatnonzero(where[own] >= 0)
             own_dst = where[own][own_src]
-            dst_r, dst_o = _as_slice(rob_dst), _as_slice(own_dst)
-            covered = rob_src.size + own_src.size == p
-            for sl, order, rc, Jr, Je in b.system_pieces(robot, e, rob_src, own_src, rows):
+            dst_o = _as_slice(own_dst)
+            # rows of B that neither the robot's nor this block's columns fill
+            idle = np.ones(p, dtype=bool)
+            idle[rob_dst] = idle[own_dst] = False
+            idle = np.flatnonzero(idle)
+            for sl, order, rc, Jr, Je in b.system_pieces(robot, e, rob_src, own_src, rows,
+                                                         robot_out=into):
                 if sl.stop > m:
                     raise KincalError(f"measurement block {b.name!r} returned more residuals "
                                       f"than its residual_owner() lists ({m})")
@@ -503,9 +526,10 @@ class StackedProblem:
                     r[idx] = rc
                 rw2 += float(rc @ rc) if w is None else float((w[idx] * rc) @ rc)
                 B = scratch("compressed.B", (p + 1, n))
-                if not covered:
-                    B[:p] = 0.0
-                if rob_src.size:
+                if idle.size:
+                    B[idle] = 0.0
+                if rob_src.size and not (handed and Jr.shape == handed[0].shape
+                                         and Jr.ctypes.data == handed[0].ctypes.data):
                     B[dst_r] = Jr
                 if own_src.size:
                     B[dst_o] = Je

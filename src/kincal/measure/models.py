@@ -45,7 +45,7 @@ of its Kronecker form, then the translations linearly.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -277,7 +277,8 @@ class PositionMeasurement(MeasurementModel):
         return H
 
     def system_pieces(self, robot: Robot, extra: Array, robot_columns: NDArray[np.intp],
-                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS
+                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS, *,
+                      robot_out: Callable[[int], Array | None] | None = None
                       ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
         """The selected columns straight from the chain's point Jacobian.
 
@@ -286,7 +287,8 @@ class PositionMeasurement(MeasurementModel):
         ``dy / dc`` come out in the instrument frame for the marker itself, configurations
         last: a piece's rows are ordered (marker, coordinate, configuration).  Block
         columns as in :meth:`_fill`: ``-R_I^T`` (translation), ``y x E'_c`` (rotation),
-        ``R_I^T R_e`` (marker); every row divided by its ``sigma``.
+        ``R_I^T R_e`` (marker); every row divided by its ``sigma``.  The robot columns
+        are computed into ``robot_out``'s array when it gives one.
         """
         extra = np.asarray(extra, dtype=float)
         G, _, m, Ep = self._frames(extra)
@@ -297,10 +299,12 @@ class PositionMeasurement(MeasurementModel):
         for cs in configuration_slices(self.N, step, rows):
             L = cs.stop - cs.start
             # working arrays (scratch): each piece is folded before the next one is made
+            into = None if robot_out is None else robot_out(step * L)
             Y, D, Rot = robot.point_jacobian(
                 self.q[cs], m, H, cols, rotation=True,
-                out=(scratch("pieces.Y", (K, 3, L)), scratch("pieces.D", (len(cols), K, 3, L)),
-                     scratch("pieces.Rot", (3, 3, L))))
+                out=(scratch("pieces.Y", (K, 3, L)),
+                     scratch("pieces.D", (len(cols), K, 3, L)) if into is None
+                     else into.reshape(len(cols), K, 3, L), scratch("pieces.Rot", (3, 3, L))))
             wT = (1.0 / self.sigma[cs]).T                         # (K, L)
             y = None
             if any(3 <= c < 6 for c in own):                      # predictions
@@ -509,16 +513,20 @@ class PositionMeasurement(MeasurementModel):
         X_pe, X_y = X[:, 0], X[:, 1:].reshape(p2, 3, 3)            # X_y[:, a, b]
         W = S_w.sum()
         assert pe0 is not None
+        # the moments as matrices acting on the stacked markers m (3K): the loop is then
+        # a few matrix-vector products and one 3x3 SVD per iteration
+        X_y2 = X_y.reshape(p2, 9)                                  # acts on R[a, b]
+        cs_y = S_y.sum(0) / W
+        S_pe1, S_ype1 = S_pe.sum(0) / W, S_ype.sum(0).reshape(9) / W
+        S_R2 = S_R.transpose(1, 0, 2).reshape(3, 3 * K) / W         # [b, (k, c)]
+        S_yR2 = S_yR.transpose(1, 2, 0, 3).reshape(9, 3 * K) / W    # [(a, b), (k, c)]
         for _ in range(iterations):
-            sol = X_pe - np.einsum("pab,ab->p", X_y, R)
+            sol = X_pe - X_y2 @ R.reshape(9)
             m = sol[3:].reshape(K, 3)
             # weighted cross-covariance of y and p_e + R_e m_k (normalised weights)
-            cs_y = S_y.sum(0) / W
-            cs_w = (S_pe.sum(0) + np.einsum("kbc,kc->b", S_R, m)) / W
-            Hc = (S_ype.sum(0) + np.einsum("kabc,kc->ab", S_yR, m)) / W - np.outer(cs_y, cs_w)
-            U, _, Vt = np.linalg.svd(Hc)
-            D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
-            R_new = Vt.T @ D @ U.T
+            cs_w = S_pe1 + S_R2 @ sol[3:]
+            Hc = (S_ype1 + S_yR2 @ sol[3:]).reshape(3, 3) - np.outer(cs_y, cs_w)
+            R_new = project_so3(Hc.T)                              # Kabsch: V D U^T
             t = (cs_w + pe0) - R_new @ (cs_y + y0)
             change = np.linalg.norm(R_new - R)
             R = R_new

@@ -25,7 +25,7 @@ tool are wrapped the same way, so they use it too.
 from __future__ import annotations
 
 import copy
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -90,11 +90,13 @@ class ToolPointBlock(MeasurementModel):
             yield sl, r, Jr, Je[:, self._keep]
 
     def system_pieces(self, robot: Any, extra: Array, robot_columns: NDArray[np.intp],
-                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS
+                      own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS, *,
+                      robot_out: Callable[[int], Array | None] | None = None
                       ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
         """The inner block's pieces (its fast path), own columns mapped past the marker."""
         own = np.flatnonzero(self._keep)[np.asarray(own_columns, dtype=np.intp)]
-        yield from self.inner.system_pieces(robot, self._full(extra), robot_columns, own, rows)
+        yield from self.inner.system_pieces(robot, self._full(extra), robot_columns, own, rows,
+                                            robot_out=robot_out)
 
     def residuals_into(self, robot: Any, extra: Array, out: Array) -> None:
         self.inner.residuals_into(robot, self._full(extra), out)
