@@ -13,13 +13,12 @@ coordinate, at N = 1k, 10k, 100k configurations.  Accuracy is the RMS distance b
 each tool's predicted and the *true* (noise-free) marker positions on 2 000 held-out
 configurations, and ``|dθ|/σ`` the largest difference between kincal's and the NumPy
 peer's estimates in kincal's standard errors.  Both tools solve the same plain
-least-squares problem.  kincal is
-timed twice: as a user calls it (``auto``: it also chooses the identifiable parameters
-among all 45 / 55 candidates, which the peer is handed), and given the peer's parameter
-list (``same P``: ``free=`` the estimated names; it still computes its own start, checks
-identifiability and the covariance).  kincal's command-line default (a MAP fit with the
-manufacturing tolerances as priors and the noise scale estimated, ``MAP``) is timed in
-the same rounds and shown apart.
+least-squares problem.  kincal is timed twice: as a user calls it (``auto``: it also
+chooses the identifiable parameters among all 45 / 55 candidates, which the peer is
+handed), and given the peer's parameter list (``same P``: ``free=`` the estimated names;
+it still computes its own start, checks identifiability and the covariance).  kincal's
+command-line default (a MAP fit with the manufacturing tolerances as priors and the
+noise scale estimated, ``MAP``) is timed in the same rounds and shown apart.
 
 **pybotics** (``--section pybotics``): the UR10 of pybotics' MDH table, 1 000 poses, its
 documented recipe (``OptimizationHandler`` + ``least_squares(optimize_accuracy)``).
