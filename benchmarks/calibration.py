@@ -35,7 +35,10 @@ the resident set before it: the data are not counted).
 
 Timing: every contender once per round, the order rotated, at least five rounds; the
 tables quote medians and the median of the same-round ratios (:mod:`timing`), never
-best-of.  One BLAS thread for everyone.  The machine and its load are printed.
+best-of.  In the peer table every call starts with cold CPU caches (128 MiB of other
+memory written before it, untimed): one kincal variant right after another would
+otherwise find its arrays still cached.  One BLAS thread for everyone.  The machine and
+its load are printed.
 
 Run (the peers live in the benchmark environment, ``pip install -e ".[bench]"``)::
 
@@ -264,7 +267,7 @@ def peer_row(name: str, n: int, rounds: int, with_pin: bool) -> str:
     if with_pin:
         fk = model.pinocchio()
         fns["pin"] = lambda: calibrate_peer(model, block.q, y, sigma, theta0, free, fk)
-    t = interleaved(fns, rounds=rounds, warmup=False)
+    t = interleaved(fns, rounds=rounds, warmup=False, cold=True)
 
     def truth_rms(theta: np.ndarray) -> float:
         pred = model.observe(theta, model.fk_numpy(theta, qv))

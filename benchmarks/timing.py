@@ -18,6 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Memory written between two timed calls when they should start cold (:func:`interleaved`):
+#: far more than the L2 caches and the share of L3 a process gets on a shared machine.
+COLD_BYTES = 128 << 20
+
 
 @dataclass
 class Timings:
@@ -42,22 +46,31 @@ class Timings:
 
 
 def interleaved(fns: Mapping[str, Callable[[], object]], rounds: int = 5,
-                warmup: bool = True) -> Timings:
+                warmup: bool = True, cold: bool = False) -> Timings:
     """Run every function once per round, rotating the order; keep the last result.
 
     Args:
         fns: ``{name: zero-argument function}``.
         rounds: number of rounds (at least 5 for a quoted number).
         warmup: one untimed call of each first (imports, caches, JIT compilation).
+        cold: before every call, untimed, write :data:`COLD_BYTES` of other memory, so
+            that each contender starts with the CPU caches holding someone else's
+            data whatever ran before it.  A call that follows a similar one (two
+            variants of one tool) otherwise finds its arrays and code still cached
+            and looks faster than it is; a calibration inside a user's program starts
+            cold.
     """
     names = list(fns)
     out = Timings({k: [] for k in names}, {k: [] for k in names})
     if warmup:
         for k in names:
             fns[k]()
+    junk = np.empty(COLD_BYTES // 8) if cold else None
     for i in range(rounds):
         order = names[i % len(names):] + names[: i % len(names)]
         for k in order:
+            if junk is not None:
+                junk.fill(float(i))
             c0, t0 = time.process_time(), time.perf_counter()
             res = fns[k]()
             out.wall[k].append(time.perf_counter() - t0)

@@ -65,6 +65,9 @@ from kincal.measure.base import (
 from kincal.robots.chain import Robot
 from kincal.spatial import log_so3, skew
 
+#: Configurations a position block's closed-form start uses at most (evenly spaced).
+GUESS_CONFIGURATIONS = 256
+
 Array = NDArray[np.float64]
 
 __all__ = ["PositionMeasurement", "PoseMeasurement", "kabsch", "inverse_left_jacobian_so3"]
@@ -450,8 +453,11 @@ class PositionMeasurement(MeasurementModel):
         If the tool orientations do not vary enough to separate ``m`` from ``t``
         the minimum-norm solution is taken (markers near the tool origin).
 
-        One pass over the configurations, in pieces, gathers everything (memory
-        independent of N): the QR triangle of step 1's system, which also gives that of
+        It is a start, so it uses at most :data:`GUESS_CONFIGURATIONS` configurations,
+        evenly spaced through the block: the start's error is then the nominal
+        model's (millimetres), not the noise's, and the solver refines it on all of
+        them.  One pass over those, in pieces, gathers everything (memory independent
+        of N): the QR triangle of step 1's system, which also gives that of
         step 2's matrix ``[I, -R_e]`` with its right-hand sides ``p_e`` and ``y_b e_a``
         (the same columns in another order), since ``p_e - R y = p_e - sum_ab R_ab y_b
         e_a`` is linear in ``R``; and the weighted
@@ -462,16 +468,19 @@ class PositionMeasurement(MeasurementModel):
         N, K = self.N, self.K
         p1, p2 = 12 + 3 * K, 3 + 3 * K
         first = Triangle(p1 + 1)
-        w_all = 1.0 / self.sigma ** 2                              # (N, K)
+        rows = (slice(None) if N <= GUESS_CONFIGURATIONS
+                else np.linspace(0, N - 1, GUESS_CONFIGURATIONS).round().astype(np.intp))
+        q_all, y_all = self.q[rows], self._y[rows]
+        w_all = 1.0 / self.sigma[rows] ** 2                        # (n, K)
         y0, pe0 = self._y[0, 0].copy(), None
         S_w = np.zeros(K)
         S_y, S_pe = np.zeros((K, 3)), np.zeros((K, 3))
         S_R = np.zeros((K, 3, 3))
         S_ype, S_yR = np.zeros((K, 3, 3)), np.zeros((K, 3, 3, 3))
-        for cs in configuration_slices(N, 3 * K, CHUNK_ROWS):
-            T = robot.fk(self.q[cs])
+        for cs in configuration_slices(len(q_all), 3 * K, CHUNK_ROWS):
+            T = robot.fk(q_all[cs])
             Re, pe = T[:, :3, :3], T[:, :3, 3]
-            y = self._y[cs]
+            y = y_all[cs]
             n = len(pe)
             ReT = Re.transpose(2, 0, 1)                            # ReT[c, :, a] = Re[:, a, c]
             # the systems' columns as rows (n, K, 3) of B (no transposed copy to fold):

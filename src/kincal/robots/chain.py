@@ -833,14 +833,9 @@ class _Plan:
             return sel
         shape = self.st.selection(columns)
         pre = shape["pre"]
-        joints = [m for m, _, _ in shape["groups"]]
         sel = {**shape, "pre": len(pre), "pre_ax": self.pre_ax[pre, :, 0],
                "pre_org": self.pre_org[pre, :, 0], "pre_rot": self.rows_rot[pre],
-               "groups": [(m, rows, self.C6[idx]) for m, rows, idx in shape["groups"]],
-               # the joints' frames the groups use, as a range when they are consecutive
-               "joints": ((joints[0], joints[-1] + 1)
-                          if joints and joints == list(range(joints[0], joints[-1] + 1))
-                          else (0, 0))}
+               "groups": [(m, rows, self.C6[idx]) for m, rows, idx in shape["groups"]]}
         cache[columns] = sel
         return sel
 
@@ -901,7 +896,7 @@ class _Plan:
         # configurations per block: the frames, the cross-product table and one block of
         # output rows within _BLOCK_BYTES (a piece of a few thousand is one block, whose
         # rows are then written in place)
-        per = 8 * (15 * self.J + 42 + 24 * K + 24 * self.J * K)
+        per = 8 * (15 * self.J + 42 + 24 * K)
         L = max(1, min(N, max(_BLOCK_MIN, min(_BLOCK_MAX, _BLOCK_BYTES // per))))
         for start in range(0, N, L):
             sl = slice(start, min(N, start + L))
@@ -934,27 +929,7 @@ class _Plan:
                     out = base[: sel["pre"], k]
                     np.matmul(pre[0], Yb[k], out=out)
                     out += pre[1]
-            groups = sel["groups"]
-            m0, m1 = sel["joints"]
-            if m1 - m0 == len(groups) and len(groups) > 1:
-                # every joint frame at once: Z[g, c] = S_c x (y_k - p_m) of group g
-                G = m1 - m0
-                Sg = S[m0:m1]                                    # (G, 4, 3, L)
-                dG = _buffer(b, "dG", (G, K, 3, Lb))
-                np.subtract(Yb[None], Sg[:, 3, None], out=dG)    # y_k - p_m
-                ZG = _buffer(b, "ZG", (G, 6, K, 3, Lb))
-                tG = _buffer(b, "tG", (G, 3, K, Lb))
-                for i in range(3):
-                    j, l = (i + 1) % 3, (i + 2) % 3
-                    np.multiply(Sg[:, :3, None, j], dG[:, None, :, l], out=ZG[:, :3, :, i])
-                    np.multiply(Sg[:, :3, None, l], dG[:, None, :, j], out=tG)
-                    ZG[:, :3, :, i] -= tG
-                ZG[:, 3:] = Sg[:, :3, None]
-                for g, (_, rows, Cg) in enumerate(groups):
-                    np.matmul(Cg, ZG[g].reshape(6, K * 3 * Lb),
-                              out=base[rows].reshape(rows.stop - rows.start, K * 3 * Lb))
-                groups = []
-            for m, rows, Cg in groups:
+            for m, rows, Cg in sel["groups"]:
                 np.subtract(Yb, S[m][3], out=d)                  # y_k - p_m
                 Sm = S[m][:3]                                    # (3 columns, 3, L)
                 for i in range(3):                               # Z[c] = S_c x (y_k - p_m)
