@@ -469,7 +469,7 @@ class PositionMeasurement(MeasurementModel):
         p1, p2 = 12 + 3 * K, 3 + 3 * K
         first = Triangle(p1 + 1)
         rows = (slice(None) if N <= GUESS_CONFIGURATIONS
-                else np.linspace(0, N - 1, GUESS_CONFIGURATIONS).round().astype(np.intp))
+                else np.arange(GUESS_CONFIGURATIONS) * (N - 1) // (GUESS_CONFIGURATIONS - 1))
         q_all, y_all = self.q[rows], self._y[rows]
         w_all = 1.0 / self.sigma[rows] ** 2                        # (n, K)
         y0, pe0 = self._y[0, 0].copy(), None
