@@ -194,9 +194,6 @@ def _stage_label(spec: str | Sequence[str]) -> str:
 
 
 # --------------------------------------------------------------------------- display
-#: SI unit -> (factor, unit) for people: lengths in mm, angles in degrees.
-
-
 def format_error(key: str, value: float, what: str = "") -> str:
     """``"position_m", 1.2e-5 -> "position 0.0120 mm"``: a physical error for people.
 

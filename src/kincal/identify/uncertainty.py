@@ -45,9 +45,7 @@ def inverse_normal_matrix(J: ArrayLike, rcond: float = 1e-12) -> Array:
     if np.any(D == 0):
         raise IdentifiabilityError(f"column {int(np.argmin(D))} of the Jacobian is zero: the "
                                    "covariance does not exist")
-    # a triangle (or any short J, e.g. the solver's R) directly; a tall J by tiles
-    _, S, Vt = (np.linalg.svd(J / D, full_matrices=False) if J.shape[0] <= 2 * p
-                else svd_thin(J / D))
+    _, S, Vt = svd_thin(J / D)
     if S[-1] <= rcond * S[0]:
         raise IdentifiabilityError("the Jacobian is rank deficient: the covariance does not "
                                    "exist (run the identifiability analysis first)")

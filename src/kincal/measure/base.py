@@ -814,8 +814,8 @@ def svd_thin(A: ArrayLike) -> tuple[Array, Array, Array]:
     """
     A = np.asarray(A, dtype=float)
     M, p = A.shape
-    if M < p or p == 0:
-        return np.linalg.svd(A, full_matrices=False)
+    if M <= 2 * p or p == 0:                    # short (e.g. a triangle): a QR first
+        return np.linalg.svd(A, full_matrices=False)   # would only add work
     m = _tile_rows(p)
     if M <= 2 * m:
         Q, R = np.linalg.qr(A, mode="reduced")
