@@ -13,7 +13,6 @@ from kincal.measure.base import (
     frame_rotation_axes,
     frame_values,
     lstsq,
-    scratch,
     stack,
     svd_thin,
 )
@@ -32,6 +31,7 @@ from kincal.measure.simulate import (
 )
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
+from kincal.robots.scratch import scratch
 from kincal.spatial import exp_so3, log_so3, xyzrpy_to_matrix
 
 INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]          # x y z roll pitch yaw

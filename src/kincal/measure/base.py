@@ -33,7 +33,6 @@ identifiability analysis need follows from ``(R, z)``: ``J^T W J = R^T R``,
 from __future__ import annotations
 
 import math
-import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -44,6 +43,7 @@ from scipy.linalg.lapack import dtpqrt
 
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
+from kincal.robots.scratch import scratch
 from kincal.spatial import homogeneous, rpy_to_matrix
 
 Array = NDArray[np.float64]
@@ -51,41 +51,6 @@ Array = NDArray[np.float64]
 #: Residual rows per piece of :meth:`MeasurementModel.evaluate_chunks` (a piece's
 #: Jacobian, a few thousand rows by a few dozen columns, stays in the CPU caches).
 CHUNK_ROWS = 4096
-
-#: Bytes of working arrays :func:`scratch` keeps per thread.
-SCRATCH_BYTES = 1 << 26
-
-_SCRATCH = threading.local()
-
-
-def scratch(name: str, shape: tuple[int, ...]) -> Array:
-    """An uninitialised C-contiguous float64 array of ``shape``: the memory of the last
-    one named ``name`` in this thread when it is large enough.
-
-    The hot paths of a fit (the chain's point Jacobian, a block's system pieces, the
-    compressed system's rows) need temporaries of a few hundred kB to a few MB per piece.
-    An array that large is not recycled by the C allocator: each fresh one is new memory
-    from the operating system, and touching it costs a page fault per 4 kB, as much as
-    the arithmetic done in it at 10^3 measurements.  An array from here is valid until
-    the next request of the same name in the same thread: never hand one to a caller
-    who keeps it.  At most :data:`SCRATCH_BYTES` are kept per thread (beyond that a
-    request gets fresh memory); the arrays are bounded by the piece sizes, so memory
-    stays ``O(parameters x piece)``.
-    """
-    size = math.prod(shape)
-    pool: dict[str, Array] | None = getattr(_SCRATCH, "pool", None)
-    if pool is None:
-        pool = _SCRATCH.pool = {}
-    flat = pool.get(name)
-    if flat is None or flat.size < size:
-        held = sum(a.nbytes for k, a in pool.items() if k != name)
-        flat = np.empty(size)
-        if held + flat.nbytes > SCRATCH_BYTES:
-            pool.pop(name, None)
-            return flat.reshape(shape)
-        pool[name] = flat
-    return flat[:size].reshape(shape)
-
 
 #: Field order of a 6-parameter frame, as in the robot's ``base.*`` / ``tool.*``:
 #: ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``.

@@ -60,9 +60,9 @@ from kincal.measure.base import (
     frame_matrix,
     frame_rotation_axes,
     frame_values,
-    scratch,
 )
 from kincal.robots.chain import Robot
+from kincal.robots.scratch import scratch
 from kincal.spatial import log_so3, skew
 
 #: Configurations a position block's closed-form start uses at most (evenly spaced).

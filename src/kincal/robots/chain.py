@@ -35,16 +35,16 @@ from __future__ import annotations
 
 import difflib
 import math
-import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
+from kincal.robots.scratch import scratch
 from kincal.spatial import matrix_to_angles, rate_matrix
 
 Array = NDArray[np.float64]
@@ -438,9 +438,6 @@ def _to_tool_frame(T: Array, J: Array) -> Array:
 #: overhead (a performance setting only; the results do not depend on it).
 _BLOCK_BYTES = 1 << 23
 _BLOCK_MIN, _BLOCK_MAX = 512, 8192
-#: Per-thread pool of block working arrays (see :meth:`_Plan._scratch`).
-_SCRATCH = threading.local()
-_SCRATCH_BYTES = 1 << 26
 
 
 def elementary_matrix(kind: str, v: float) -> Array:
@@ -540,12 +537,26 @@ class _Structure:
         return sel
 
 
-def _buffer(pool: dict[str, Array], name: str, shape: tuple[int, ...]) -> Array:
-    """The working array ``name`` of ``pool`` with this shape (made when it has another)."""
-    a = pool.get(name)
-    if a is None or a.shape != shape:
-        a = pool[name] = np.empty(shape)
-    return a
+@lru_cache(maxsize=64)
+def _block_layout(L: int, J: int, R: int, record: bool
+                  ) -> tuple[int, tuple[tuple[str, int, int, tuple[int, ...]], ...]]:
+    """Where each working array of a block of ``L`` configurations lies in one flat
+    array: ``(total size, ((name, offset, size, shape), ...))``; the parameter rows'
+    arrays only when ``R`` (their number) is not 0."""
+    shapes: dict[str, tuple[int, ...]] = {
+        "t1": (3, L), "t2": (3, L), "V": (J, L), "cos": (J, L), "sin": (J, L)}
+    if record:
+        shapes.update(S=(J + 1, 4, 3, L), D=(J, 3, L), tmp=(J, L), Jb=(6, J, L))
+    else:
+        shapes.update(X=(4, 3, L), Y=(4, 3, L))
+    if R:
+        shapes.update(AX=(R, 3, L), OR=(R, 3, L), TW=(6, R, L), tmpR=(R, L))
+    layout, o = [], 0
+    for name, shape in shapes.items():
+        n = math.prod(shape)
+        layout.append((name, o, n, shape))
+        o += n
+    return o, tuple(layout)
 
 
 def _constant_run(ets: Sequence[ElementaryTransform], value: list[float], start: int,
@@ -707,47 +718,11 @@ class _Plan:
         return out
 
     def _scratch(self, L: int, record: bool, params: bool) -> dict[str, Array]:
-        """Working arrays for a block of ``L`` configurations.
-
-        Allocating them afresh on every call costs more than the arithmetic for small N,
-        so they are kept between calls in a per-thread pool shared by all robots of the
-        same shape (at most ``_SCRATCH_BYTES`` per thread; never part of a result).
-        """
-        pool = getattr(_SCRATCH, "pool", None)
-        if pool is None:
-            pool = _SCRATCH.pool = {}
-            _SCRATCH.nbytes = 0
-        key = (L, self.J, self.R if params else -1, record)
-        b = pool.get(key)
-        if b is None:
-            b = self._buffers(L, record, params)
-            size = sum(a.nbytes for a in b.values())
-            if _SCRATCH.nbytes + size > _SCRATCH_BYTES:
-                pool.clear()
-                _SCRATCH.nbytes = 0
-            pool[key] = b
-            _SCRATCH.nbytes += size
-        return b
-
-    def _buffers(self, L: int, record: bool, params: bool) -> dict[str, Array]:
-        J = self.J
-        b = {"t1": np.empty((3, L)), "t2": np.empty((3, L)),
-             "V": np.empty((J, L)), "cos": np.empty((J, L)), "sin": np.empty((J, L))}
-        if record:
-            b["S"] = np.empty((J + 1, 4, 3, L))
-            b["D"] = np.empty((J, 3, L))
-            b["tmp"] = np.empty((J, L))
-            b["Jb"] = np.empty((6, J, L))
-        else:
-            b["X"] = np.empty((4, 3, L))
-            b["Y"] = np.empty((4, 3, L))
-        if params:
-            R = self.R
-            b["AX"] = np.empty((R, 3, L))
-            b["OR"] = np.empty((R, 3, L))
-            b["TW"] = np.empty((6, R, L))
-            b["tmpR"] = np.empty((R, L))
-        return b
+        """Working arrays for a block of ``L`` configurations, carved out of one
+        :func:`scratch` array (reused from call to call; never part of a result)."""
+        total, layout = _block_layout(L, self.J, self.R if params else 0, record)
+        flat = scratch("chain.block", (total,))
+        return {k: flat[o:o + n].reshape(shape) for k, o, n, shape in layout}
 
     def _trig(self, V: Array, b: dict[str, Array]) -> tuple[Array, Array]:
         """``cos v, sin v`` of the joint values from one tangent of the half angle.
@@ -918,12 +893,12 @@ class _Plan:
                 Db[...] = 0.0
             if sel["n"] == 0:
                 continue
-            Z = _buffer(b, "Z", (6, K, 3, Lb))
-            d = _buffer(b, "dY", (K, 3, Lb))
-            tmp = _buffer(b, "tZ", (3, K, Lb))
+            Z = scratch("chain.Z", (6, K, 3, Lb))
+            d = scratch("chain.dY", (K, 3, Lb))
+            tmp = scratch("chain.tZ", (3, K, Lb))
             # all markers at once: rows written in place (one block) or into a buffer
             one_block = Lb == N and sel["direct"]
-            base = Dout if one_block else _buffer(b, "out", (self.R, K, 3, Lb))
+            base = Dout if one_block else scratch("chain.out", (self.R, K, 3, Lb))
             if sel["pre"]:
                 for k in range(K):
                     out = base[: sel["pre"], k]
