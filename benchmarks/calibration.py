@@ -379,6 +379,13 @@ def child(n: int) -> None:
                       "rms_mm": rms_mm}))
 
 
+def _in_fresh_process(*args: str) -> dict:
+    """Run this script with ``args`` in a fresh Python process; its last line, as JSON."""
+    out = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True,
+                         check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def scaling(sizes: list[int]) -> None:
     """The scaling table: one fresh process per N."""
     from timing import load_average, machine
@@ -390,9 +397,7 @@ def scaling(sizes: list[int]) -> None:
     print(head)
     print("-" * len(head))
     for n in sizes:
-        out = subprocess.run([sys.executable, __file__, "--child", str(n)],
-                             capture_output=True, text=True, check=True).stdout
-        d = json.loads(out.strip().splitlines()[-1])
+        d = _in_fresh_process("--child", str(n))
         print(f"{d['n']:>9}{d['seconds']:>10.3f}{d['cpu_seconds']:>9.3f}"
               f"{d['seconds'] / n * 1e6:>13.2f}"
               f"{d['peak_mb']:>15.0f}{d['iterations']:>12}{d['params']:>8}"
@@ -454,10 +459,7 @@ def instruments_section(poses: int) -> None:
     print(head)
     print("-" * len(head))
     for name in INSTRUMENTS:
-        out = subprocess.run([sys.executable, __file__, "--instrument-child", name,
-                              "--instrument-poses", str(poses)],
-                             capture_output=True, text=True, check=True).stdout
-        d = json.loads(out.strip().splitlines()[-1])
+        d = _in_fresh_process("--instrument-child", name, "--instrument-poses", str(poses))
         print(f"{name:<12}{d['residuals']:>11}{d['params']:>8}{d['cpu']:>9.2f}"
               f"{d['data_mb']:>25.0f}{d['added_mb']:>23.0f}", flush=True)
     print(f"load average after: {load_average()}")
