@@ -110,9 +110,9 @@ def true_table(rng: np.random.Generator) -> np.ndarray:
 
 
 def tracker_matrix() -> np.ndarray:
-    from kincal.measure.base import frame_matrix
+    from kincal.spatial import matrix_from_frame
 
-    return frame_matrix(TRACKER)
+    return matrix_from_frame(TRACKER)
 
 
 def measure(table: np.ndarray, q: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:

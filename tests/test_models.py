@@ -9,9 +9,7 @@ import pytest
 from kincal.errors import KincalError
 from kincal.measure.base import (
     ParamSpec,
-    frame_matrix,
     frame_rotation_axes,
-    frame_values,
     lstsq,
     stack,
     svd_thin,
@@ -32,7 +30,13 @@ from kincal.measure.simulate import (
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
 from kincal.robots.scratch import scratch
-from kincal.spatial import exp_so3, log_so3, xyzrpy_to_matrix
+from kincal.spatial import (
+    exp_so3,
+    frame_from_matrix,
+    log_so3,
+    matrix_from_frame,
+    xyzrpy_to_matrix,
+)
 
 INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]          # x y z roll pitch yaw
 
@@ -102,16 +106,16 @@ def test_inverse_left_jacobian():
 
 def test_frame_helpers():
     v = np.array([0.1, -0.2, 0.3, 0.4, -0.5, 0.6])
-    T = frame_matrix(v)
+    T = matrix_from_frame(v)
     assert np.allclose(T, xyzrpy_to_matrix([0.1, -0.2, 0.3, 0.6, -0.5, 0.4]))
-    assert np.allclose(frame_values(T), v)
+    assert np.allclose(frame_from_matrix(T), v)
     assert np.allclose(instrument_values([0.1, -0.2, 0.3, 0.6, -0.5, 0.4]), v)
     E = frame_rotation_axes(v)
     h = 1e-6
     for c, k in enumerate((3, 4, 5)):
         e = np.zeros(6)
         e[k] = h
-        dR = (frame_matrix(v + e)[:3, :3] - frame_matrix(v - e)[:3, :3]) / (2 * h)
+        dR = (matrix_from_frame(v + e)[:3, :3] - matrix_from_frame(v - e)[:3, :3]) / (2 * h)
         W = dR @ T[:3, :3].T
         assert np.allclose([W[2, 1], W[0, 2], W[1, 0]], E[:, c], atol=1e-8)
 

@@ -19,10 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import frame_matrix
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
 from kincal.robots.chain import Robot
-from kincal.spatial import exp_so3, xyzrpy_to_matrix
+from kincal.spatial import exp_so3, matrix_from_frame, xyzrpy_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -185,4 +184,4 @@ def simulate_poses(true_robot: Robot, q: ArrayLike, rng: np.random.Generator,
 
 def frame_of(values: ArrayLike) -> Array:
     """Homogeneous matrix of block frame values ``(x, y, z, rz, ry, rx)``."""
-    return frame_matrix(np.asarray(values, dtype=float))
+    return matrix_from_frame(np.asarray(values, dtype=float))
