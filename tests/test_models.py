@@ -21,7 +21,6 @@ from kincal.measure.models import (
     kabsch,
 )
 from kincal.measure.simulate import (
-    instrument_values,
     perturb_robot,
     random_configurations,
     simulate_poses,
@@ -38,7 +37,7 @@ from kincal.spatial import (
     xyzrpy_to_matrix,
 )
 
-INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]          # x y z roll pitch yaw
+INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]          # x y z rz ry rx
 
 
 def puma():
@@ -67,7 +66,7 @@ def blocks(robot, rng):
         simulate_positions(true, q, rng, 1e-5, INSTRUMENT,
                            [[0.02, -0.03, 0.07], [-0.05, 0.01, 0.1], [0.0, 0.06, 0.02]],
                            name="mocap"),
-        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.3, -0.2, 0.4],
+        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.4, -0.2, 0.3],
                        name="laser"),
     ]
 
@@ -109,7 +108,6 @@ def test_frame_helpers():
     T = matrix_from_frame(v)
     assert np.allclose(T, xyzrpy_to_matrix([0.1, -0.2, 0.3, 0.6, -0.5, 0.4]))
     assert np.allclose(frame_from_matrix(T), v)
-    assert np.allclose(instrument_values([0.1, -0.2, 0.3, 0.6, -0.5, 0.4]), v)
     E = frame_rotation_axes(v)
     h = 1e-6
     for c, k in enumerate((3, 4, 5)):
@@ -143,9 +141,9 @@ def test_initial_guess_is_exact_for_exact_data(which):
            simulate_positions(true, q, rng, 0.0, INSTRUMENT, [[0.02, -0.03, 0.07],
                                                              [-0.05, 0.01, 0.1]]),
            simulate_poses(true, q, rng, 0.0, 0.0, INSTRUMENT,
-                          [0.01, 0.02, 0.1, 0.3, -0.2, 0.4])][which]
+                          [0.01, 0.02, 0.1, 0.4, -0.2, 0.3])][which]
     guess = blk.initial_guess(true)
-    assert np.allclose(guess[:6], instrument_values(INSTRUMENT), atol=1e-9)
+    assert np.allclose(guess[:6], np.asarray(INSTRUMENT), atol=1e-9)
     r, _, _ = blk.evaluate(true, guess, jacobian=False)
     assert np.abs(r).max() * 1e-5 < 1e-10          # metres
 
@@ -176,7 +174,7 @@ def test_initial_guess_of_many_configurations_uses_an_evenly_spaced_subset(monke
     guess = exact.initial_guess(true)
     monkeypatch.undo()
     assert sum(seen) == models.GUESS_CONFIGURATIONS
-    assert np.allclose(guess[:6], instrument_values(INSTRUMENT), atol=1e-9)
+    assert np.allclose(guess[:6], np.asarray(INSTRUMENT), atol=1e-9)
     assert np.allclose(guess[6:], marker, atol=1e-9)
     noisy = simulate_positions(true, q, rng, 1e-5, INSTRUMENT, marker)
     sub = noisy.initial_guess(robot)
@@ -186,7 +184,7 @@ def test_initial_guess_of_many_configurations_uses_an_evenly_spaced_subset(monke
     ref = calibrate(robot, [noisy])
     # both starts carry the nominal model's error (here the frame 8 mm off); the subset
     # moves it by a small fraction of that (0.14 mm)
-    truth = instrument_values(INSTRUMENT)[:3]
+    truth = np.asarray(INSTRUMENT)[:3]
     assert np.linalg.norm(sub[:3] - full[:3]) < 0.1 * np.linalg.norm(full[:3] - truth)
     # each fit ends within 1e-3 standard errors of the same minimum (tol_std)
     est = [res.names.index(n) for n in res.estimated]
@@ -287,7 +285,7 @@ def _problem(n, seed=11):
         simulate_positions(true, q[: n // 2], rng, 1e-5, INSTRUMENT,
                            [[0.02, -0.03, 0.07], [-0.05, 0.01, 0.1], [0.0, 0.06, 0.02]],
                            name="mocap"),
-        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.3, -0.2, 0.4],
+        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.4, -0.2, 0.3],
                        name="laser"),
     ]
     prob, theta = stack(robot, blks)
