@@ -34,7 +34,7 @@ PUMA_MASSES = [PointMass(0, 13.0, (0.0, 0.0, 0.3)), PointMass(1, 17.4, (0.2, 0.0
 def flipped():
     """A 3-joint chain whose joints turn about -z, -y and slide along -x (``s = -1``)."""
     b = ChainBuilder("flipped")
-    b.frame("base", [0.1, 0.0, 0.3, 0.1, 0.0, 0.0])
+    b.frame("base", [0.1, 0.0, 0.3, 0.0, 0.0, 0.1])
     j = b.joint("a", "revolute", -3, 3)
     b.transform("Rz", "a.offset", 0.1, role="offset", joint=j, scale=-1.0)
     b.transform("Tx", "l1", 0.4)

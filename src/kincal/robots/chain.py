@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.scratch import scratch
-from kincal.spatial import matrix_to_angles, rate_matrix
+from kincal.spatial import FRAME_FIELDS, matrix_to_angles, rate_matrix
 
 Array = NDArray[np.float64]
 
@@ -236,6 +236,13 @@ class Robot:
         out.__dict__.update({k: v for k, v in self.__dict__.items() if k != "_plan"})
         object.__setattr__(out, "param_values", vals)
         return out
+
+    def frame_parameters(self, prefix: str) -> Array:
+        """The 6 values ``(x, y, z, rz, ry, rx)`` [m, rad] of the frame ``prefix`` (``"base"``,
+        ``"tool"``), in :data:`kincal.spatial.FRAME_FIELDS` order (the order
+        :meth:`ChainBuilder.frame` and :func:`kincal.robots.dh.from_dh` take)."""
+        return np.array([self.param_values[self.param_index(f"{prefix}.{f}")]
+                         for f in FRAME_FIELDS])
 
     def with_name(self, name: str) -> Robot:
         return replace(self, name=name)
@@ -988,9 +995,6 @@ class _Plan:
 # Building chains
 
 
-FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
-
-
 class ChainBuilder:
     """Accumulates elementary transforms, parameters and joints, then builds a Robot.
 
@@ -1045,17 +1049,19 @@ class ChainBuilder:
             k = self.parameter(name, value, unit, role)
             self.ets.append(ElementaryTransform(kind, k, 0.0, joint, scale))
 
-    def frame(self, prefix: str, xyzrpy: Sequence[float] = (0, 0, 0, 0, 0, 0),
+    def frame(self, prefix: str, values: Sequence[float] = (0, 0, 0, 0, 0, 0),
               role: str | None = None) -> None:
-        """Append a 6-parameter frame ``Tx Ty Tz Rz Ry Rx`` named ``prefix.x`` ... ``prefix.rz``.
+        """Append a 6-parameter frame ``Tx Ty Tz Rz Ry Rx`` named ``prefix.x`` ... ``prefix.rx``.
 
-        The rotation is roll-pitch-yaw: ``Rz(rz) Ry(ry) Rx(rx)`` (URDF order).
+        ``values`` are ``(x, y, z, rz, ry, rx)`` [m, rad] (:data:`kincal.spatial.FRAME_FIELDS`):
+        ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``, the parameters in that order.
         """
-        x, y, z, rx, ry, rz = (float(v) for v in xyzrpy)
+        if len(values) != 6:
+            raise ValueError(f"a frame has 6 values {FRAME_FIELDS}, got {len(values)}")
         role = role or ("base" if prefix == "base" else "tool" if prefix == "tool" else "length")
-        for kind, fld, v in (("Tx", "x", x), ("Ty", "y", y), ("Tz", "z", z),
-                             ("Rz", "rz", rz), ("Ry", "ry", ry), ("Rx", "rx", rx)):
-            self.transform(kind, f"{prefix}.{fld}", v, role=role)
+        for kind, fld, v in zip(("Tx", "Ty", "Tz", "Rz", "Ry", "Rx"), FRAME_FIELDS, values,
+                                strict=True):
+            self.transform(kind, f"{prefix}.{fld}", float(v), role=role)
 
     def build(self, meta: Mapping[str, Any] | None = None) -> Robot:
         return Robot(self.name, tuple(self.ets), tuple(self.joints), tuple(self.names),
