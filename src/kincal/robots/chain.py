@@ -187,7 +187,7 @@ class Robot:
     def param_index(self, name: str) -> int:
         """Index of the parameter ``name``; a clear error naming close matches if unknown."""
         try:
-            return self._index[name]  # type: ignore[attr-defined]
+            return self._index[name]
         except KeyError:
             close = difflib.get_close_matches(name, self.param_names, n=3)
             hint = f"; did you mean {', '.join(close)}?" if close else ""
@@ -283,6 +283,11 @@ class Robot:
         return T
 
     @cached_property
+    def _index(self) -> dict[str, int]:
+        """Position of each parameter name (set in ``__post_init__``)."""
+        return {n: i for i, n in enumerate(self.param_names)}
+
+    @cached_property
     def _structure(self) -> _Structure:
         """The chain's shape, compiled (shared with the robots :meth:`with_params` makes)."""
         return _Structure(self)
@@ -320,6 +325,7 @@ class Robot:
         """
         q2, single = self._check_q(q)
         T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False)
+        assert J is not None
         if frame == "tool":
             J = _to_tool_frame(T, J)
         elif frame != "base":
@@ -337,6 +343,7 @@ class Robot:
         """
         q2, single = self._check_q(q)
         T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False)
+        assert J is not None
         angles = matrix_to_angles(T[:, :3, :3], representation)
         E = rate_matrix(angles, representation)
         det = np.abs(np.linalg.det(E))
@@ -357,6 +364,7 @@ class Robot:
         """
         q2, single = self._check_q(q)
         _, _, Jp = self.fk_with_jacobians(q2, joints=False, params=True)
+        assert Jp is not None
         if names is not None:
             Jp = Jp[:, :, self.param_indices(names)]
         return Jp[0] if single else Jp
@@ -784,10 +792,12 @@ class _Plan:
                     Tb[:, r, c] = F[c, r]
             Tb[:, 3, :3] = 0.0
             Tb[:, 3, 3] = 1.0
-            if joints:
-                self._joint_columns(F, S, b, J[:, :, sl])  # type: ignore[index]
-            if params:
-                self._param_columns(F, S, b, Jp[:, :, sl])  # type: ignore[index]
+            if J is not None:
+                assert S is not None
+                self._joint_columns(F, S, b, J[:, :, sl])
+            if Jp is not None:
+                assert S is not None
+                self._param_columns(F, S, b, Jp[:, :, sl])
         return out
 
     def _scratch(self, L: int, record: bool, params: bool) -> dict[str, Array]:
@@ -919,7 +929,7 @@ class _Plan:
         else:
             Y, Dout, Rot = out
             if (Y.shape != (K, 3, N) or Dout.shape != (C, K, 3, N)
-                    or (Rot is None) == rotation or (rotation and Rot.shape != (3, 3, N))
+                    or (Rot is None) == rotation or (Rot is not None and Rot.shape != (3, 3, N))
                     or not (Y.flags.c_contiguous and Dout.flags.c_contiguous)):
                 raise ValueError(f"out: C-ordered arrays of shapes {(K, 3, N)}, {(C, K, 3, N)}"
                                  f" and {(3, 3, N) if rotation else None} expected")
@@ -973,9 +983,9 @@ class _Plan:
             base = Dout if one_block else scratch("chain.out", (self.R, K, 3, Lb))
             if sel.pre:
                 for k in range(K):
-                    out = base[: sel.pre, k]
-                    np.matmul(pre[0], Yb[k], out=out)
-                    out += pre[1]
+                    rows_k = base[: sel.pre, k]
+                    np.matmul(pre[0], Yb[k], out=rows_k)
+                    rows_k += pre[1]
             for m, rows, Cg in sel.groups:
                 np.subtract(Yb, S[m][3], out=d)                  # y_k - p_m
                 Sm = S[m][:3]                                    # (3 columns, 3, L)
@@ -1114,7 +1124,7 @@ class ChainBuilder:
             k = self.parameter(name, value, unit, role)
             self.ets.append(ElementaryTransform(kind, k, 0.0, joint, scale))
 
-    def frame(self, prefix: str, values: Sequence[float] = (0, 0, 0, 0, 0, 0),
+    def frame(self, prefix: str, values: Sequence[float] | Array = (0, 0, 0, 0, 0, 0),
               role: str | None = None) -> None:
         """Append a 6-parameter frame ``Tx Ty Tz Rz Ry Rx`` named ``prefix.x`` ... ``prefix.rx``.
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.chain import ChainBuilder, Robot
@@ -54,7 +55,8 @@ class DHLink:
 
 
 def from_dh(links: Sequence[DHLink], convention: Convention = "standard", name: str = "robot",
-            base: Sequence[float] = (0, 0, 0, 0, 0, 0), tool: Sequence[float] = (0, 0, 0, 0, 0, 0),
+            base: Sequence[float] | NDArray[np.float64] = (0, 0, 0, 0, 0, 0),
+            tool: Sequence[float] | NDArray[np.float64] = (0, 0, 0, 0, 0, 0),
             meta: Mapping[str, Any] | None = None) -> Robot:
     """Compile a DH table to a :class:`Robot`.
 
