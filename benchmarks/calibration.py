@@ -110,9 +110,9 @@ def true_table(rng: np.random.Generator) -> np.ndarray:
 
 
 def tracker_matrix() -> np.ndarray:
-    from kincal.measure.base import frame_matrix
+    from kincal.spatial import matrix_from_frame
 
-    return frame_matrix(TRACKER)
+    return matrix_from_frame(TRACKER)
 
 
 def measure(table: np.ndarray, q: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
@@ -196,7 +196,7 @@ PROBLEMS = {
     "panda": ("modified", [[0.01, -0.02, 0.03], [0.06, 0.0, 0.02], [0.0, 0.07, 0.01]]),
 }
 #: Tracker pose in the robot's world frame, (x, y, z, roll, pitch, yaw) [m, rad].
-INSTRUMENT = [0.8, -0.4, 0.2, math.radians(-3), math.radians(5), math.radians(20)]
+INSTRUMENT = [0.8, -0.4, 0.2, math.radians(20), math.radians(5), math.radians(-3)]
 
 
 def peer_problem(name: str, n: int, holdout: int = 2000, seed: int = 0):

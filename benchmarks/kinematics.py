@@ -39,9 +39,9 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from timing import interleaved, machine  # noqa: E402
 
 try:
-    from kincal.robots.dh import dh_links, frame_values, standard_to_modified
+    from kincal.robots.dh import dh_links, standard_to_modified
     from kincal.robots.files import load_robot
-    from kincal.spatial import xyzrpy_to_matrix
+    from kincal.spatial import matrix_from_frame
 except ImportError:  # pragma: no cover - a message instead of a traceback
     sys.exit("kincal is not installed in this environment: pip install -e /path/to/kincal")
 
@@ -97,8 +97,8 @@ def pybotics_puma(robot, peer):
     _, MDHKinematicChain, PRobot, Tool = peer
     mod = standard_to_modified(robot)
     rows = np.array([[L.alpha, L.a, L.theta_offset, L.d] for L in dh_links(mod)])
-    return PRobot(MDHKinematicChain(rows), tool=Tool(matrix=xyzrpy_to_matrix(
-        frame_values(mod, "tool"))), world_frame=xyzrpy_to_matrix(frame_values(mod, "base")))
+    return PRobot(MDHKinematicChain(rows), tool=Tool(matrix=matrix_from_frame(
+        mod.frame_parameters("tool"))), world_frame=matrix_from_frame(mod.frame_parameters("base")))
 
 
 # --------------------------------------------------------------------------- timing

@@ -29,7 +29,7 @@ from kincal.measure.simulate import random_configurations, simulate_positions
 from kincal.robots.files import load_robot
 
 NOISE = 2e-5
-INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]
+INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]
 MARKER = np.array([[0.05, 0.02, 0.1]])
 REPS = 50
 

@@ -17,7 +17,7 @@ from kincal.robots.files import load_robot
 
 NOISE = 20e-6                                                    # m per coordinate
 H_TRUE = np.array([-1.5e-3, -4e-3, -2.5e-3, -6e-3, -3e-3, -8e-3])  # rad, the play (lag)
-INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]
+INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]
 MARKER = np.array([[0.05, 0.0, 0.1]])
 
 

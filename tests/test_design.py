@@ -43,7 +43,7 @@ from kincal.identify.solver import calibrate
 from kincal.measure.base import stack
 from kincal.measure.files import read_table
 from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import instrument_values, perturb_robot, simulate_positions
+from kincal.measure.simulate import perturb_robot, simulate_positions
 from kincal.robots.files import load_robot
 
 
@@ -196,7 +196,7 @@ def test_design_jacobian_is_the_stacked_position_measurement(puma) -> None:
     q = random_candidates(puma, 60, np.random.default_rng(7))
     assert within_limits(puma, q).all()
     dp = design_problem(puma, q, "position", 2e-5)
-    extra = np.concatenate([instrument_values(DEFAULT_INSTRUMENT), DEFAULT_MARKER])
+    extra = np.concatenate([np.asarray(DEFAULT_INSTRUMENT, dtype=float), DEFAULT_MARKER])
     probe = PositionMeasurement(q, np.zeros((60, 3)), 2e-5)
     block = PositionMeasurement(q, probe.predict(puma, extra)[:, 0], 2e-5)
     prob, theta = stack(puma, [block])
@@ -239,7 +239,7 @@ NOISE = 2e-5                      # laser tracker, 20 um per coordinate
 TRIALS = 40
 POSES = 25
 #: true instrument placement (x, y, z, roll, pitch, yaw) and marker: not the design's
-TRUE_INSTRUMENT = (1.6, -0.9, 0.3, 0.1, -0.05, 2.2)
+TRUE_INSTRUMENT = (1.6, -0.9, 0.3, 2.2, -0.05, 0.1)
 TRUE_MARKER = np.asarray(DEFAULT_MARKER) + [5e-4, -3e-4, 8e-4]
 
 

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from kincal.errors import KincalError
-from kincal.robots.dh import DHLink, dh_links, frame_values, from_dh, standard_to_modified
-from kincal.spatial import xyzrpy_to_matrix
+from kincal.robots.dh import DHLink, dh_links, from_dh, standard_to_modified
+from kincal.spatial import matrix_from_frame
 
 RNG = np.random.default_rng(3)
 PI = np.pi
-BASE = (0.1, 0.2, 0.3, 0.1, -0.2, 0.3)
-TOOL = (0.01, 0.02, 0.1, 0.3, 0.2, -0.1)
+BASE = (0.1, 0.2, 0.3, 0.3, -0.2, 0.1)          # x y z rz ry rx
+TOOL = (0.01, 0.02, 0.1, -0.1, 0.2, 0.3)
 
 
 def A_standard(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
@@ -50,7 +50,7 @@ def puma_like(prismatic: int | None = 3) -> list[DHLink]:
 
 
 def reference_standard(links, q, base=BASE, tool=TOOL, betas=None) -> np.ndarray:
-    T = xyzrpy_to_matrix(base)
+    T = matrix_from_frame(base)
     for i, L in enumerate(links):
         th, d = L.theta_offset, L.d
         if L.joint == "revolute":
@@ -60,11 +60,11 @@ def reference_standard(links, q, base=BASE, tool=TOOL, betas=None) -> np.ndarray
         T = T @ A_standard(th, d, L.a, L.alpha)
         if betas is not None:
             T = T @ Ry(betas[i])
-    return T @ xyzrpy_to_matrix(tool)
+    return T @ matrix_from_frame(tool)
 
 
 def reference_modified(links, q, base=BASE, tool=TOOL) -> np.ndarray:
-    T = xyzrpy_to_matrix(base)
+    T = matrix_from_frame(base)
     for i, L in enumerate(links):
         th, d = L.theta_offset, L.d
         if L.joint == "revolute":
@@ -72,7 +72,7 @@ def reference_modified(links, q, base=BASE, tool=TOOL) -> np.ndarray:
         else:
             d = d + q[i]
         T = T @ A_modified(L.alpha, L.a, th, d)
-    return T @ xyzrpy_to_matrix(tool)
+    return T @ matrix_from_frame(tool)
 
 
 @pytest.mark.parametrize("prismatic", [None, 0, 3, 5])
@@ -114,10 +114,10 @@ def test_standard_to_modified_keeps_the_kinematics(prismatic):
         assert (m[i].a, m[i].alpha) == (std[i - 1].a, std[i - 1].alpha)
         assert (m[i].d, m[i].theta_offset, m[i].joint) == (std[i].d, std[i].theta_offset,
                                                             std[i].joint)
-    np.testing.assert_allclose(frame_values(mod, "base"), BASE, atol=0)
+    np.testing.assert_allclose(mod.frame_parameters("base"), BASE, atol=0)
     # the same kinematics written independently in Craig's form
     for q in Q[:5]:
-        np.testing.assert_allclose(reference_modified(m, q, tool=frame_values(mod, "tool")),
+        np.testing.assert_allclose(reference_modified(m, q, tool=mod.frame_parameters("tool")),
                                    robot.fk(q), atol=1e-12)
 
 
@@ -157,7 +157,7 @@ def test_dh_links_round_trip_and_errors():
         for f in ("a", "d", "alpha", "theta_offset", "joint", "lower", "upper"):
             assert getattr(B, f) == getattr(L, f)
     assert [j.name for j in robot.joints] == [f"q{i}" for i in range(1, 7)]
-    np.testing.assert_allclose(frame_values(robot, "tool"), TOOL, atol=0)
+    np.testing.assert_allclose(robot.frame_parameters("tool"), TOOL, atol=0)
     with pytest.raises(KincalError, match="unknown DH convention"):
         from_dh(links, "craig")  # type: ignore[arg-type]
     with pytest.raises(KincalError, match="beta"):

@@ -28,7 +28,7 @@ from kincal.measure.standard_instruments import _frame_T
 from kincal.robots.files import load_robot, write_robot_yaml
 
 NOISE = 2e-5
-INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]
+INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]
 MARKERS = np.array([[0.05, 0.0, 0.1], [-0.05, 0.0, 0.1], [0.0, 0.05, 0.12],
                     [0.0, -0.05, 0.08]])
 

@@ -52,8 +52,8 @@ def test_puma_general_geometry_with_base_tool_and_offsets():
              DHLink(d=0.42, alpha=math.pi / 2, theta_offset=0.4),
              DHLink(alpha=-math.pi / 2, theta_offset=0.5),
              DHLink(a=0.01, d=0.07, alpha=0.3, theta_offset=0.6)]
-    robot = from_dh(links, base=(0.1, 0.2, 0.3, 0.1, 0.2, 0.3),
-                    tool=(0.01, 0.02, 0.1, 0.3, 0.2, 0.1))
+    robot = from_dh(links, base=(0.1, 0.2, 0.3, 0.3, 0.2, 0.1),
+                    tool=(0.01, 0.02, 0.1, 0.1, 0.2, 0.3))
     q = np.random.default_rng(1).uniform(-3, 3, size=(500, 6))
     T = robot.fk(q)
     sol = ik_puma560(robot, T)
@@ -136,7 +136,7 @@ def test_scara_branches_reach_the_pose():
     assert np.abs(e).max() <= 1e-10
     # with alpha2 = 0 as well (another SCARA family member)
     other = from_dh([DHLink(a=0.4, d=0.3), DHLink(a=0.3), DHLink(joint="prismatic", d=-0.1),
-                     DHLink(d=0.05, theta_offset=0.2)], tool=(0, 0, 0.1, 0, 0, 0.3))
+                     DHLink(d=0.05, theta_offset=0.2)], tool=(0, 0, 0.1, 0.3, 0, 0))
     T2 = other.fk(q)
     e2 = pose_error(T2[:, None], other.fk(ik_scara(other, T2).q.reshape(-1, 4)).reshape(
         -1, 2, 4, 4))

@@ -8,7 +8,6 @@ import copy
 import numpy as np
 import pytest
 
-from kincal.measure.base import frame_matrix
 from kincal.measure.instruments import (
     BearingMeasurement,
     CameraMeasurement,
@@ -20,6 +19,7 @@ from kincal.measure.instruments import (
 from kincal.measure.instruments.common import to_local, to_world
 from kincal.measure.simulate import perturb_robot
 from kincal.robots.files import load_robot
+from kincal.spatial import matrix_from_frame
 
 ROBOT = perturb_robot(load_robot("puma560"), np.random.default_rng(3), length_std=0.01,
                       angle_std=0.02, base_std=(0.05, 0.1), tool_std=(0.05, 0.1))
@@ -127,7 +127,7 @@ def test_frame_helpers_are_inverse() -> None:
     w, _ = to_world(f, s, False)
     x, _, _ = to_local(f[None], np.zeros(5, dtype=np.intp), w, False)
     assert np.allclose(x, s, atol=1e-12)
-    T = frame_matrix(f)
+    T = matrix_from_frame(f)
     assert np.allclose(w, s @ T[:3, :3].T + T[:3, 3], atol=1e-12)
 
 

@@ -9,9 +9,7 @@ import pytest
 from kincal.errors import KincalError
 from kincal.measure.base import (
     ParamSpec,
-    frame_matrix,
     frame_rotation_axes,
-    frame_values,
     lstsq,
     stack,
     svd_thin,
@@ -23,7 +21,6 @@ from kincal.measure.models import (
     kabsch,
 )
 from kincal.measure.simulate import (
-    instrument_values,
     perturb_robot,
     random_configurations,
     simulate_poses,
@@ -32,9 +29,15 @@ from kincal.measure.simulate import (
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
 from kincal.robots.scratch import scratch
-from kincal.spatial import exp_so3, log_so3, xyzrpy_to_matrix
+from kincal.spatial import (
+    exp_so3,
+    frame_from_matrix,
+    log_so3,
+    matrix_from_frame,
+    xyzrpy_to_matrix,
+)
 
-INSTRUMENT = [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]          # x y z roll pitch yaw
+INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]          # x y z rz ry rx
 
 
 def puma():
@@ -63,7 +66,7 @@ def blocks(robot, rng):
         simulate_positions(true, q, rng, 1e-5, INSTRUMENT,
                            [[0.02, -0.03, 0.07], [-0.05, 0.01, 0.1], [0.0, 0.06, 0.02]],
                            name="mocap"),
-        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.3, -0.2, 0.4],
+        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.4, -0.2, 0.3],
                        name="laser"),
     ]
 
@@ -102,16 +105,15 @@ def test_inverse_left_jacobian():
 
 def test_frame_helpers():
     v = np.array([0.1, -0.2, 0.3, 0.4, -0.5, 0.6])
-    T = frame_matrix(v)
+    T = matrix_from_frame(v)
     assert np.allclose(T, xyzrpy_to_matrix([0.1, -0.2, 0.3, 0.6, -0.5, 0.4]))
-    assert np.allclose(frame_values(T), v)
-    assert np.allclose(instrument_values([0.1, -0.2, 0.3, 0.6, -0.5, 0.4]), v)
+    assert np.allclose(frame_from_matrix(T), v)
     E = frame_rotation_axes(v)
     h = 1e-6
     for c, k in enumerate((3, 4, 5)):
         e = np.zeros(6)
         e[k] = h
-        dR = (frame_matrix(v + e)[:3, :3] - frame_matrix(v - e)[:3, :3]) / (2 * h)
+        dR = (matrix_from_frame(v + e)[:3, :3] - matrix_from_frame(v - e)[:3, :3]) / (2 * h)
         W = dR @ T[:3, :3].T
         assert np.allclose([W[2, 1], W[0, 2], W[1, 0]], E[:, c], atol=1e-8)
 
@@ -139,9 +141,9 @@ def test_initial_guess_is_exact_for_exact_data(which):
            simulate_positions(true, q, rng, 0.0, INSTRUMENT, [[0.02, -0.03, 0.07],
                                                              [-0.05, 0.01, 0.1]]),
            simulate_poses(true, q, rng, 0.0, 0.0, INSTRUMENT,
-                          [0.01, 0.02, 0.1, 0.3, -0.2, 0.4])][which]
+                          [0.01, 0.02, 0.1, 0.4, -0.2, 0.3])][which]
     guess = blk.initial_guess(true)
-    assert np.allclose(guess[:6], instrument_values(INSTRUMENT), atol=1e-9)
+    assert np.allclose(guess[:6], np.asarray(INSTRUMENT), atol=1e-9)
     r, _, _ = blk.evaluate(true, guess, jacobian=False)
     assert np.abs(r).max() * 1e-5 < 1e-10          # metres
 
@@ -172,7 +174,7 @@ def test_initial_guess_of_many_configurations_uses_an_evenly_spaced_subset(monke
     guess = exact.initial_guess(true)
     monkeypatch.undo()
     assert sum(seen) == models.GUESS_CONFIGURATIONS
-    assert np.allclose(guess[:6], instrument_values(INSTRUMENT), atol=1e-9)
+    assert np.allclose(guess[:6], np.asarray(INSTRUMENT), atol=1e-9)
     assert np.allclose(guess[6:], marker, atol=1e-9)
     noisy = simulate_positions(true, q, rng, 1e-5, INSTRUMENT, marker)
     sub = noisy.initial_guess(robot)
@@ -182,7 +184,7 @@ def test_initial_guess_of_many_configurations_uses_an_evenly_spaced_subset(monke
     ref = calibrate(robot, [noisy])
     # both starts carry the nominal model's error (here the frame 8 mm off); the subset
     # moves it by a small fraction of that (0.14 mm)
-    truth = instrument_values(INSTRUMENT)[:3]
+    truth = np.asarray(INSTRUMENT)[:3]
     assert np.linalg.norm(sub[:3] - full[:3]) < 0.1 * np.linalg.norm(full[:3] - truth)
     # each fit ends within 1e-3 standard errors of the same minimum (tol_std)
     est = [res.names.index(n) for n in res.estimated]
@@ -283,7 +285,7 @@ def _problem(n, seed=11):
         simulate_positions(true, q[: n // 2], rng, 1e-5, INSTRUMENT,
                            [[0.02, -0.03, 0.07], [-0.05, 0.01, 0.1], [0.0, 0.06, 0.02]],
                            name="mocap"),
-        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.3, -0.2, 0.4],
+        simulate_poses(true, q, rng, 1e-5, 2e-5, INSTRUMENT, [0.01, 0.02, 0.1, 0.4, -0.2, 0.3],
                        name="laser"),
     ]
     prob, theta = stack(robot, blks)

@@ -99,7 +99,7 @@ def test_pose_and_multi_block_predictions(puma) -> None:
     rng = np.random.default_rng(23)
     pos = simulate_positions(puma, q[:80], rng, 0.0, instrument=DEFAULT_INSTRUMENT,
                              markers=DEFAULT_MARKER, name="tracker", sigma=NOISE)
-    pose = simulate_poses(puma, q[:80], rng, 0.0, 0.0, instrument=(0, 2, 0.3, 0, 0, 1),
+    pose = simulate_poses(puma, q[:80], rng, 0.0, 0.0, instrument=(0, 2, 0.3, 1, 0, 0),
                           name="probe", sigma_position=NOISE, sigma_orientation=2e-5)
     both = design_problem_from_blocks(puma, [pos, pose])
     assert both.J.shape[:2] == (80, 9) and np.allclose(both.q, q[:80])

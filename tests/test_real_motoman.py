@@ -30,7 +30,7 @@ def motoman_right():
     links = [DHLink(a=a, d=d, alpha=al, theta_offset=th, name=n)
              for (a, d, al, th), n in zip(cfg["links"], cfg["joints"], strict=True)]
     a, d, al, th = cfg["reflector"]          # Rz(th) Tz(d) Tx(a) Rx(al), fixed
-    tool = [a * np.cos(th), a * np.sin(th), d, al, 0.0, th]
+    tool = [a * np.cos(th), a * np.sin(th), d, th, 0.0, al]      # x y z rz ry rx
     return from_dh(links, name="motoman_right", tool=tool), cfg["joints"]
 
 

@@ -42,8 +42,8 @@ def _dh_robot(convention: str = "standard", beta: bool = False) -> Robot:
     links.append(DHLink(a=0.0, d=0.3, alpha=0.0, joint="prismatic", lower=0.0, upper=0.25,
                         beta=(0.0 if beta else None)))
     links.append(DHLink(a=0.02, d=0.05, alpha=-PI / 2))        # unlimited
-    return from_dh(links, convention, name="arm", base=(0.1, -0.2, 0.3, 0.01, 0.02, 0.03),
-                   tool=(0.0, 0.01, 0.12, -0.1, 0.2, 0.3),
+    return from_dh(links, convention, name="arm", base=(0.1, -0.2, 0.3, 0.03, 0.02, 0.01),
+                   tool=(0.0, 0.01, 0.12, 0.3, 0.2, -0.1),
                    meta={"source": "unit test", "description": "a test arm"})
 
 

@@ -14,7 +14,6 @@ from kincal.identify.solver import Calibration, CalibrationResult, calibrate, ma
 from kincal.measure.base import StackedProblem, stack
 from kincal.measure.models import PositionMeasurement
 from kincal.measure.simulate import (
-    instrument_values,
     perturb_robot,
     random_configurations,
     simulate_poses,
@@ -23,9 +22,9 @@ from kincal.measure.simulate import (
 from kincal.robots.dh import dh_links, from_dh
 from kincal.robots.files import load_robot
 
-INSTRUMENT = [1.5, 0.4, -0.2, 0.1, -0.15, 2.0]
+INSTRUMENT = [1.5, 0.4, -0.2, 2.0, -0.15, 0.1]
 MARKER = [0.03, -0.02, 0.06]
-TARGET = [0.01, 0.02, 0.05, 0.2, -0.1, 0.3]
+TARGET = [0.01, 0.02, 0.05, 0.3, -0.1, 0.2]
 
 
 def puma():
@@ -69,8 +68,8 @@ def base_set(robot, kind, q, rng):
 
 
 def truth_of(true, kind):
-    inst = instrument_values(INSTRUMENT)
-    tail = instrument_values(TARGET) if kind == "pose" else np.asarray(MARKER)
+    inst = np.asarray(INSTRUMENT)
+    tail = np.asarray(TARGET) if kind == "pose" else np.asarray(MARKER)
     return dict(true.params()), np.concatenate([inst, tail])
 
 

@@ -310,8 +310,8 @@ def _dh_robots():
         DHLink(a=0.0, d=0.0, alpha=-math.pi / 2, lower=-1.9, upper=1.9),
         DHLink(a=0.0, d=0.0563, alpha=0.0, theta_offset=-0.2, lower=-4.6, upper=4.6),
     ]
-    base = (0.2, -0.1, 0.05, 0.01, -0.02, 0.8)
-    tool = (0.01, 0.02, 0.15, 0.1, math.pi / 2, -0.3)
+    base = (0.2, -0.1, 0.05, 0.8, -0.02, 0.01)                 # x y z rz ry rx
+    tool = (0.01, 0.02, 0.15, -0.3, math.pi / 2, 0.1)
     std = from_dh(puma_like, "standard", "puma_like", base, tool)
     mod = from_dh(puma_like, "modified", "puma_like_mdh", base, tool)
     hay = from_dh([*puma_like[:1], DHLink(a=0.43, alpha=0.0, beta=0.01), *puma_like[2:]],

@@ -8,9 +8,18 @@ Conventions (used everywhere in kincal):
 * Euler ZYZ: ``R = Rz(phi) @ Ry(theta) @ Rz(psi)``, stored as ``(phi, theta, psi)`` [rad].
 * A pose error / twist is a 6-vector ``[dp; dphi]``: translation [m] then a small
   rotation vector [rad], both expressed in the base frame.
+* A *frame* given as six numbers (a robot's ``base.*`` / ``tool.*``, an instrument's
+  ``tracker.*``, the ``instrument=`` of the simulators) is ordered as
+  :data:`FRAME_FIELDS` ``(x, y, z, rz, ry, rx)`` with
+  ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` [m, rad]: the order in which the factors
+  are applied.  :func:`matrix_from_frame` / :func:`frame_from_matrix` are the one pair
+  of conversions; vendor orders (URDF ``rpy``, KUKA ``A B C``, FANUC ``W P R``) are
+  converted by functions named for them.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -18,6 +27,9 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 
 Array = NDArray[np.float64]
+
+#: Field order of a 6-number frame: ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` [m, rad].
+FRAME_FIELDS = ("x", "y", "z", "rz", "ry", "rx")
 
 
 def rotx(angle: ArrayLike) -> Array:
@@ -187,8 +199,38 @@ def pose_error(T_target: ArrayLike, T_actual: ArrayLike) -> Array:
     return np.concatenate([dp, log_so3(dR)], -1)
 
 
+def matrix_from_frame(values: ArrayLike) -> Array:
+    """``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` from ``(x, y, z, rz, ry, rx)`` [m, rad].
+
+    ``values`` is (..., 6) in :data:`FRAME_FIELDS` order; returns (..., 4, 4).
+    """
+    v = np.asarray(values, dtype=float)
+    if v.shape == (6,):                     # one frame: no batched stacking (the same products)
+        x, y, z, rz, ry, rx = v.tolist()
+        cz, sz, cy, sy, cx, sx = (math.cos(rz), math.sin(rz), math.cos(ry), math.sin(ry),
+                                  math.cos(rx), math.sin(rx))
+        T = np.eye(4)
+        T[:3, :3] = (np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+                     @ np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
+                     @ np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]]))
+        T[:3, 3] = x, y, z
+        return T
+    return homogeneous(rpy_to_matrix(v[..., [5, 4, 3]]), v[..., :3])
+
+
+def frame_from_matrix(T: ArrayLike) -> Array:
+    """Inverse of :func:`matrix_from_frame`: (..., 4, 4) -> ``(x, y, z, rz, ry, rx)``.
+
+    The angles are those of :func:`matrix_to_rpy` (``ry`` in [-pi/2, pi/2]).
+    """
+    T = np.asarray(T, dtype=float)
+    rpy = matrix_to_rpy(T[..., :3, :3])
+    return np.concatenate([T[..., :3, 3], rpy[..., ::-1]], -1)
+
+
 def xyzrpy_to_matrix(v: ArrayLike) -> Array:
-    """Homogeneous transform ``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` from (..., 6)."""
+    """``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` from ``(x, y, z, roll, pitch, yaw)``
+    (..., 6): URDF's ``xyz`` then ``rpy``, not :data:`FRAME_FIELDS`."""
     v = np.asarray(v, dtype=float)
     return homogeneous(rpy_to_matrix(v[..., 3:6]), v[..., :3])
 

@@ -80,7 +80,6 @@ from kincal.errors import KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze
 from kincal.measure.base import MeasurementModel, StackedProblem, stack
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
-from kincal.measure.simulate import instrument_values
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -95,7 +94,7 @@ CRITERIA = ("O1", "O2", "O3", "O4", "O5", "kappa")
 INDICES = ("O1", "O2", "O3", "O4", "O5", "kappa")
 SCALINGS = ("workspace", "unit", "errors")
 
-#: Default instrument placement for designs (x, y, z, roll, pitch, yaw) [m, rad].  The
+#: Default instrument placement for designs (x, y, z, rz, ry, rx) [m, rad].  The
 #: information about the robot does not depend on it: the instrument frame's six
 #: parameters absorb any rigid placement.
 DEFAULT_INSTRUMENT = (2.0, 0.0, 0.5, 0.0, 0.0, 0.0)
@@ -444,7 +443,7 @@ def design_problem(robot: Robot, q: ArrayLike, instrument: str = "position",
         instrument: ``"position"`` or ``"pose"``.
         noise: standard deviation of each measured coordinate [m].
         orientation_noise: pose only: of each rotation-vector component [rad].
-        instrument_frame: ``(x, y, z, roll, pitch, yaw)`` of the instrument in the base
+        instrument_frame: ``(x, y, z, rz, ry, rx)`` of the instrument in the base
             frame [m, rad] (does not change what the poses tell about the robot).
         marker: (3,) or (K, 3) marker(s) in the tool frame [m] (pose: target origin).
         target_rpy: pose only: target orientation (roll, pitch, yaw) [rad].
@@ -460,15 +459,14 @@ def design_problem(robot: Robot, q: ArrayLike, instrument: str = "position",
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if q.ndim != 2 or q.shape[1] != robot.n or len(q) == 0:
         raise KincalError(f"candidates must be (N, {robot.n}) configurations, got {q.shape}")
-    frame = instrument_values(np.asarray(instrument_frame, dtype=float))
+    frame = np.asarray(instrument_frame, dtype=float).reshape(6)
     m = np.asarray(marker, dtype=float).reshape(-1, 3)
     if instrument == "position":
         K = m.shape[0]
         extra = np.concatenate([frame, m.reshape(-1)])
     else:
         K = 1
-        extra = np.concatenate([frame, instrument_values(
-            np.concatenate([m[0], np.asarray(target_rpy, dtype=float)]))])
+        extra = np.concatenate([frame, m[0], np.asarray(target_rpy, dtype=float)[::-1]])
 
     def rows_for(qq: Array) -> Array:
         b = _nominal_block(robot, qq, instrument, extra, noise, orientation_noise, name, K)

@@ -32,7 +32,6 @@ identifiability analysis need follows from ``(R, z)``: ``J^T W J = R^T R``,
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -44,17 +43,13 @@ from scipy.linalg.lapack import dtpqrt
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
-from kincal.spatial import homogeneous, rpy_to_matrix
+from kincal.spatial import FRAME_FIELDS
 
 Array = NDArray[np.float64]
 
 #: Residual rows per piece of :meth:`MeasurementModel.evaluate_chunks` (a piece's
 #: Jacobian, a few thousand rows by a few dozen columns, stays in the CPU caches).
 CHUNK_ROWS = 4096
-
-#: Field order of a 6-parameter frame, as in the robot's ``base.*`` / ``tool.*``:
-#: ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``.
-FRAME_FIELDS = ("x", "y", "z", "rz", "ry", "rx")
 
 
 @dataclass(frozen=True)
@@ -102,35 +97,6 @@ class ParamSpec:
     def __add__(self, other: ParamSpec) -> ParamSpec:
         return ParamSpec(self.names + other.names, np.concatenate([self.values, other.values]),
                          self.units + other.units, self.roles + other.roles)
-
-
-# --------------------------------------------------------------------------- frame helpers
-def frame_matrix(values: Array) -> Array:
-    """``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` from ``(x, y, z, rz, ry, rx)`` [m, rad].
-
-    Note the order: parameters follow :data:`FRAME_FIELDS`, unlike
-    :func:`kincal.spatial.xyzrpy_to_matrix` which takes ``(x, y, z, roll, pitch, yaw)``.
-    """
-    v = np.asarray(values, dtype=float)
-    if v.shape == (6,):                     # one frame: no batched stacking (the same products)
-        x, y, z, rz, ry, rx = v.tolist()
-        cz, sz, cy, sy, cx, sx = (math.cos(rz), math.sin(rz), math.cos(ry), math.sin(ry),
-                                  math.cos(rx), math.sin(rx))
-        T = np.eye(4)
-        T[:3, :3] = (np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-                     @ np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-                     @ np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]]))
-        T[:3, 3] = x, y, z
-        return T
-    return homogeneous(rpy_to_matrix(v[..., [5, 4, 3]]), v[..., :3])
-
-
-def frame_values(T: Array) -> Array:
-    """Inverse of :func:`frame_matrix`: (4, 4) -> ``(x, y, z, rz, ry, rx)``."""
-    from kincal.spatial import matrix_to_rpy
-
-    rpy = matrix_to_rpy(np.asarray(T)[..., :3, :3])
-    return np.concatenate([np.asarray(T)[..., :3, 3], rpy[..., ::-1]], -1)
 
 
 def frame_rotation_axes(values: Array) -> Array:

@@ -57,13 +57,11 @@ from kincal.measure.base import (
     ParamSpec,
     Triangle,
     configuration_slices,
-    frame_matrix,
     frame_rotation_axes,
-    frame_values,
 )
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
-from kincal.spatial import log_so3, skew
+from kincal.spatial import frame_from_matrix, log_so3, matrix_from_frame, skew
 
 #: Configurations a position block's closed-form start uses at most (evenly spaced).
 GUESS_CONFIGURATIONS = 256
@@ -273,7 +271,7 @@ class PositionMeasurement(MeasurementModel):
     @staticmethod
     def _left(extra: Array) -> Array:
         """``T_I^-1`` (4, 4): the instrument's view of the robot's world frame."""
-        TI = frame_matrix(extra[:6])
+        TI = matrix_from_frame(extra[:6])
         H = np.eye(4)
         H[:3, :3] = TI[:3, :3].T
         H[:3, 3] = -TI[:3, :3].T @ TI[:3, 3]
@@ -337,7 +335,7 @@ class PositionMeasurement(MeasurementModel):
     def _frames(self, extra: Array) -> tuple[Array, Array, Array, Array]:
         """Constants of one evaluation: ``R_I^T``, ``t_I``, the markers ``m`` (K, 3) and
         the instrument's rotation axes in its own frame ``E' = R_I^T E`` (columns)."""
-        TI = frame_matrix(extra[:6])
+        TI = matrix_from_frame(extra[:6])
         G = TI[:3, :3].T
         return G, TI[:3, 3], extra[6:].reshape(self.K, 3), G @ frame_rotation_axes(extra[:6])
 
@@ -543,7 +541,7 @@ class PositionMeasurement(MeasurementModel):
                 break
         TI = np.eye(4)
         TI[:3, :3], TI[:3, 3] = R, t
-        return np.concatenate([frame_values(TI), m.reshape(-1)])
+        return np.concatenate([frame_from_matrix(TI), m.reshape(-1)])
 
 
 # --------------------------------------------------------------------------- pose
@@ -598,8 +596,8 @@ class PoseMeasurement(MeasurementModel):
     def predict(self, robot: Robot, extra: ArrayLike) -> Array:
         """Predicted target poses in the instrument frame (N, 4, 4)."""
         extra = np.asarray(extra, dtype=float)
-        TI = frame_matrix(extra[:6])
-        Tt = frame_matrix(extra[6:12])
+        TI = matrix_from_frame(extra[:6])
+        Tt = matrix_from_frame(extra[6:12])
         return np.linalg.inv(TI) @ robot.fk(self.q) @ Tt
 
     def num_residuals(self) -> int:
@@ -609,7 +607,7 @@ class PoseMeasurement(MeasurementModel):
     def _frames(extra: Array) -> tuple[Array, Array, Array, Array]:
         """Constants of one evaluation: ``T_I``, ``T_t`` and their rotation axes ``E_I``,
         ``E_t`` (:func:`frame_rotation_axes`)."""
-        return (frame_matrix(extra[:6]), frame_matrix(extra[6:12]),
+        return (matrix_from_frame(extra[:6]), matrix_from_frame(extra[6:12]),
                 frame_rotation_axes(extra[:6]), frame_rotation_axes(extra[6:12]))
 
     def _raw(self, T: Array, frames: tuple[Array, Array, Array, Array], cs: slice
@@ -756,4 +754,4 @@ class PoseMeasurement(MeasurementModel):
         TI, Tt = np.eye(4), np.eye(4)
         TI[:3, :3], TI[:3, 3] = RI, sol[3:]
         Tt[:3, :3], Tt[:3, 3] = Rt, sol[:3]
-        return np.concatenate([frame_values(TI), frame_values(Tt)])
+        return np.concatenate([frame_from_matrix(TI), frame_from_matrix(Tt)])

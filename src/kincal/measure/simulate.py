@@ -19,15 +19,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import frame_matrix
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
 from kincal.robots.chain import Robot
-from kincal.spatial import exp_so3, xyzrpy_to_matrix
+from kincal.spatial import exp_so3, matrix_from_frame
 
 Array = NDArray[np.float64]
 
-__all__ = ["random_configurations", "perturb_robot", "simulate_positions", "simulate_poses",
-           "instrument_values"]
+__all__ = ["random_configurations", "perturb_robot", "simulate_positions", "simulate_poses"]
 
 
 #: Configurations simulated per piece (a performance setting; results do not depend on it).
@@ -99,21 +97,10 @@ def perturb_robot(robot: Robot, rng: np.random.Generator, length_std: float = 1e
     return robot.with_params(robot.param_values + delta)
 
 
-def instrument_values(instrument: ArrayLike) -> Array:
-    """Block parameter values ``(x, y, z, rz, ry, rx)`` from an ``xyzrpy`` 6-vector.
-
-    ``instrument`` is ``(x, y, z, roll, pitch, yaw)`` as in
-    :func:`kincal.spatial.xyzrpy_to_matrix`; block parameters are ordered like the
-    robot's base frame.
-    """
-    v = np.asarray(instrument, dtype=float).reshape(6)
-    return np.concatenate([v[:3], v[3:][::-1]])
-
-
 def _instrument(instrument: ArrayLike | None) -> Array:
     if instrument is None:
         return np.eye(4)
-    return xyzrpy_to_matrix(np.asarray(instrument, dtype=float).reshape(6))
+    return matrix_from_frame(np.asarray(instrument, dtype=float).reshape(6))
 
 
 def simulate_positions(true_robot: Robot, q: ArrayLike, rng: np.random.Generator,
@@ -128,8 +115,9 @@ def simulate_positions(true_robot: Robot, q: ArrayLike, rng: np.random.Generator
         true_robot: the robot that "really" moves.
         q: (N, n) configurations.
         noise_std: standard deviation of each coordinate [m] (0 for exact data).
-        instrument: tracker pose in the robot's world frame, ``(x, y, z, roll, pitch,
-            yaw)`` [m, rad]; default identity.
+        instrument: tracker pose in the robot's world frame, ``(x, y, z, rz, ry, rx)``
+            [m, rad] (:data:`kincal.spatial.FRAME_FIELDS`, the order of the estimated
+            ``{name}.*`` block parameters); default identity.
         markers: (3,) or (K, 3) points in the tool frame [m]; default the tool origin.
         name: the block's name.
         sigma: the standard deviation the block states; default ``noise_std`` (or
@@ -167,7 +155,9 @@ def simulate_poses(true_robot: Robot, q: ArrayLike, rng: np.random.Generator,
     per component [rad].
 
     Args:
-        instrument, target: ``(x, y, z, roll, pitch, yaw)`` [m, rad]; default identity.
+        instrument, target: ``(x, y, z, rz, ry, rx)`` [m, rad]
+            (:data:`kincal.spatial.FRAME_FIELDS`, the order of the estimated block
+            parameters); default identity.
         sigma_position, sigma_orientation: stated standard deviations; default the
             noise (or 1e-5 when the noise is 0).
     """
@@ -185,4 +175,4 @@ def simulate_poses(true_robot: Robot, q: ArrayLike, rng: np.random.Generator,
 
 def frame_of(values: ArrayLike) -> Array:
     """Homogeneous matrix of block frame values ``(x, y, z, rz, ry, rx)``."""
-    return frame_matrix(np.asarray(values, dtype=float))
+    return matrix_from_frame(np.asarray(values, dtype=float))

@@ -31,8 +31,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
-from kincal.robots.dh import DHLink, dh_links, frame_values
-from kincal.spatial import inverse, rotx, wrap_angle, xyzrpy_to_matrix
+from kincal.robots.dh import DHLink, dh_links
+from kincal.spatial import inverse, matrix_from_frame, rotx, wrap_angle
 
 Array = NDArray[np.float64]
 _ANGLE_TOL = 1e-9
@@ -91,8 +91,8 @@ def _dh_table(robot: Robot, kinds: str, family: str) -> list[DHLink]:
 
 def _strip_frames(robot: Robot, T: Array, last: DHLink) -> Array:
     """``B^-1 T Tool^-1 (Tx(a_n) Rx(alpha_n))^-1``: the targets of the frame after Tz(d_n)."""
-    B = xyzrpy_to_matrix(frame_values(robot, "base"))
-    tool = xyzrpy_to_matrix(frame_values(robot, "tool"))
+    B = matrix_from_frame(robot.frame_parameters("base"))
+    tool = matrix_from_frame(robot.frame_parameters("tool"))
     tail = np.eye(4)
     tail[:3, :3] = rotx(last.alpha)
     tail[0, 3] = last.a
@@ -293,11 +293,11 @@ def ik_spherical_rrp(robot: Robot, targets: ArrayLike) -> ClosedFormSolutions:
              "alpha[1], alpha[2] are not -90, +90 deg", fam)
     _require(max(abs(L[0].a), abs(L[1].a), abs(L[2].a)) < 1e-12, robot, "a[1..3] are not 0",
              fam)
-    tool = frame_values(robot, "tool")
+    tool = robot.frame_parameters("tool")
     _require(bool(np.all(np.abs(tool[:3]) < 1e-12)), robot, "the tool frame translates", fam)
     t = np.asarray(targets, dtype=float)
     p = t[..., :3, 3].reshape(-1, 3) if t.shape[-2:] == (4, 4) else t.reshape(-1, 3)
-    B = xyzrpy_to_matrix(frame_values(robot, "base"))
+    B = matrix_from_frame(robot.frame_parameters("base"))
     p = (p - B[:3, 3]) @ B[:3, :3]
     d1, d2 = L[0].d, L[1].d
     rho, phi = np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 1], p[:, 0])

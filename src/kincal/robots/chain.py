@@ -38,14 +38,14 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, lru_cache
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.scratch import scratch
-from kincal.spatial import matrix_to_angles, rate_matrix
+from kincal.spatial import FRAME_FIELDS, matrix_to_angles, rate_matrix
 
 Array = NDArray[np.float64]
 
@@ -187,7 +187,7 @@ class Robot:
     def param_index(self, name: str) -> int:
         """Index of the parameter ``name``; a clear error naming close matches if unknown."""
         try:
-            return self._index[name]  # type: ignore[attr-defined]
+            return self._index[name]
         except KeyError:
             close = difflib.get_close_matches(name, self.param_names, n=3)
             hint = f"; did you mean {', '.join(close)}?" if close else ""
@@ -237,6 +237,13 @@ class Robot:
         object.__setattr__(out, "param_values", vals)
         return out
 
+    def frame_parameters(self, prefix: str) -> Array:
+        """The 6 values ``(x, y, z, rz, ry, rx)`` [m, rad] of the frame ``prefix`` (``"base"``,
+        ``"tool"``), in :data:`kincal.spatial.FRAME_FIELDS` order (the order
+        :meth:`ChainBuilder.frame` and :func:`kincal.robots.dh.from_dh` take)."""
+        return np.array([self.param_values[self.param_index(f"{prefix}.{f}")]
+                         for f in FRAME_FIELDS])
+
     def with_name(self, name: str) -> Robot:
         return replace(self, name=name)
 
@@ -276,6 +283,11 @@ class Robot:
         return T
 
     @cached_property
+    def _index(self) -> dict[str, int]:
+        """Position of each parameter name (set in ``__post_init__``)."""
+        return {n: i for i, n in enumerate(self.param_names)}
+
+    @cached_property
     def _structure(self) -> _Structure:
         """The chain's shape, compiled (shared with the robots :meth:`with_params` makes)."""
         return _Structure(self)
@@ -313,6 +325,7 @@ class Robot:
         """
         q2, single = self._check_q(q)
         T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False)
+        assert J is not None
         if frame == "tool":
             J = _to_tool_frame(T, J)
         elif frame != "base":
@@ -330,6 +343,7 @@ class Robot:
         """
         q2, single = self._check_q(q)
         T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False)
+        assert J is not None
         angles = matrix_to_angles(T[:, :3, :3], representation)
         E = rate_matrix(angles, representation)
         det = np.abs(np.linalg.det(E))
@@ -350,6 +364,7 @@ class Robot:
         """
         q2, single = self._check_q(q)
         _, _, Jp = self.fk_with_jacobians(q2, joints=False, params=True)
+        assert Jp is not None
         if names is not None:
             Jp = Jp[:, :, self.param_indices(names)]
         return Jp[0] if single else Jp
@@ -454,6 +469,60 @@ def elementary_matrix(kind: str, v: float) -> Array:
     return T
 
 
+class _ColumnRows(NamedTuple):
+    """The parameter rows of one set of Jacobian columns (:meth:`_Structure.selection`).
+
+    Attributes:
+        n: how many rows belong to the columns.
+        dest: (n,) the column each row's derivative goes to.
+        direct: rows and columns coincide (row k is column k).
+        pre: the rows before the first joint (constant axis and origin).
+        groups: per joint frame ``m``: ``(m, the rows' slice among the n, their indices
+            among all the chain's rows)``.
+    """
+
+    n: int
+    dest: NDArray[np.intp]
+    direct: bool
+    pre: NDArray[np.intp]
+    groups: list[tuple[int, slice, NDArray[np.intp]]]
+
+
+class _PointRows(NamedTuple):
+    """:class:`_ColumnRows` with the numbers :meth:`_Plan.points` needs (per plan).
+
+    Attributes:
+        n, dest, direct: as in :class:`_ColumnRows`.
+        pre: the number of rows before the first joint.
+        pre_ax, pre_org: (pre, 3) their axes and origins; pre_rot: (pre,) rotation or not.
+        groups: per joint frame ``m``: ``(m, rows' slice, C (k, 6))`` with ``C`` the
+            coefficients of the rows' derivatives (see :meth:`_Plan.points`).
+    """
+
+    n: int
+    dest: NDArray[np.intp]
+    direct: bool
+    pre: int
+    pre_ax: Array
+    pre_org: Array
+    pre_rot: NDArray[np.bool_]
+    groups: list[tuple[int, slice, Array]]
+
+
+class _BlockStep(NamedTuple):
+    """How a constant block ``G`` is applied to the running frame (:func:`_block_step`).
+
+    Attributes:
+        kind: ``"identity"`` (nothing), ``"shift"`` (a translation: ``p <- p + v x_i``
+            for each ``(i, v)`` of ``shifts``) or ``"matrix"`` (``F <- matrix F``, the
+            transposed 4x4 of ``G``).
+    """
+
+    kind: Literal["identity", "shift", "matrix"]
+    matrix: Array | None = None
+    shifts: tuple[tuple[int, float], ...] = ()
+
+
 class _Structure:
     """What a compiled chain (:class:`_Plan`) takes from the chain's *shape* alone.
 
@@ -504,14 +573,9 @@ class _Structure:
             if len(idx):
                 self.groups.append((j, slice(int(idx[0]), int(idx[-1]) + 1), idx))
         self.rows_rot_idx = np.flatnonzero(self.rows_rot)
-        self.selections: dict[tuple[int, ...], dict[str, Any]] = {}
-        #: the attributes every plan of this shape carries
-        self.shared = {name: getattr(self, name) for name in (
-            "n", "P", "J", "axes", "rot", "all_rot", "joint_of", "scales", "negative",
-            "in_joint_order", "same_axis", "R", "rows_rot", "rows_tra", "row_param",
-            "rows_are_params", "rows_unique")}
+        self.selections: dict[tuple[int, ...], _ColumnRows] = {}
 
-    def selection(self, columns: tuple[int, ...]) -> dict[str, Any]:
+    def selection(self, columns: tuple[int, ...]) -> _ColumnRows:
         """The rows of the parameters ``columns`` (kept per column set): in chain order,
         where each one's derivative goes, the constant-prefix rows, and per joint frame
         the rows that follow it (see :meth:`_Plan.points`)."""
@@ -523,16 +587,15 @@ class _Structure:
         dest = np.array([pos[int(self.row_param[r])] for r in rows], dtype=np.intp)
         where = {r: k for k, r in enumerate(rows)}
         pre = np.array([r for r in self.pre.tolist() if r in where], dtype=np.intp)
-        groups = []
+        groups: list[tuple[int, slice, NDArray[np.intp]]] = []
         for m, rs, _ in self.groups:
             idx = np.array([r for r in range(rs.start, rs.stop) if r in where], dtype=np.intp)
             if not idx.size:
                 continue
             k0 = where[int(idx[0])]
             groups.append((m, slice(k0, k0 + idx.size), idx))
-        sel = {"n": len(rows), "dest": dest,
-               "direct": bool(np.array_equal(dest, np.arange(len(columns)))),
-               "pre": pre, "groups": groups}
+        sel = _ColumnRows(len(rows), dest, bool(np.array_equal(dest, np.arange(len(columns)))),
+                          pre, groups)
         self.selections[columns] = sel
         return sel
 
@@ -592,15 +655,15 @@ def _constant_run(ets: Sequence[ElementaryTransform], value: list[float], start:
     return G
 
 
-def _block_step(G: list[list[float]]) -> tuple[str, Any]:
+def _block_step(G: list[list[float]]) -> _BlockStep:
     """How to apply the constant block ``G`` (three rows of a 4x4) to the running frame."""
     rot = [row[:3] for row in G]
     shift = [row[3] for row in G]
     if rot == [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]:
         if shift == [0.0, 0.0, 0.0]:
-            return "identity", None
-        return "shift", [(i, v) for i, v in enumerate(shift) if v != 0.0]
-    return "matrix", np.ascontiguousarray(np.array(G + [[0.0, 0.0, 0.0, 1.0]]).T)
+            return _BlockStep("identity")
+        return _BlockStep("shift", shifts=tuple((i, v) for i, v in enumerate(shift) if v != 0.0))
+    return _BlockStep("matrix", np.ascontiguousarray(np.array(G + [[0.0, 0.0, 0.0, 1.0]]).T))
 
 
 class _Plan:
@@ -629,14 +692,32 @@ class _Plan:
         st = self.st = structure
         pv = robot.param_values.tolist()
         value = [pv[et.param] if et.param >= 0 else et.constant for et in ets]
-        self.__dict__.update(st.shared)
+        # the shape's numbers the hot loops read, as attributes of the plan
+        self.n: int = st.n
+        self.P: int = st.P
+        self.J: int = st.J
+        self.R: int = st.R
+        self.axes: NDArray[np.intp] = st.axes
+        self.rot: NDArray[np.bool_] = st.rot
+        self.all_rot: bool = st.all_rot
+        self.joint_of: NDArray[np.intp] = st.joint_of
+        self.scales: Array = st.scales
+        self.negative: NDArray[np.intp] = st.negative
+        self.in_joint_order: bool = st.in_joint_order
+        self.same_axis: bool = st.same_axis
+        self.rows_rot: NDArray[np.bool_] = st.rows_rot
+        self.rows_tra: NDArray[np.intp] = st.rows_tra
+        self.row_param: NDArray[np.intp] = st.row_param
+        self.rows_are_params: bool = st.rows_are_params
+        self.rows_unique: bool = st.rows_unique
+        self._selections: dict[tuple[int, ...], _PointRows] = {}
         # rows: axis and origin of every parameter's transform (homogeneous), in the
         # frame of the constant prefix (prefix rows) or of the joint before it
         u_ax: list[list[float]] = []
         u_org: list[list[float]] = []
         prefix = _constant_run(ets, value, 0, st.bounds[0], u_ax, u_org)
         self.prefix = np.array(prefix).T[:, :, None].copy()               # (4, 3, 1)
-        self.posts: list[tuple[str, Any]] = []
+        self.posts: list[_BlockStep] = []
         offsets = []
         for m, k in enumerate(st.carriers):
             et = ets[k]
@@ -711,10 +792,12 @@ class _Plan:
                     Tb[:, r, c] = F[c, r]
             Tb[:, 3, :3] = 0.0
             Tb[:, 3, 3] = 1.0
-            if joints:
-                self._joint_columns(F, S, b, J[:, :, sl])  # type: ignore[index]
-            if params:
-                self._param_columns(F, S, b, Jp[:, :, sl])  # type: ignore[index]
+            if J is not None:
+                assert S is not None
+                self._joint_columns(F, S, b, J[:, :, sl])
+            if Jp is not None:
+                assert S is not None
+                self._param_columns(F, S, b, Jp[:, :, sl])
         return out
 
     def _scratch(self, L: int, record: bool, params: bool) -> dict[str, Array]:
@@ -775,25 +858,25 @@ class _Plan:
             else:                                 # X <- X Trans(v): move the origin
                 np.multiply(cur[ax], V[m], out=t1)
                 cur[3] += t1
-            kind, data = self.posts[m]
+            kind, matrix, shifts = self.posts[m]
             if kind == "identity" and (m == self.J - 1 or not record):
                 continue
             nxt = S[m + 1] if record else cur  # type: ignore[index]
             if kind == "matrix":                  # X <- X C: one matrix product
                 if not record:
                     nxt, spare = spare, cur
-                np.matmul(data, cur.reshape(4, 3 * L), out=nxt.reshape(4, 3 * L))
+                np.matmul(matrix, cur.reshape(4, 3 * L), out=nxt.reshape(4, 3 * L))
             else:
                 if record:
                     np.copyto(nxt, cur)
-                for i, v in data or ():           # translation only: p <- p + v x_i
+                for i, v in shifts:               # translation only: p <- p + v x_i
                     np.multiply(nxt[i], v, out=t1)
                     nxt[3] += t1
             cur = nxt
         return cur, S
 
     # ------------------------------------------------------------- tool points
-    def _selection(self, columns: tuple[int, ...]) -> dict[str, Any]:
+    def _selection(self, columns: tuple[int, ...]) -> _PointRows:
         """What :meth:`points` needs for the parameters ``columns`` (kept per column set).
 
         The rows (parameter transforms) of those parameters in chain order and where
@@ -802,16 +885,15 @@ class _Plan:
         (k, 6) that give the rows' derivatives as one matrix product with
         ``[S_c x (y - p_m) (c = 0, 1, 2); S_c]`` (see :meth:`points`).
         """
-        cache = self.__dict__.setdefault("_selections", {})
-        sel = cache.get(columns)
+        sel = self._selections.get(columns)
         if sel is not None:
             return sel
         shape = self.st.selection(columns)
-        pre = shape["pre"]
-        sel = {**shape, "pre": len(pre), "pre_ax": self.pre_ax[pre, :, 0],
-               "pre_org": self.pre_org[pre, :, 0], "pre_rot": self.rows_rot[pre],
-               "groups": [(m, rows, self.C6[idx]) for m, rows, idx in shape["groups"]]}
-        cache[columns] = sel
+        pre = shape.pre
+        sel = _PointRows(shape.n, shape.dest, shape.direct, len(pre), self.pre_ax[pre, :, 0],
+                         self.pre_org[pre, :, 0], self.rows_rot[pre],
+                         [(m, rows, self.C6[idx]) for m, rows, idx in shape.groups])
+        self._selections[columns] = sel
         return sel
 
     def points(self, q: Array, points: Array, left: Array | None, columns: tuple[int, ...],
@@ -847,7 +929,7 @@ class _Plan:
         else:
             Y, Dout, Rot = out
             if (Y.shape != (K, 3, N) or Dout.shape != (C, K, 3, N)
-                    or (Rot is None) == rotation or (rotation and Rot.shape != (3, 3, N))
+                    or (Rot is None) == rotation or (Rot is not None and Rot.shape != (3, 3, N))
                     or not (Y.flags.c_contiguous and Dout.flags.c_contiguous)):
                 raise ValueError(f"out: C-ordered arrays of shapes {(K, 3, N)}, {(C, K, 3, N)}"
                                  f" and {(3, 3, N) if rotation else None} expected")
@@ -857,10 +939,10 @@ class _Plan:
         H = np.eye(4) if left is None else np.asarray(left, dtype=float)
         full = H @ np.concatenate([self.prefix[:, :, 0].T, [[0.0, 0.0, 0.0, 1.0]]])
         prefix = np.ascontiguousarray(full[:3, :].T)[:, :, None]
-        if sel is not None and sel["pre"]:
-            a = sel["pre_ax"] @ H[:3, :3].T                       # (kp, 3) in H's frame
-            o = sel["pre_org"] @ H[:3, :3].T + H[:3, 3]
-            rot = sel["pre_rot"]
+        if sel is not None and sel.pre:
+            a = sel.pre_ax @ H[:3, :3].T                       # (kp, 3) in H's frame
+            o = sel.pre_org @ H[:3, :3].T + H[:3, 3]
+            rot = sel.pre_rot
             M = np.zeros((len(a), 3, 3))                         # a x y = M y, M = [a]x
             M[:, 0, 1], M[:, 0, 2], M[:, 1, 2] = -a[:, 2], a[:, 1], -a[:, 0]
             M[:, 1, 0], M[:, 2, 0], M[:, 2, 1] = a[:, 2], -a[:, 1], a[:, 0]
@@ -889,22 +971,22 @@ class _Plan:
             if sel is None:
                 continue
             Db = Dout[..., sl]
-            if sel["n"] < C or not sel["direct"]:
+            if sel.n < C or not sel.direct:
                 Db[...] = 0.0
-            if sel["n"] == 0:
+            if sel.n == 0:
                 continue
             Z = scratch("chain.Z", (6, K, 3, Lb))
             d = scratch("chain.dY", (K, 3, Lb))
             tmp = scratch("chain.tZ", (3, K, Lb))
             # all markers at once: rows written in place (one block) or into a buffer
-            one_block = Lb == N and sel["direct"]
+            one_block = Lb == N and sel.direct
             base = Dout if one_block else scratch("chain.out", (self.R, K, 3, Lb))
-            if sel["pre"]:
+            if sel.pre:
                 for k in range(K):
-                    out = base[: sel["pre"], k]
-                    np.matmul(pre[0], Yb[k], out=out)
-                    out += pre[1]
-            for m, rows, Cg in sel["groups"]:
+                    rows_k = base[: sel.pre, k]
+                    np.matmul(pre[0], Yb[k], out=rows_k)
+                    rows_k += pre[1]
+            for m, rows, Cg in sel.groups:
                 np.subtract(Yb, S[m][3], out=d)                  # y_k - p_m
                 Sm = S[m][:3]                                    # (3 columns, 3, L)
                 for i in range(3):                               # Z[c] = S_c x (y_k - p_m)
@@ -916,11 +998,11 @@ class _Plan:
                 np.matmul(Cg, Z.reshape(6, K * 3 * Lb),
                           out=base[rows].reshape(rows.stop - rows.start, K * 3 * Lb))
             if not one_block:
-                part = base[: sel["n"]]
-                if sel["direct"]:
+                part = base[: sel.n]
+                if sel.direct:
                     Db[...] = part
                 else:
-                    np.add.at(Db, sel["dest"], part)
+                    np.add.at(Db, sel.dest, part)
         return Y, Dout, Rot
 
     # ------------------------------------------------------------- jacobians
@@ -988,9 +1070,6 @@ class _Plan:
 # Building chains
 
 
-FRAME_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
-
-
 class ChainBuilder:
     """Accumulates elementary transforms, parameters and joints, then builds a Robot.
 
@@ -1045,17 +1124,19 @@ class ChainBuilder:
             k = self.parameter(name, value, unit, role)
             self.ets.append(ElementaryTransform(kind, k, 0.0, joint, scale))
 
-    def frame(self, prefix: str, xyzrpy: Sequence[float] = (0, 0, 0, 0, 0, 0),
+    def frame(self, prefix: str, values: Sequence[float] | Array = (0, 0, 0, 0, 0, 0),
               role: str | None = None) -> None:
-        """Append a 6-parameter frame ``Tx Ty Tz Rz Ry Rx`` named ``prefix.x`` ... ``prefix.rz``.
+        """Append a 6-parameter frame ``Tx Ty Tz Rz Ry Rx`` named ``prefix.x`` ... ``prefix.rx``.
 
-        The rotation is roll-pitch-yaw: ``Rz(rz) Ry(ry) Rx(rx)`` (URDF order).
+        ``values`` are ``(x, y, z, rz, ry, rx)`` [m, rad] (:data:`kincal.spatial.FRAME_FIELDS`):
+        ``T = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``, the parameters in that order.
         """
-        x, y, z, rx, ry, rz = (float(v) for v in xyzrpy)
+        if len(values) != 6:
+            raise ValueError(f"a frame has 6 values {FRAME_FIELDS}, got {len(values)}")
         role = role or ("base" if prefix == "base" else "tool" if prefix == "tool" else "length")
-        for kind, fld, v in (("Tx", "x", x), ("Ty", "y", y), ("Tz", "z", z),
-                             ("Rz", "rz", rz), ("Ry", "ry", ry), ("Rx", "rx", rx)):
-            self.transform(kind, f"{prefix}.{fld}", v, role=role)
+        for kind, fld, v in zip(("Tx", "Ty", "Tz", "Rz", "Ry", "Rx"), FRAME_FIELDS, values,
+                                strict=True):
+            self.transform(kind, f"{prefix}.{fld}", float(v), role=role)
 
     def build(self, meta: Mapping[str, Any] | None = None) -> Robot:
         return Robot(self.name, tuple(self.ets), tuple(self.joints), tuple(self.names),

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from kincal.errors import KincalError
 from kincal.robots.chain import ChainBuilder, Robot
-from kincal.spatial import matrix_to_xyzrpy, rotx, xyzrpy_to_matrix
+from kincal.spatial import frame_from_matrix, matrix_from_frame, rotx
 
 Convention = Literal["standard", "modified"]
 
@@ -54,15 +55,17 @@ class DHLink:
 
 
 def from_dh(links: Sequence[DHLink], convention: Convention = "standard", name: str = "robot",
-            base: Sequence[float] = (0, 0, 0, 0, 0, 0), tool: Sequence[float] = (0, 0, 0, 0, 0, 0),
+            base: Sequence[float] | NDArray[np.float64] = (0, 0, 0, 0, 0, 0),
+            tool: Sequence[float] | NDArray[np.float64] = (0, 0, 0, 0, 0, 0),
             meta: Mapping[str, Any] | None = None) -> Robot:
     """Compile a DH table to a :class:`Robot`.
 
     Args:
         links: the table, base to tip.
         convention: ``"standard"`` (with optional Hayati ``beta``) or ``"modified"``.
-        base, tool: ``(x, y, z, rx, ry, rz)`` [m, rad] of the base frame (world ->
-            frame 0) and the tool frame (last frame -> tool), rpy = Rz Ry Rx.
+        base, tool: ``(x, y, z, rz, ry, rx)`` [m, rad] of the base frame (world ->
+            frame 0) and the tool frame (last frame -> tool),
+            ``Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` (:data:`kincal.spatial.FRAME_FIELDS`).
         meta: stored on the robot (``source``, ``description`` ...).
     """
     if convention not in ("standard", "modified"):
@@ -110,12 +113,6 @@ def dh_links(robot: Robot) -> list[DHLink]:
     return out
 
 
-def frame_values(robot: Robot, prefix: str) -> np.ndarray:
-    """The 6 values ``(x, y, z, rx, ry, rz)`` of the ``base`` or ``tool`` frame."""
-    return np.array([robot.param_values[robot.param_index(f"{prefix}.{f}")]
-                     for f in ("x", "y", "z", "rx", "ry", "rz")])
-
-
 def standard_to_modified(robot: Robot) -> Robot:
     """Rewrite a standard-DH robot in modified DH with identical forward kinematics.
 
@@ -136,7 +133,7 @@ def standard_to_modified(robot: Robot) -> Robot:
     last = np.eye(4)
     last[:3, :3] = rotx(std[-1].alpha)
     last[0, 3] = std[-1].a
-    tool = matrix_to_xyzrpy(last @ xyzrpy_to_matrix(frame_values(robot, "tool")))
+    tool = frame_from_matrix(last @ matrix_from_frame(robot.frame_parameters("tool")))
     meta = dict(robot.meta)
     meta["convention"] = "modified_dh"
-    return from_dh(mod, "modified", robot.name, frame_values(robot, "base"), tool, meta)
+    return from_dh(mod, "modified", robot.name, robot.frame_parameters("base"), tool, meta)

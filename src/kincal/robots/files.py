@@ -58,7 +58,8 @@ import yaml
 from kincal.errors import RobotFileError
 from kincal.io import atomic_write_text, read_text
 from kincal.robots.chain import KINDS, ROLES, ChainBuilder, Robot
-from kincal.robots.dh import DHLink, dh_links, frame_values, from_dh
+from kincal.robots.dh import DHLink, dh_links, from_dh
+from kincal.spatial import FRAME_FIELDS
 from kincal.units import UNITS
 
 #: Units a robot file may state (``units:``, ``joint_units:``), factors from the one
@@ -149,7 +150,7 @@ def _frame(r: FieldReader, data: Mapping[str, Any], key: str, ls: float, as_: fl
     if unknown:
         raise r.fail(f"{key}.{unknown[0]}", f"is not a frame field (use {', '.join(_FRAME_KEYS)})")
     return [r.number(m.get(k, 0.0), f"{key}.{k}") * (ls if i < 3 else as_)
-            for i, k in enumerate(_FRAME_KEYS)]
+            for i, k in enumerate(FRAME_FIELDS)]
 
 
 def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str, Any]:
@@ -415,7 +416,9 @@ def load_robot(spec: str | os.PathLike[str], base_link: str | None = None,
 
 # --------------------------------------------------------------------------- writing
 def _fmt_frame(values: np.ndarray) -> dict[str, float]:
-    return {k: float(v) for k, v in zip(_FRAME_KEYS, values, strict=True)}
+    """``{x, y, z, rx, ry, rz}`` (the file's key order) of frame values in
+    :data:`~kincal.spatial.FRAME_FIELDS` order."""
+    return {k: float(values[FRAME_FIELDS.index(k)]) for k in _FRAME_KEYS}
 
 
 def _limits_out(lo: float, hi: float) -> list[float] | None:
@@ -455,8 +458,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         doc["joint_units"] = ju
     if conv in ("standard_dh", "modified_dh", "hayati"):
         doc["convention"] = conv
-        doc["base"] = _fmt_frame(frame_values(robot, "base"))
-        doc["tool"] = _fmt_frame(frame_values(robot, "tool"))
+        doc["base"] = _fmt_frame(robot.frame_parameters("base"))
+        doc["tool"] = _fmt_frame(robot.frame_parameters("tool"))
         rows = []
         for L in dh_links(robot):
             row: dict[str, Any] = {"name": L.name, "type": L.joint, "a": L.a, "d": L.d,
@@ -470,8 +473,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         doc["joints"] = rows
         return doc
     doc["convention"] = "ets"
-    doc["base"] = _fmt_frame(frame_values(robot, "base"))
-    doc["tool"] = _fmt_frame(frame_values(robot, "tool"))
+    doc["base"] = _fmt_frame(robot.frame_parameters("base"))
+    doc["tool"] = _fmt_frame(robot.frame_parameters("tool"))
     doc["joints"] = []
     for j in robot.joints:
         row = {"name": j.name, "type": j.kind}

@@ -37,7 +37,7 @@ the n joints (never over configurations).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -87,7 +87,7 @@ def _chain_order(robot: Robot) -> tuple[list[int], list[int]]:
     return rank, carriers
 
 
-def _check_masses(robot: Robot, masses: Sequence[PointMass | tuple]) -> list[PointMass]:
+def _check_masses(robot: Robot, masses: Sequence[PointMass | tuple[Any, ...]]) -> list[PointMass]:
     out = []
     for i, m in enumerate(masses):
         pm = PointMass(*m)
@@ -105,7 +105,7 @@ def _check_masses(robot: Robot, masses: Sequence[PointMass | tuple]) -> list[Poi
     return out
 
 
-def gravity_torques(robot: Robot, q: ArrayLike, masses: Sequence[PointMass | tuple],
+def gravity_torques(robot: Robot, q: ArrayLike, masses: Sequence[PointMass | tuple[Any, ...]],
                     g: ArrayLike = STANDARD_GRAVITY) -> Array:
     """Static gravity load ``tau = -dV/dq`` on every joint (see the module docstring).
 

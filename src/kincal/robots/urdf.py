@@ -272,7 +272,7 @@ class _LineTreeBuilder(ET.TreeBuilder):
         self.line = 0
         self.lines: dict[int, int] = {}
 
-    def start(self, tag, attrs):  # type: ignore[no-untyped-def, override]
+    def start(self, tag: str, attrs: dict[str, str]) -> ET.Element:
         elem = super().start(tag, attrs)
         self.lines[id(elem)] = self.line
         return elem
@@ -288,9 +288,9 @@ def _parse_xml(text: str, source: str) -> tuple[ET.Element, dict[int, int]]:
             parser.feed(line)
         root = parser.close()
     except ET.ParseError as exc:
-        line, col = exc.position
+        line_no, col = exc.position
         msg = str(exc).split(":")[0]
-        raise RobotFileError(f"line {line} column {col + 1}: malformed XML ({msg})",
+        raise RobotFileError(f"line {line_no} column {col + 1}: malformed XML ({msg})",
                              source=source) from None
     return root, builder.lines
 
@@ -703,7 +703,7 @@ def rpy_of(R: Array) -> tuple[float, float, float]:
     return float(roll), float(pitch), float(yaw)
 
 
-def _fmt(values: Sequence[float]) -> str:
+def _fmt(values: Sequence[float] | NDArray[np.float64]) -> str:
     """Shortest text that reads back as the same floats (whole numbers without ``.0``)."""
     return " ".join(str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else repr(float(v))
                     for v in values)

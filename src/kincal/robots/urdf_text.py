@@ -12,7 +12,10 @@ attributes.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
 
 from kincal.errors import RobotFileError
 
@@ -72,8 +75,9 @@ def format_floats(old: str | None, values: Sequence[float], shortest: str) -> st
     return lead + text + trail
 
 
-def set_origin(text: str, joint: str, xyz: Sequence[float], rpy: Sequence[float],
-               fmt: callable) -> str:  # type: ignore[valid-type]
+def set_origin(text: str, joint: str, xyz: Sequence[float] | NDArray[np.float64],
+               rpy: Sequence[float] | NDArray[np.float64],
+               fmt: Callable[[Sequence[float] | NDArray[np.float64]], str]) -> str:
     """``text`` with the ``<origin>`` of ``<joint name=joint>`` set to xyz / rpy.
 
     ``fmt(values) -> str`` writes numbers (shortest round-trip form).  Unchanged numbers

@@ -32,7 +32,7 @@ from kincal.compensation.programs.numbers import (
     style_of,
 )
 from kincal.errors import KincalError
-from kincal.spatial import homogeneous, matrix_to_rpy, rpy_to_matrix
+from kincal.spatial import matrix_to_rpy, xyzrpy_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -185,18 +185,13 @@ class Frames:
                           f"(give it with --frames FILE)")
 
 
-def frame_matrix(x: float, y: float, z: float, rx: float, ry: float, rz: float) -> Array:
-    """``Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)`` [m, rad]."""
-    return homogeneous(rpy_to_matrix(np.array([rx, ry, rz])), np.array([x, y, z]))
-
-
 def pose_mm_deg(x: float, y: float, z: float, roll: float, pitch: float, yaw: float
                 ) -> Array:
     """``Trans(x, y, z) Rz(yaw) Ry(pitch) Rx(roll)`` [m] from mm and deg: KUKA's
     ``X Y Z A B C`` (A = yaw, B = pitch, C = roll) and FANUC's ``X Y Z W P R`` (W = roll,
     P = pitch, R = yaw) alike."""
     d = np.pi / 180
-    return frame_matrix(x * 1e-3, y * 1e-3, z * 1e-3, roll * d, pitch * d, yaw * d)
+    return xyzrpy_to_matrix([x * 1e-3, y * 1e-3, z * 1e-3, roll * d, pitch * d, yaw * d])
 
 
 def xyz_rpy_mm_deg(T: Array, near: tuple[float, float, float]
@@ -256,6 +251,6 @@ def read_frames(path: str | None) -> Frames:
                 v = [float(fr.get(k, 0.0)) for k in ("x", "y", "z", "rx", "ry", "rz")]
             except (TypeError, ValueError):
                 raise KincalError(f"field '{f}': values must be numbers", source=path) from None
-            out[which][str(key)] = frame_matrix(v[0] * ls, v[1] * ls, v[2] * ls, v[3] * as_,
-                                                v[4] * as_, v[5] * as_)
+            out[which][str(key)] = xyzrpy_to_matrix([v[0] * ls, v[1] * ls, v[2] * ls,
+                                                     v[3] * as_, v[4] * as_, v[5] * as_])
     return Frames(out["tool"], out["base"], path)

@@ -31,14 +31,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import ParamSpec, Triangle, configuration_slices, frame_values
+from kincal.measure.base import ParamSpec, Triangle, configuration_slices
 from kincal.measure.models import project_so3
 from kincal.robots.chain import Robot
-from kincal.spatial import homogeneous, rotx, roty, rotz
+from kincal.spatial import FRAME_FIELDS, frame_from_matrix, homogeneous, rotx, roty, rotz
 
 Array = NDArray[np.float64]
 
-FRAME_FIELDS = ("x", "y", "z", "rz", "ry", "rx")
+
 FRAME_UNITS = ("m", "m", "m", "rad", "rad", "rad")
 MARKER_MODES = ("own", "tool")
 
@@ -292,6 +292,7 @@ def station_poses_from_directions(stations: Sequence[str], station_index: NDArra
 
 
 def rotation_to_rpy_frame(R: Array, t: Array) -> Array:
-    """Frame parameters ``x y z rz ry rx`` of ``(R, t)`` (:func:`.base.frame_values`)."""
-    return frame_values(homogeneous(R, t))
+    """Frame parameters ``x y z rz ry rx`` of ``(R, t)``
+    (:func:`~kincal.spatial.frame_from_matrix`)."""
+    return frame_from_matrix(homogeneous(R, t))
 

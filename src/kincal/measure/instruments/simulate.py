@@ -21,7 +21,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
-from kincal.measure.base import frame_matrix
 from kincal.measure.instruments.bearing import BearingMeasurement, bearing_angles
 from kincal.measure.instruments.camera import CameraMeasurement, HandCameraMeasurement, project
 from kincal.measure.instruments.common import (
@@ -32,6 +31,7 @@ from kincal.measure.instruments.common import (
 from kincal.measure.instruments.range import RangeMeasurement
 from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
+from kincal.spatial import matrix_from_frame
 
 Array = NDArray[np.float64]
 
@@ -261,10 +261,10 @@ def _simulate_hand(true_robot: Robot, rng: np.random.Generator, n_poses: int, no
         where = _stations_around(rng, centre, 1, (0.9, 1.1), (-0.2, 0.2))[0]
         # target z axis towards the workspace (the camera looks at its front)
         f = look_at(where, centre)
-        R = frame_matrix(f)[:3, :3] @ np.diag([1.0, -1.0, -1.0])     # flip z to face back
+        R = matrix_from_frame(f)[:3, :3] @ np.diag([1.0, -1.0, -1.0])     # flip z to face back
         values = rotation_to_rpy_frame(R, where)
     w = to_world(values, pts, False)[0]
-    normal = frame_matrix(values)[:3, 2]
+    normal = matrix_from_frame(values)[:3, 2]
     qs, pose_rows = [], []
     got = 0
     for _ in range(200):                     # batches of candidate poses until enough
