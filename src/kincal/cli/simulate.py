@@ -303,7 +303,9 @@ def simulate(
         atomic_write_text(truth, truth_text)
     delta = true.param_values - nominal.param_values
     rows = sum(int(b.q.shape[0]) for b in blocks)
-    n_pl = sum(len(getattr(b, "placements", ())) for b in blocks)
+    from kincal.measure.base import HasPlacements
+
+    n_pl = sum(len(b.placements) for b in blocks if isinstance(b, HasPlacements))
     out.print(f"simulated {rows} measurements"
               + (f" ({n_pl} placements)" if n_pl else "")
               + f" of {escape(nominal.name)} with {inst.name} ({noise_text}) -> "

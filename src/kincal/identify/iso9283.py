@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
+from kincal.measure.base import PredictsObservations
 from kincal.spatial import log_so3
 
 Array = NDArray[np.float64]
@@ -171,8 +172,10 @@ def block_figures(robot: object, block: object, extra: ArrayLike,
     y = np.asarray(block.positions, dtype=float)
     if y.ndim == 3:
         y = y[:, 0]
-    pred = np.asarray(block.predict(robot, extra), dtype=float)[:, 0]  # type: ignore[attr-defined]
-    names = list(labels) if labels is not None else group_positions(block.q)  # type: ignore[attr-defined]
+    if not isinstance(block, PredictsObservations):
+        raise KincalError(f"a {type(block).__name__} block does not predict positions")
+    pred = np.asarray(block.predict(robot, extra), dtype=float)[:, 0]
+    names = list(labels) if labels is not None else group_positions(block.q)
     order = list(dict.fromkeys(names))
     figs = []
     for name in order:

@@ -32,10 +32,12 @@ identifiability analysis need follows from ``(R, z)``: ``J^T W J = R^T R``,
 
 from __future__ import annotations
 
+import copy
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +47,9 @@ from kincal.errors import KincalError
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
 from kincal.spatial import homogeneous, rpy_to_matrix
+
+if TYPE_CHECKING:
+    from kincal.measure.files import MeasurementTable
 
 Array = NDArray[np.float64]
 
@@ -158,6 +163,32 @@ def configuration_slices(N: int, rows_per_configuration: int, rows: int = CHUNK_
         yield slice(start, min(N, start + step))
 
 
+class SourceSpec(Protocol):
+    """What a block keeps of the source it was read from (a workflow's ``DataSource``):
+    the file and, for a held-out file, how its instrument frames are found."""
+
+    @property
+    def path(self) -> str: ...
+
+    @property
+    def frames(self) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a block's data came from.
+
+    Attributes:
+        path: the measurement file (or socket folder).
+        table: the parsed file (its line numbers, tags and ignored columns), or None.
+        source: the source specification it was read with (file options), or None.
+    """
+
+    path: str
+    table: MeasurementTable | None = None
+    source: SourceSpec | None = None
+
+
 class MeasurementModel(ABC):
     """One instrument's block of measurements and its unknown parameters.
 
@@ -173,10 +204,52 @@ class MeasurementModel(ABC):
     Attributes:
         name: the block's prefix for its parameter names and for reports.
         q: (N, n) joint readings [rad / m].
+        provenance: the file the block was read from (:class:`Provenance`); None for
+            simulated and in-memory blocks.  Wrappers (:class:`BlockWrapper`) share
+            their inner block's.
+
+    Optional capabilities are declared as protocols and tested with ``isinstance``:
+    :class:`PredictsObservations`, :class:`PredictsPoints`, :class:`HasPlacements`,
+    :class:`HasProbe`.
     """
 
     name: str
     q: Array
+    _provenance: Provenance | None = None
+
+    @property
+    def provenance(self) -> Provenance | None:
+        """The file the block was read from, or None (simulated / in memory)."""
+        return self._provenance
+
+    @provenance.setter
+    def provenance(self, value: Provenance | None) -> None:
+        self._provenance = value
+
+    @property
+    def source_label(self) -> str:
+        """The block's file path when it was read from one, else its name."""
+        return self.provenance.path if self.provenance is not None else self.name
+
+    def measurement_sigma(self) -> Array | None:
+        """Stated standard deviation of each measurement, in SI units (m for lengths,
+        rad for angles, px for pixels): (N,) or (N, K); the position sigma for blocks
+        that measure several quantities (pose); None when the block states no single
+        one (artifacts).  The whitening divisor ``sigma_i`` of :meth:`evaluate`."""
+        return None
+
+    def with_q(self, q: Array) -> MeasurementModel:
+        """A copy measuring the same rows at joint readings ``q`` (N, n) (the
+        information of postures not measured: the Jacobian does not depend on the
+        observations).  Default: a shallow copy with ``q`` replaced."""
+        out = copy.copy(self)
+        out.q = q
+        return out
+
+    def __repr__(self) -> str:
+        src = f", from {self.provenance.path!r}" if self.provenance is not None else ""
+        return (f"{type(self).__name__}({self.name!r}, {len(self.q)} rows, "
+                f"{len(self.parameters())} parameters{src})")
 
     @abstractmethod
     def parameters(self) -> ParamSpec:
@@ -260,6 +333,70 @@ class MeasurementModel(ABC):
         The keys end in their unit (``_m``, ``_rad``).  Default: none.
         """
         return {}
+
+
+class BlockWrapper(MeasurementModel):
+    """A block built around another (joint-model terms, a shared tool point): it
+    measures the inner block's rows, so it has its name and provenance by construction.
+    """
+
+    inner: MeasurementModel
+
+    @property
+    def provenance(self) -> Provenance | None:
+        return self.inner.provenance
+
+    @provenance.setter
+    def provenance(self, value: Provenance | None) -> None:
+        self.inner.provenance = value
+
+    def measurement_sigma(self) -> Array | None:
+        return self.inner.measurement_sigma()
+
+
+# --------------------------------------------------------------------------- capabilities
+@runtime_checkable
+class PredictsObservations(Protocol):
+    """A block that predicts its observations: ``predict(robot, extra) -> (N, ...)``
+    in the units of its data (e.g. (N, K, 3) positions [m])."""
+
+    def predict(self, robot: Robot, extra: Array) -> Array: ...
+
+
+@runtime_checkable
+class PredictsPoints(Protocol):
+    """A block whose measured points can be listed: ``points(robot, extra) -> (M, 3)``
+    [m] in the base frame (artifact probe points)."""
+
+    def points(self, robot: Robot, extra: Array | None = None) -> Array: ...
+
+
+@runtime_checkable
+class HasPlacements(Protocol):
+    """A block measured in several placements of an artifact (labels in order)."""
+
+    @property
+    def placements(self) -> tuple[str, ...]: ...
+
+    def subset_placements(self, placements: Sequence[str]) -> MeasurementModel: ...
+
+
+@runtime_checkable
+class HasProbe(Protocol):
+    """A block measured through a probe on the flange (an artifact's ball or stylus)."""
+
+    @property
+    def probe(self) -> ProbeLike: ...
+
+
+class ProbeLike(Protocol):
+    """A probe: ``mode`` (``tool``, ``vector``, ``length`` ...) and its known values [m]."""
+
+    @property
+    def mode(self) -> str: ...
+
+    @property
+    def value(self) -> tuple[float, ...]: ...
 
 
 @dataclass

@@ -237,6 +237,10 @@ class PositionMeasurement(MeasurementModel):
             return [f"{self.name}.marker"]
         return [f"{self.name}.marker{k + 1}" for k in range(self.K)]
 
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each marker position [m]: (N, K)."""
+        return self.sigma
+
     def parameters(self) -> ParamSpec:
         spec = ParamSpec.frame(self.name)
         for p in self.marker_prefixes():
@@ -249,8 +253,10 @@ class PositionMeasurement(MeasurementModel):
     def subset(self, rows: ArrayLike) -> PositionMeasurement:
         """A block with the same name holding only ``rows`` (for cross-validation)."""
         rows = np.asarray(rows)
-        return PositionMeasurement(self.q[rows], self._y[rows], self.sigma[rows], self.name,
-                                   self.K)
+        out = PositionMeasurement(self.q[rows], self._y[rows], self.sigma[rows], self.name,
+                                  self.K)
+        out.provenance = self.provenance
+        return out
 
     def num_residuals(self) -> int:
         return 3 * self.K * self.N
@@ -582,6 +588,11 @@ class PoseMeasurement(MeasurementModel):
     @property
     def N(self) -> int:
         return self.q.shape[0]
+
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each position [m]: (N,) (orientations:
+        ``sigma_orientation`` [rad])."""
+        return self.sigma_position
 
     def parameters(self) -> ParamSpec:
         return ParamSpec.frame(self.name) + ParamSpec.frame(f"{self.name}.target", role="target")

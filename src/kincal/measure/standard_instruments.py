@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
+from kincal.measure.base import Provenance
 from kincal.measure.files import (
     Field,
     MeasurementTable,
@@ -282,7 +283,7 @@ def read_position(path: str | Path, robot: Any, units: Mapping[str, str] | None 
     K = 1 if y.ndim == 2 else y.shape[1]
     block = PositionMeasurement(t.q, y, sigma=_sigma_scalar(sigma, _tag_sigma(t, "sigma")),
                                 name=name or t.tags.get("name") or UNNAMED, markers=K)
-    block.table = t  # type: ignore[attr-defined]
+    block.provenance = Provenance(str(path), t)
     return [block]
 
 
@@ -311,7 +312,7 @@ def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = No
                             sigma_orientation=_sigma_scalar(t.values.get("sigma_rot"),
                                                             _tag_sigma(t, "sigma_rot")),
                             name=name or t.tags.get("name") or UNNAMED)
-    block.table = t  # type: ignore[attr-defined]
+    block.provenance = Provenance(str(path), t)
     return [block]
 
 

@@ -32,14 +32,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import CHUNK_ROWS, MeasurementModel, ParamSpec
+from kincal.measure.base import CHUNK_ROWS, BlockWrapper, ParamSpec
 
 Array = NDArray[np.float64]
 
 __all__ = ["ToolPointBlock", "share_tool_point"]
 
 
-class ToolPointBlock(MeasurementModel):
+class ToolPointBlock(BlockWrapper):
     """A position block whose marker is the robot's tool origin (marker held at 0).
 
     Parameters: the inner block's without its marker (``{name}.marker.*``); residuals,
@@ -52,9 +52,6 @@ class ToolPointBlock(MeasurementModel):
         spec = inner.parameters()
         self._keep = np.array([not n.startswith(f"{inner.name}.marker")
                                for n in spec.names], dtype=bool)
-        for attr in ("source_path", "table", "source"):
-            if hasattr(inner, attr):
-                setattr(self, attr, getattr(inner, attr))
 
     @property
     def q(self) -> Array:
@@ -155,11 +152,7 @@ def _shared(block: Any) -> Any:
         out._checked = False
         return out
     if isinstance(block, ArtifactMeasurement):
-        out = block.replace(probe=Probe("tool"))
-        for attr in ("source_path", "table", "source"):
-            if hasattr(block, attr):
-                setattr(out, attr, getattr(block, attr))
-        return out
+        return block.replace(probe=Probe("tool"))     # keeps the block's provenance
     return ToolPointBlock(block)
 
 

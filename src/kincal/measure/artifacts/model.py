@@ -503,7 +503,13 @@ class ArtifactMeasurement(MeasurementModel):
             geometry=self.geometry, probe=self.probe, sockets=self.sockets, name=self.name,
             joint_std=self.joint_std, point_std=self.point_std, robot=self.noise_robot)
         args.update(changes)
-        return ArtifactMeasurement(**args)  # type: ignore[arg-type]
+        out = ArtifactMeasurement(**args)  # type: ignore[arg-type]
+        out.provenance = self.provenance                # the same file's rows
+        return out
+
+    def with_q(self, q: Array) -> ArtifactMeasurement:
+        """The same rows measured at joint readings ``q``."""
+        return self.replace(q=q)
 
     def subset_placements(self, placements: Sequence[str]) -> ArtifactMeasurement:
         """A block with the same name holding only the rows of ``placements``."""

@@ -158,6 +158,10 @@ class HandCameraMeasurement(MeasurementModel):
         self.intrinsics = tuple(float(v) for v in intrinsics)
         self.K = np.broadcast_to(check_intrinsics(np.array(self.intrinsics), name), (N, 4))
 
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each image coordinate [px]: (N,)."""
+        return self.sigma
+
     def parameters(self) -> ParamSpec:
         return frame_spec(f"{self.name}.target", role="target")
 

@@ -156,6 +156,10 @@ class PointBlock(MeasurementModel):
         return self.own_parameters().values
 
     # -- the contract
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each measured quantity [SI: m, rad or px]: (N,)."""
+        return self.sigma
+
     def parameters(self) -> ParamSpec:
         own = self.own_parameters()
         if self.marker == "own":

@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import CHUNK_ROWS, MeasurementModel, ParamSpec
+from kincal.measure.base import CHUNK_ROWS, BlockWrapper, MeasurementModel, ParamSpec
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -56,7 +56,7 @@ Array = NDArray[np.float64]
 __all__ = ["JointDeflection"]
 
 
-class JointDeflection(MeasurementModel):
+class JointDeflection(BlockWrapper):
     """Evaluate ``block`` at ``q + c (.) u`` and estimate one coefficient ``c`` per joint.
 
     Args:
@@ -177,10 +177,9 @@ class JointDeflection(MeasurementModel):
 
     def _at(self, q: Array) -> MeasurementModel:
         """The inner block with joint readings ``q`` (a copy; the inner block is unchanged)."""
-        with_q = getattr(self.inner, "with_q", None)
-        if callable(with_q):
-            return with_q(q)  # type: ignore[no-any-return]
-        blk = copy.copy(self.inner)
+        if isinstance(self.inner, JointDeflection):  # an inner joint-model term
+            return self.inner.with_q(q)
+        blk = copy.copy(self.inner)      # a plain copy: the inner block keeps its weights
         blk.q = q
         return blk
 
