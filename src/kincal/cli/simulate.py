@@ -231,7 +231,6 @@ def simulate(
 
     from kincal.io import write_json
     from kincal.measure.registry import (
-        accepts,
         get_instrument,
         simulate_measurements,
         write_measurements,
@@ -284,7 +283,7 @@ def simulate(
     held = None
     if holdout:
         hopts = dict(opts)
-        same = accepts(inst.simulate, "truth")
+        same = inst.same_placement
         if not same and "name" in inst.options:
             hopts["name"] = f"{opts.get('name', inst.options['name'][0])}_holdout"
         held, _ = simulate_measurements(inst, true, rng, holdout_poses, sd, hopts,
