@@ -300,7 +300,7 @@ def _accuracy(res: Any, cv: Mapping[str, Any] | None,
     except (KincalError, ValueError, IndexError):
         return None
     inst = model.instrument
-    if inst is not None and before and inst["block"] in before:
+    if isinstance(inst, dict) and before and inst["block"] in before:
         inst["nominal_values"] = [float(v) for v in np.asarray(before[inst["block"]])[:9]]
     rms = (cv or {}).get("rms_position_m")
     if rms is not None and model.region is not None:
@@ -590,6 +590,7 @@ def _untrusted_notice(flow: FlowResult, force: bool, planned: Mapping[str, str])
     if files:
         what = (f"; written anyway (--force): {', '.join(files)}" if force else
                 f"; no calibrated robot written ({', '.join(files)}; --force writes it)")
+    assert flow.verdict is not None           # not trusted: there is a verdict
     return flow.verdict.line() + what
 
 

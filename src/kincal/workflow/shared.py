@@ -46,16 +46,15 @@ class ToolPointBlock(BlockWrapper):
     Jacobians and errors are the inner block's at marker 0.
     """
 
+    inner: Any          # a position block (its ``subset`` and ``{name}.marker.*``)
+
     def __init__(self, inner: Any) -> None:
         self.inner = inner
         self.name = inner.name
+        self.q = inner.q
         spec = inner.parameters()
         self._keep = np.array([not n.startswith(f"{inner.name}.marker")
                                for n in spec.names], dtype=bool)
-
-    @property
-    def q(self) -> Array:
-        return self.inner.q
 
     @property
     def N(self) -> int:
