@@ -703,7 +703,7 @@ class CompressedSystem:
         pos = np.asarray(positions, dtype=np.intp)
         T = self._triangle()
         A = np.concatenate([T[:, pos], T[:, -1:]], axis=1)
-        return self._from_triangle(np.linalg.qr(A, mode="r"), self.r, self.cost,
+        return self._from_triangle(qr_triangle(A), self.r, self.cost,
                                    self.columns[pos])
 
     def with_rows(self, J_rows: ArrayLike, r_rows: ArrayLike,
@@ -715,7 +715,7 @@ class CompressedSystem:
         rx = np.asarray(r_rows, dtype=float).reshape(-1)
         wx = np.ones(rx.size) if weights is None else np.asarray(weights, float).reshape(-1)
         A = np.concatenate([Jx, rx[:, None]], axis=1) * np.sqrt(wx)[:, None]
-        T = np.linalg.qr(np.concatenate([self._triangle(), A]), mode="r")
+        T = qr_triangle(np.concatenate([self._triangle(), A]))
         return self._from_triangle(T, None if self.r is None else np.concatenate([self.r, rx]),
                                    self.cost + 0.5 * float(np.sum(wx * rx * rx)), self.columns)
 
@@ -745,7 +745,8 @@ class CompressedSystem:
         Ds = np.where(D > 0, D, 1.0)
         Ur, S, Vt = np.linalg.svd(self.R / Ds)
         keep = S > rcond * (S[0] if S.size else 0.0)
-        return -(Vt[keep].T @ ((Ur[:, keep].T @ self.z) / S[keep])) / Ds
+        value: Array = -(Vt[keep].T @ ((Ur[:, keep].T @ self.z) / S[keep])) / Ds
+        return value
 
 
 def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProblem, Array]:
@@ -790,6 +791,12 @@ def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProb
 
 
 # --------------------------------------------------------------------------- linear algebra
+def qr_triangle(A: Array) -> Array:
+    """``R`` of ``A = Q R`` (numpy's ``qr(A, mode="r")``; stacked for (..., M, p))."""
+    R: Array = np.linalg.qr(A, mode="r")  # type: ignore[assignment]  # numpy's stubs: QRResult
+    return R
+
+
 #: Rows per tile of the tall-skinny QR (:func:`r_factor`, :func:`svd_thin`): a tile of
 #: ``TILE_ROWS x p`` doubles stays in the CPU cache while LAPACK factorises it.  A
 #: performance setting only; the factors do not depend on it beyond round-off.
@@ -826,7 +833,8 @@ def _fold(T: Array, B: Array, nb: int) -> Array:
     out, _, _, info = dtpqrt(0, nb, T, B.T, overwrite_a=1, overwrite_b=1)
     if info != 0:                                   # pragma: no cover - LAPACK argument check
         raise RuntimeError(f"dtpqrt failed (info {info})")
-    return out
+    value: Array = out
+    return value
 
 
 class Triangle:
@@ -871,7 +879,8 @@ class Triangle:
         largest are treated as zero."""
         Ur, S, Vt = np.linalg.svd(self.R[:nx, :nx])
         keep = S > rcond * (S[0] if S.size else 0.0)
-        return Vt[keep].T @ ((Ur[:, keep].T @ self.R[:nx, nx:]) / S[keep][:, None])
+        value: Array = Vt[keep].T @ ((Ur[:, keep].T @ self.R[:nx, nx:]) / S[keep][:, None])
+        return value
 
 
 def r_factor(A: ArrayLike) -> Array:
@@ -893,15 +902,15 @@ def r_factor(A: ArrayLike) -> Array:
     if p == 0:
         return np.zeros((0, 0))
     if M <= 2 * m:
-        return np.linalg.qr(A, mode="r")
+        return qr_triangle(A)
     k = M // m
     parts = []
     for start in range(0, k, _TILE_GROUP):
         stop = min(k, start + _TILE_GROUP)
         tiles = A[start * m: stop * m].reshape(stop - start, m, p)
-        parts.append(np.linalg.qr(tiles, mode="r").reshape(-1, p))
+        parts.append(qr_triangle(tiles).reshape(-1, p))
     if k * m < M:
-        parts.append(np.linalg.qr(A[k * m:], mode="r"))
+        parts.append(qr_triangle(A[k * m:]))
     return r_factor(np.concatenate(parts))
 
 
@@ -953,7 +962,7 @@ def singular_values(A: ArrayLike) -> Array:
         return np.zeros(0)
     if A.shape[0] > A.shape[1]:
         A = r_factor(A)
-    return np.linalg.svd(A, compute_uv=False)
+    return np.asarray(np.linalg.svd(A, compute_uv=False), dtype=np.float64)
 
 
 def lstsq(A: ArrayLike, b: ArrayLike, rcond: float = 1e-10) -> Array:
@@ -970,10 +979,13 @@ def lstsq(A: ArrayLike, b: ArrayLike, rcond: float = 1e-10) -> Array:
     if M <= p or p == 0:
         U, S, Vt = svd_thin(A)
         keep = S > rcond * (S[0] if S.size else 0.0)
-        return Vt[keep].T @ ((U[:, keep].T @ b) / S[keep].reshape((-1,) + (1,) * (b.ndim - 1)))
+        value: Array = Vt[keep].T @ ((U[:, keep].T @ b)
+                                     / S[keep].reshape((-1,) + (1,) * (b.ndim - 1)))
+        return value
     B = b.reshape(M, -1)
     Rab = r_factor(np.concatenate([A, B], axis=1))
     Ur, S, Vt = np.linalg.svd(Rab[:p, :p])
     keep = S > rcond * S[0]
     x = Vt[keep].T @ ((Ur[:, keep].T @ Rab[:p, p:]) / S[keep][:, None])
-    return x.reshape((p,) + b.shape[1:])
+    solution: Array = x.reshape((p,) + b.shape[1:])
+    return solution

@@ -60,6 +60,7 @@ from kincal.measure.base import (
     frame_matrix,
     frame_rotation_axes,
     frame_values,
+    qr_triangle,
 )
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
@@ -94,7 +95,8 @@ def project_so3(A: Array) -> Array:
     """The rotation nearest to the 3x3 matrix ``A`` (Frobenius norm), ``det = +1``."""
     U, _, Vt = np.linalg.svd(A)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
+    value: Array = U @ D @ Vt
+    return value
 
 
 def inverse_left_jacobian_so3(phi: Array) -> Array:
@@ -229,7 +231,7 @@ class PositionMeasurement(MeasurementModel):
     # ------------------------------------------------------------------ contract
     @property
     def N(self) -> int:
-        return self.q.shape[0]
+        return int(self.q.shape[0])
 
     def marker_prefixes(self) -> list[str]:
         """``[f"{name}.marker"]`` for one marker, else ``[f"{name}.marker1", ...]``."""
@@ -259,7 +261,7 @@ class PositionMeasurement(MeasurementModel):
         return out
 
     def num_residuals(self) -> int:
-        return 3 * self.K * self.N
+        return int(3 * self.K * self.N)
 
     def predict(self, robot: Robot, extra: ArrayLike, out: Array | None = None) -> Array:
         """Predicted observations ``y_pred`` (N, K, 3) [m] (in pieces of configurations;
@@ -415,6 +417,7 @@ class PositionMeasurement(MeasurementModel):
         w = 1.0 / self.sigma[cs]                                  # (n, K)
         np.multiply(y - self._y[cs], w[:, :, None], out=r.reshape(n, K, 3))
         # robot columns: computed as (P, n) planes, written transposed into the rows
+        assert Jp is not None                                     # params=True
         V, W = _rotate_twists(G, Jp, ws)
         ar = np.ascontiguousarray((a @ G.T).transpose(1, 2, 0))  # a' (K, 3, n)
         out = Jr.reshape(n, K, 3, P)
@@ -518,7 +521,7 @@ class PositionMeasurement(MeasurementModel):
         # triangle with the columns in that order (A P = Q (R P))
         order = [*range(9, p1 + 1), *(3 * b + a for a in range(3) for b in range(3))]
         second = Triangle(p2 + 10)
-        second.R = np.linalg.qr(first.R[:, order], mode="r")
+        second.R = qr_triangle(first.R[:, order])
         sol = first.solve(p1)[:, 0]
         R = project_so3(sol[:9].reshape(3, 3, order="F"))
         m = sol[12:].reshape(K, 3)
@@ -587,7 +590,7 @@ class PoseMeasurement(MeasurementModel):
 
     @property
     def N(self) -> int:
-        return self.q.shape[0]
+        return int(self.q.shape[0])
 
     def measurement_sigma(self) -> Array:
         """Stated standard deviation of each position [m]: (N,) (orientations:
@@ -688,6 +691,7 @@ class PoseMeasurement(MeasurementModel):
         np.multiply(dy, wp[:, None], out=rr[:, :3])
         np.multiply(e, wo[:, None], out=rr[:, 3:])
         L = inverse_left_jacobian_so3(e)                           # (n, 3, 3)
+        assert Jp is not None                                      # params=True
         V, W = _rotate_twists(G, Jp, ws)                           # R_I^T Jv, R_I^T Jw
         ar = np.ascontiguousarray((a @ G.T).T)                    # a' (3, n)
         Lc = np.ascontiguousarray(L.transpose(1, 2, 0))           # (3, 3, n)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import importlib
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -36,10 +36,7 @@ from kincal.errors import MeasurementFileError
 from kincal.measure.files import tag_overrides
 
 if TYPE_CHECKING:
-    import numpy as np
-
     from kincal.measure.base import MeasurementModel
-    from kincal.robots.chain import Robot
 
 #: kincal's own modules that register instruments when imported.  An error in one of
 #: them is a bug and raises.
@@ -54,19 +51,17 @@ INSTRUMENT_MODULES: tuple[str, ...] = (
 ENTRY_POINT_GROUP = "kincal.instruments"
 
 
-class Simulator(Protocol):
-    """``simulate(true_robot, rng, n_poses, noise, **options) -> (blocks, truth)``.
-
-    ``blocks`` are measured on ``true_robot`` at ``n_poses`` postures with the
-    instrument's main standard deviation ``noise`` (SI: see ``noise_unit``), ``truth``
-    the ``{parameter name: true value}`` of the instrument's own parameters.  The
-    options are the instrument's declared ``options``, plus ``truth=`` (a previous
-    ``truth``: measure again with the same placement) when ``same_placement``.
-    """
-
-    def __call__(self, true_robot: Robot, rng: np.random.Generator, n_poses: int,
-                 noise: float, /, **options: Any
-                 ) -> tuple[list[MeasurementModel], dict[str, float]]: ...
+#: ``simulate(true_robot, rng, n_poses, noise, **options) -> (blocks, truth)``.
+#:
+#: ``blocks`` are measured on ``true_robot`` (a :class:`~kincal.robots.chain.Robot`) at
+#: ``n_poses`` postures drawn with ``rng`` (a ``numpy.random.Generator``), with the
+#: instrument's main standard deviation ``noise`` (SI: see ``noise_unit``); ``truth`` is
+#: the ``{parameter name: true value}`` of the instrument's own parameters.  The keyword
+#: options are the instrument's declared ``options`` (checked against them before the
+#: call), plus ``truth=`` (a previous ``truth``: measure again with the same placement)
+#: when ``same_placement``.  Typed as a callable of any keywords because each
+#: instrument declares its own.
+Simulator = Callable[..., tuple[Sequence["MeasurementModel"], Mapping[str, float]]]
 
 
 class Writer(Protocol):

@@ -383,7 +383,7 @@ def read_socket_files(source: str | Path | Sequence[str | Path], angle_unit: str
                 if ln.strip() and not ln.lstrip().startswith("#")]
         if not rows:
             raise MeasurementFileError("line 1: no data", source=str(f))
-        values = []
+        values: list[list[float]] = []
         for line, row in rows:
             cells = [c.strip() for c in row.split(",")]
             try:

@@ -225,7 +225,7 @@ class JointDeflection(BlockWrapper):
             raise KincalError(f"{self.WHAT} of {self.name!r}: the inner block's residuals "
                               "are not owned by rows of its joint readings")
         r0 = self._at(self.q).evaluate(robot, inner_extra, jacobian=False)[0]
-        half = np.random.default_rng(0).random(N) < 0.5
+        half = np.asarray(np.random.default_rng(0).random(N) < 0.5, dtype=bool)
         for moved in (half, ~half):
             q = self.q.copy()
             q[moved] += 1e-3
@@ -267,7 +267,8 @@ class JointDeflection(BlockWrapper):
                    cols: tuple[NDArray[np.intp], Array] | None = None) -> Array:
         """``dr/dc_j = s_j (dr/do_j) u_j[owner]`` for the rows of ``Jr``."""
         params, scales = self._offset_columns(robot) if cols is None else cols
-        return Jr[:, params] * scales * self.regressor[owner][:, self._columns]
+        value: Array = Jr[:, params] * scales * self.regressor[owner][:, self._columns]
+        return value
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         inner_extra, q = self._split(robot, extra)
