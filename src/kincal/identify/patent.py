@@ -258,7 +258,7 @@ def _placement_rows(prob: StackedProblem) -> list[tuple[str, str, NDArray[np.int
     for b in prob.blocks:
         m = len(b.residual_owner())
         rows = np.arange(start, start + m)
-        if hasattr(b, "residual_placement"):
+        if isinstance(b, HasPlacements):
             rp = b.residual_placement()
             for i, p in enumerate(b.placements):
                 out.append((b.name, p, rows[rp == i]))

@@ -378,6 +378,10 @@ class HasPlacements(Protocol):
     @property
     def placements(self) -> tuple[str, ...]: ...
 
+    def residual_placement(self) -> NDArray[np.intp]:
+        """(M,) index into :attr:`placements` of every residual."""
+        ...
+
     def subset_placements(self, placements: Sequence[str]) -> MeasurementModel: ...
 
 
