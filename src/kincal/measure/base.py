@@ -251,6 +251,19 @@ class MeasurementModel(ABC):
         return (f"{type(self).__name__}({self.name!r}, {len(self.q)} rows, "
                 f"{len(self.parameters())} parameters{src})")
 
+    def _repr_html_(self) -> str:
+        """The block in a notebook: its kind, rows, file and parameters with units."""
+        from html import escape
+
+        spec = self.parameters()
+        src = (f", from <code>{escape(self.provenance.path)}</code>"
+               if self.provenance is not None else "")
+        rows = "".join(f"<tr><td>{escape(n)}</td><td>{escape(u)}</td><td>{escape(r)}</td></tr>"
+                       for n, u, r in zip(spec.names, spec.units, spec.roles, strict=True))
+        return (f"<b>{escape(type(self).__name__)}</b> <code>{escape(self.name)}</code>: "
+                f"{len(self.q)} rows{src}<table><tr><th>parameter</th><th>unit</th>"
+                f"<th>role</th></tr>{rows}</table>")
+
     @abstractmethod
     def parameters(self) -> ParamSpec:
         """The block's own parameters (names prefixed by ``self.name``) with defaults."""
