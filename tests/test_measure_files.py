@@ -72,7 +72,8 @@ def test_tagless_files_are_detected(tmp_path, puma):
     (b,) = read_measurements(pose, puma)
     np.testing.assert_allclose(b.poses[0, :3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]],
                                atol=1e-15)
-    assert b.table.ignored == [] and read_measurements(pos, puma)[0].table.ignored == ["pose_id"]
+    assert b.provenance.table.ignored == []
+    assert read_measurements(pos, puma)[0].provenance.table.ignored == ["pose_id"]
     odd = _write(tmp_path, f"{HEAD},range_mm\n{ROW},3\n", "odd.csv")
     with pytest.raises(MeasurementFileError, match="odd.csv: line 1: no '# kincal"):
         detect_instrument(odd)
@@ -175,7 +176,7 @@ def test_units_option_and_ignore(tmp_path, puma):
     p = _write(tmp_path, f"{HEAD},x,y,z,x2_mm,run\n{ROW},1,2,3,9,a\n")
     (b,) = read_measurements(p, puma, {"x": "m", "y": "m", "z": "mm"}, ignore=["x2_mm"])
     np.testing.assert_allclose(b.positions[0], [1, 2, 0.003])
-    assert b.table.ignored == ["x2_mm", "run"]
+    assert b.provenance.table.ignored == ["x2_mm", "run"]
     with pytest.raises(MeasurementFileError, match=r"--ignore 'x9' matches no column"):
         read_measurements(p, puma, {"x": "m", "y": "m", "z": "m"}, ignore=["x2_mm", "x9"])
     with pytest.raises(MeasurementFileError, match=r"--units 'w' matches no column"):
@@ -198,7 +199,7 @@ def test_real_motoman_leica_file_reads_as_is():
     robot = load_robot("motoman_right")
     (b,) = read_measurements(path, robot)
     ref = _csv_columns(path)
-    assert b.q.shape == (212, 7) and b.table.ignored == ["pose_id"]
+    assert b.q.shape == (212, 7) and b.provenance.table.ignored == ["pose_id"]
     np.testing.assert_array_equal(b.q[:, 3], ref["U_rad"])
     np.testing.assert_array_equal(b.positions[:, 2], ref["z_m"])
     np.testing.assert_array_equal(np.ravel(b.sigma), ref["sigma_m"])
@@ -222,7 +223,8 @@ def test_real_tiago_mocap_file_needs_units_and_reads_with_them():
     # URDF joints are rad / m by the URDF standard, so bare joint names are accepted
     np.testing.assert_array_equal(b.q[:, 0], ref["torso_lift_joint"])
     np.testing.assert_array_equal(b.q[:, 7], ref["arm_7_joint"])
-    assert b.table.ignored == ["shipped_row", "t_start_robot", "t_end_robot", "marker_std_mm"]
+    assert b.provenance.table.ignored == ["shipped_row", "t_start_robot", "t_end_robot",
+                                          "marker_std_mm"]
     (one,) = read_measurements(path, robot, units, ignore=["?2", "?3", "?4"])
     assert one.K == 1
     np.testing.assert_array_equal(np.reshape(one.positions, (37, 3))[:, 0], ref["x1"])

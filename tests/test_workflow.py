@@ -122,7 +122,7 @@ def test_read_blocks_renames_clashing_blocks(sim, tmp_path):
     write_measurements("position", train, path, {"length": "mm", "angle": "deg"}, nominal)
     blocks = read_blocks([path, path], nominal)
     assert [b.name for b in blocks] == ["tracker", "tracker2"]
-    assert all(b.source_path == str(path) for b in blocks)
+    assert all(b.provenance.path == str(path) for b in blocks)
     with pytest.raises(KincalError, match="no such measurement file"):
         read_blocks([tmp_path / "missing.csv"], nominal)
 

@@ -437,14 +437,14 @@ def validate_cmd(
     if json_out:
         overall = error_metrics(merge_errors([f.after for f in files]))
         doc: dict[str, Any] = {"robot": r.name, "overall": overall,
-                               "files": {f.block.source_path: f.metrics() for f in files},
+                               "files": {f.block.source_label: f.metrics() for f in files},
                                "before_definition": BEFORE_DEFINITION}
         if iso_doc is not None:
             doc["iso9283"] = iso_doc
         if before is not None:
             doc["overall_before"] = error_metrics(merge_errors([f.before for f in files]))
         if accuracy is not None:
-            doc["predicted"] = {f.block.source_path: {"outside_joint_ranges":
+            doc["predicted"] = {f.block.source_label: {"outside_joint_ranges":
                                                       f.prediction.outside_joint_ranges,
                                                       "outside_hull": f.prediction.outside_hull,
                                                       **f.prediction.to_dict()}
@@ -497,7 +497,7 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
 
         after, dist_a = figures(robot)
         bef, dist_b = figures(before) if before is not None else (None, None)
-        name = Path(getattr(b, "source_path", b.name)).name
+        name = Path(b.source_label).name
         lf, L = console_units().scale("m")
         t = Table(title=f"ISO 9283 on {escape(name)} ({escape(robot.name)}"
                         + (f", before: {escape(before.name)})" if before is not None else ")"))

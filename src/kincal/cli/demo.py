@@ -42,6 +42,7 @@ def demo(
     import numpy as np
 
     from kincal.io import atomic_write_text
+    from kincal.measure.base import Provenance
     from kincal.measure.registry import get_instrument, simulate_measurements, write_measurements
     from kincal.measure.simulate import perturb_robot
     from kincal.robots.files import load_robot, robot_yaml_text
@@ -74,7 +75,7 @@ def demo(
     write_measurements(inst, held, files["holdout"], units, nominal)
     atomic_write_text(files["truth"], robot_yaml_text(true))
     for b, p in ((train[0], files["train"]), (held[0], files["holdout"])):
-        b.source_path = str(p)
+        b.provenance = Provenance(str(p))
     with Progress(100, json_out != "-") as bar:
         flow = run_flow(nominal, train, held, stages=["offsets", "all"], progress=bar)
     res = flow.result

@@ -231,7 +231,6 @@ def simulate(
 
     from kincal.io import write_json
     from kincal.measure.registry import (
-        accepts,
         get_instrument,
         simulate_measurements,
         write_measurements,
@@ -284,7 +283,7 @@ def simulate(
     held = None
     if holdout:
         hopts = dict(opts)
-        same = accepts(inst.simulate, "truth")
+        same = inst.same_placement
         if not same and "name" in inst.options:
             hopts["name"] = f"{opts.get('name', inst.options['name'][0])}_holdout"
         held, _ = simulate_measurements(inst, true, rng, holdout_poses, sd, hopts,
@@ -303,7 +302,9 @@ def simulate(
         atomic_write_text(truth, truth_text)
     delta = true.param_values - nominal.param_values
     rows = sum(int(b.q.shape[0]) for b in blocks)
-    n_pl = sum(len(getattr(b, "placements", ())) for b in blocks)
+    from kincal.measure.base import HasPlacements
+
+    n_pl = sum(len(b.placements) for b in blocks if isinstance(b, HasPlacements))
     out.print(f"simulated {rows} measurements"
               + (f" ({n_pl} placements)" if n_pl else "")
               + f" of {escape(nominal.name)} with {inst.name} ({noise_text}) -> "

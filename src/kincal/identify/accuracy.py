@@ -56,6 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.identify.solver import CalibrationResult
 from kincal.identify.uncertainty import propagated_variance
+from kincal.measure.base import HasProbe
 from kincal.measure.models import PoseMeasurement, PositionMeasurement
 from kincal.robots.chain import Robot
 
@@ -152,7 +153,7 @@ def predicted_rms(result: CalibrationResult, q_eval: ArrayLike, block: str | Non
     std = predicted_position_std(result, q_eval, block=block)
     if noise_std is None:
         b = _position_block(result, block)
-        s = getattr(b, "sigma", getattr(b, "sigma_position", None))
+        s = b.measurement_sigma()
         noise_std = float(np.sqrt(np.mean(np.asarray(s) ** 2))) * result.sigma0
     return float(np.sqrt(np.mean(std**2) + 3.0 * noise_std**2))
 
@@ -400,10 +401,10 @@ def _point_of(result: CalibrationResult) -> tuple[Array, list[int | None]]:
             if role == "tool_point" and n.endswith(".l"):
                 i = names.index(n)
                 return np.array([0.0, 0.0, result.theta[i]]), [None, None, i]
-        probe = getattr(b, "probe", None)
-        if probe is not None and getattr(probe, "mode", "") == "vector" and probe.value:
+        probe = b.probe if isinstance(b, HasProbe) else None
+        if probe is not None and probe.mode == "vector" and probe.value:
             return np.asarray(probe.value, dtype=float), [None, None, None]
-        if probe is not None and getattr(probe, "mode", "") == "length" and probe.value:
+        if probe is not None and probe.mode == "length" and probe.value:
             return np.array([0.0, 0.0, probe.value[0]]), [None, None, None]
     return np.zeros(3), [None, None, None]
 

@@ -28,12 +28,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.spatial import log_so3
+
+if TYPE_CHECKING:
+    from kincal.measure.models import PositionMeasurement
+    from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
@@ -158,7 +163,7 @@ def group_positions(q: ArrayLike, tol: float = 1e-3, names: Sequence[str] | None
     return [labels[k] for k in index]
 
 
-def block_figures(robot: object, block: object, extra: ArrayLike,
+def block_figures(robot: Robot, block: PositionMeasurement, extra: ArrayLike,
                   labels: Sequence[str] | None = None
                   ) -> tuple[list[PositionFigures], dict[str, float] | None]:
     """ISO 9283 figures of a position-measurement block: attained = the measured points,
@@ -171,8 +176,8 @@ def block_figures(robot: object, block: object, extra: ArrayLike,
     y = np.asarray(block.positions, dtype=float)
     if y.ndim == 3:
         y = y[:, 0]
-    pred = np.asarray(block.predict(robot, extra), dtype=float)[:, 0]  # type: ignore[attr-defined]
-    names = list(labels) if labels is not None else group_positions(block.q)  # type: ignore[attr-defined]
+    pred = np.asarray(block.predict(robot, extra), dtype=float)[:, 0]
+    names = list(labels) if labels is not None else group_positions(block.q)
     order = list(dict.fromkeys(names))
     figs = []
     for name in order:

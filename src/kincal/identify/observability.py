@@ -134,6 +134,12 @@ class ObservabilityIndices:
         return float(getattr(self, key))
 
 
+def _sigma_or_nan(block: MeasurementModel) -> Any:
+    """The block's stated measurement sigma [SI], or NaN when it states none."""
+    s = block.measurement_sigma()
+    return np.nan if s is None else s
+
+
 def observability_indices(singular_values: ArrayLike, poses: int) -> ObservabilityIndices:
     """The five observability indices and kappa from singular values of a scaled Jacobian.
 
@@ -401,9 +407,7 @@ def design_problem_from_blocks(robot: Robot, blocks: Sequence[MeasurementModel],
     W = scaling_matrix(Jg, scaling, expected_errors(bnames, bunits,
                                                     [prob.roles[i] for i in base], expected))
     if sigma is None:
-        s = [np.sqrt(np.mean(np.asarray(getattr(b, "sigma", getattr(b, "sigma_position",
-                                                                         np.nan))) ** 2))
-             for b in blocks]
+        s = [np.sqrt(np.mean(np.asarray(_sigma_or_nan(b)) ** 2)) for b in blocks]
         sigma = float(np.nanmean(s)) if np.any(np.isfinite(s)) else float("nan")
     return DesignProblem(robot, q, Jg, W, bnames, bunits, scaling, report, prob, theta,
                          float(sigma), rows_for, kind)

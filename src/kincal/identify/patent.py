@@ -55,7 +55,13 @@ from kincal.errors import KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze, default_priority
 from kincal.identify.solver import CalibrationResult, IterationRecord, match_names
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
-from kincal.measure.base import MeasurementModel, StackedProblem, stack
+from kincal.measure.base import (
+    HasPlacements,
+    MeasurementModel,
+    PredictsPoints,
+    StackedProblem,
+    stack,
+)
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -155,8 +161,8 @@ def _points(prob: StackedProblem, theta: Array) -> Array:
     robot, extras = prob.split(theta)
     out = []
     for b, e in zip(prob.blocks, extras, strict=True):
-        pts = getattr(b, "points", None)
-        out.append(pts(robot, e) if callable(pts) else robot.fk(b.q)[:, :3, 3])
+        out.append(b.points(robot, e) if isinstance(b, PredictsPoints)
+                   else robot.fk(b.q)[:, :3, 3])
     return np.concatenate(out)
 
 
@@ -252,7 +258,7 @@ def _placement_rows(prob: StackedProblem) -> list[tuple[str, str, NDArray[np.int
     for b in prob.blocks:
         m = len(b.residual_owner())
         rows = np.arange(start, start + m)
-        if hasattr(b, "residual_placement"):
+        if isinstance(b, HasPlacements):
             rp = b.residual_placement()
             for i, p in enumerate(b.placements):
                 out.append((b.name, p, rows[rp == i]))
@@ -312,7 +318,7 @@ def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: 
             keep.setdefault(bname, []).append(pl)
     out: list[MeasurementModel] = []
     for b in prob.blocks:
-        if hasattr(b, "subset_placements"):
+        if isinstance(b, HasPlacements):
             kept = keep.get(b.name, [])
             if not kept:
                 continue
@@ -577,7 +583,8 @@ class _Procedure:
 def _kept(prob: StackedProblem, selection: list[PlacementChoice]
           ) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
     discarded = [(c.block, c.placement) for c in selection if not c.kept]
-    kept = [(b.name, p) for b in prob.blocks for p in getattr(b, "placements", ())]
+    kept = [(b.name, p) for b in prob.blocks if isinstance(b, HasPlacements)
+            for p in b.placements]
     return kept, discarded
 
 

@@ -20,7 +20,6 @@ For each such parameter :func:`weak_parameters` says what would identify it:
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from numpy.typing import NDArray
 from kincal.errors import KincalError
 from kincal.identify.checks import show_quantity
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
-from kincal.measure.base import r_factor
+from kincal.measure.base import MeasurementModel, r_factor
 
 Array = NDArray[np.float64]
 
@@ -104,18 +103,10 @@ class WeakParameter:
                 "correlation": self.correlation, "sentence": self.sentence()}
 
 
-def _with_q(block: Any, q: Array) -> Any:
+def _with_q(block: MeasurementModel, q: Array) -> MeasurementModel:
     """``block`` with joint readings ``q`` (same rows): for the information of poses that
     were not measured (the Jacobian does not depend on the observations)."""
-    with_q = getattr(block, "with_q", None)
-    if callable(with_q):
-        return with_q(q)
-    replace = getattr(block, "replace", None)
-    if callable(replace):
-        return replace(q=q)
-    out = copy.copy(block)
-    out.q = q
-    return out
+    return block.with_q(q)
 
 
 def _limits(robot: Any) -> Array:

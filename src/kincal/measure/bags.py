@@ -31,6 +31,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -117,7 +118,7 @@ def read_bag_streams(path: str, joints_topic: str, point: str | None = None,
     p = Path(path)
     if not p.exists():
         raise MeasurementFileError("no such bag", source=path)
-    parent = child = None
+    parent = child = ""
     if tf:
         if ":" not in tf:
             raise MeasurementFileError(f"--tf {tf!r}: give PARENT:CHILD frame names",
@@ -142,7 +143,8 @@ def read_bag_streams(path: str, joints_topic: str, point: str | None = None,
                                            f"{', '.join(sorted(topics))})", source=path)
         conns = [c for c in reader.connections if c.topic in (joints_topic, meas_topic)]
         for conn, t_ns, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg: Any = reader.deserialize(raw, conn.msgtype)    # a ROS message (typed by rosbags
+            # per message type at run time)
             if conn.topic == joints_topic:
                 if names is None:
                     names = list(msg.name)

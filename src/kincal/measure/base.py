@@ -32,9 +32,11 @@ identifiability analysis need follows from ``(R, z)``: ``J^T W J = R^T R``,
 
 from __future__ import annotations
 
+import copy
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -44,6 +46,9 @@ from kincal.errors import KincalError
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
 from kincal.spatial import FRAME_FIELDS
+
+if TYPE_CHECKING:
+    from kincal.measure.files import MeasurementTable
 
 Array = NDArray[np.float64]
 
@@ -124,6 +129,32 @@ def configuration_slices(N: int, rows_per_configuration: int, rows: int = CHUNK_
         yield slice(start, min(N, start + step))
 
 
+class SourceSpec(Protocol):
+    """What a block keeps of the source it was read from (a workflow's ``DataSource``):
+    the file and, for a held-out file, how its instrument frames are found."""
+
+    @property
+    def path(self) -> str: ...
+
+    @property
+    def frames(self) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a block's data came from.
+
+    Attributes:
+        path: the measurement file (or socket folder).
+        table: the parsed file (its line numbers, tags and ignored columns), or None.
+        source: the source specification it was read with (file options), or None.
+    """
+
+    path: str
+    table: MeasurementTable | None = None
+    source: SourceSpec | None = None
+
+
 class MeasurementModel(ABC):
     """One instrument's block of measurements and its unknown parameters.
 
@@ -139,10 +170,65 @@ class MeasurementModel(ABC):
     Attributes:
         name: the block's prefix for its parameter names and for reports.
         q: (N, n) joint readings [rad / m].
+        provenance: the file the block was read from (:class:`Provenance`); None for
+            simulated and in-memory blocks.  Wrappers (:class:`BlockWrapper`) share
+            their inner block's.
+
+    Optional capabilities are declared as protocols and tested with ``isinstance``:
+    :class:`PredictsObservations`, :class:`PredictsPoints`, :class:`HasPlacements`,
+    :class:`HasProbe`.
     """
 
     name: str
     q: Array
+    _provenance: Provenance | None = None
+
+    @property
+    def provenance(self) -> Provenance | None:
+        """The file the block was read from, or None (simulated / in memory)."""
+        return self._provenance
+
+    @provenance.setter
+    def provenance(self, value: Provenance | None) -> None:
+        self._provenance = value
+
+    @property
+    def source_label(self) -> str:
+        """The block's file path when it was read from one, else its name."""
+        return self.provenance.path if self.provenance is not None else self.name
+
+    def measurement_sigma(self) -> Array | None:
+        """Stated standard deviation of each measurement, in SI units (m for lengths,
+        rad for angles, px for pixels): (N,) or (N, K); the position sigma for blocks
+        that measure several quantities (pose); None when the block states no single
+        one (artifacts).  The whitening divisor ``sigma_i`` of :meth:`evaluate`."""
+        return None
+
+    def with_q(self, q: Array) -> MeasurementModel:
+        """A copy measuring the same rows at joint readings ``q`` (N, n) (the
+        information of postures not measured: the Jacobian does not depend on the
+        observations).  Default: a shallow copy with ``q`` replaced."""
+        out = copy.copy(self)
+        out.q = q
+        return out
+
+    def __repr__(self) -> str:
+        src = f", from {self.provenance.path!r}" if self.provenance is not None else ""
+        return (f"{type(self).__name__}({self.name!r}, {len(self.q)} rows, "
+                f"{len(self.parameters())} parameters{src})")
+
+    def _repr_html_(self) -> str:
+        """The block in a notebook: its kind, rows, file and parameters with units."""
+        from html import escape
+
+        spec = self.parameters()
+        src = (f", from <code>{escape(self.provenance.path)}</code>"
+               if self.provenance is not None else "")
+        rows = "".join(f"<tr><td>{escape(n)}</td><td>{escape(u)}</td><td>{escape(r)}</td></tr>"
+                       for n, u, r in zip(spec.names, spec.units, spec.roles, strict=True))
+        return (f"<b>{escape(type(self).__name__)}</b> <code>{escape(self.name)}</code>: "
+                f"{len(self.q)} rows{src}<table><tr><th>parameter</th><th>unit</th>"
+                f"<th>role</th></tr>{rows}</table>")
 
     @abstractmethod
     def parameters(self) -> ParamSpec:
@@ -226,6 +312,74 @@ class MeasurementModel(ABC):
         The keys end in their unit (``_m``, ``_rad``).  Default: none.
         """
         return {}
+
+
+class BlockWrapper(MeasurementModel):
+    """A block built around another (joint-model terms, a shared tool point): it
+    measures the inner block's rows, so it has its name and provenance by construction.
+    """
+
+    inner: MeasurementModel
+
+    @property
+    def provenance(self) -> Provenance | None:
+        return self.inner.provenance
+
+    @provenance.setter
+    def provenance(self, value: Provenance | None) -> None:
+        self.inner.provenance = value
+
+    def measurement_sigma(self) -> Array | None:
+        return self.inner.measurement_sigma()
+
+
+# --------------------------------------------------------------------------- capabilities
+@runtime_checkable
+class PredictsObservations(Protocol):
+    """A block that predicts its observations: ``predict(robot, extra) -> (N, ...)``
+    in the units of its data (e.g. (N, K, 3) positions [m])."""
+
+    def predict(self, robot: Robot, extra: Array) -> Array: ...
+
+
+@runtime_checkable
+class PredictsPoints(Protocol):
+    """A block whose measured points can be listed: ``points(robot, extra) -> (M, 3)``
+    [m] in the base frame (artifact probe points)."""
+
+    def points(self, robot: Robot, extra: Array | None = None) -> Array: ...
+
+
+@runtime_checkable
+class HasPlacements(Protocol):
+    """A block measured in several placements of an artifact (labels in order)."""
+
+    @property
+    def placements(self) -> tuple[str, ...]: ...
+
+    def residual_placement(self) -> NDArray[np.intp]:
+        """(M,) index into :attr:`placements` of every residual."""
+        ...
+
+    def subset_placements(self, placements: Sequence[str]) -> MeasurementModel: ...
+
+
+@runtime_checkable
+class HasProbe(Protocol):
+    """A block measured through a probe on the flange (an artifact's ball or stylus)."""
+
+    @property
+    def probe(self) -> ProbeLike: ...
+
+
+class ProbeLike(Protocol):
+    """A probe: ``mode`` (``tool``, ``vector``, ``length`` ...) and its known values [m]."""
+
+    @property
+    def mode(self) -> str: ...
+
+    @property
+    def value(self) -> tuple[float, ...]: ...
 
 
 @dataclass
@@ -532,7 +686,7 @@ class CompressedSystem:
         pos = np.asarray(positions, dtype=np.intp)
         T = self._triangle()
         A = np.concatenate([T[:, pos], T[:, -1:]], axis=1)
-        return self._from_triangle(np.linalg.qr(A, mode="r"), self.r, self.cost,
+        return self._from_triangle(qr_triangle(A), self.r, self.cost,
                                    self.columns[pos])
 
     def with_rows(self, J_rows: ArrayLike, r_rows: ArrayLike,
@@ -544,7 +698,7 @@ class CompressedSystem:
         rx = np.asarray(r_rows, dtype=float).reshape(-1)
         wx = np.ones(rx.size) if weights is None else np.asarray(weights, float).reshape(-1)
         A = np.concatenate([Jx, rx[:, None]], axis=1) * np.sqrt(wx)[:, None]
-        T = np.linalg.qr(np.concatenate([self._triangle(), A]), mode="r")
+        T = qr_triangle(np.concatenate([self._triangle(), A]))
         return self._from_triangle(T, None if self.r is None else np.concatenate([self.r, rx]),
                                    self.cost + 0.5 * float(np.sum(wx * rx * rx)), self.columns)
 
@@ -574,7 +728,8 @@ class CompressedSystem:
         Ds = np.where(D > 0, D, 1.0)
         Ur, S, Vt = np.linalg.svd(self.R / Ds)
         keep = S > rcond * (S[0] if S.size else 0.0)
-        return -(Vt[keep].T @ ((Ur[:, keep].T @ self.z) / S[keep])) / Ds
+        value: Array = -(Vt[keep].T @ ((Ur[:, keep].T @ self.z) / S[keep])) / Ds
+        return value
 
 
 def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProblem, Array]:
@@ -619,6 +774,12 @@ def stack(robot: Robot, blocks: Sequence[MeasurementModel]) -> tuple[StackedProb
 
 
 # --------------------------------------------------------------------------- linear algebra
+def qr_triangle(A: Array) -> Array:
+    """``R`` of ``A = Q R`` (numpy's ``qr(A, mode="r")``; stacked for (..., M, p))."""
+    R: Array = np.linalg.qr(A, mode="r")  # type: ignore[assignment]  # numpy's stubs: QRResult
+    return R
+
+
 #: Rows per tile of the tall-skinny QR (:func:`r_factor`, :func:`svd_thin`): a tile of
 #: ``TILE_ROWS x p`` doubles stays in the CPU cache while LAPACK factorises it.  A
 #: performance setting only; the factors do not depend on it beyond round-off.
@@ -655,7 +816,8 @@ def _fold(T: Array, B: Array, nb: int) -> Array:
     out, _, _, info = dtpqrt(0, nb, T, B.T, overwrite_a=1, overwrite_b=1)
     if info != 0:                                   # pragma: no cover - LAPACK argument check
         raise RuntimeError(f"dtpqrt failed (info {info})")
-    return out
+    value: Array = out
+    return value
 
 
 class Triangle:
@@ -700,7 +862,8 @@ class Triangle:
         largest are treated as zero."""
         Ur, S, Vt = np.linalg.svd(self.R[:nx, :nx])
         keep = S > rcond * (S[0] if S.size else 0.0)
-        return Vt[keep].T @ ((Ur[:, keep].T @ self.R[:nx, nx:]) / S[keep][:, None])
+        value: Array = Vt[keep].T @ ((Ur[:, keep].T @ self.R[:nx, nx:]) / S[keep][:, None])
+        return value
 
 
 def r_factor(A: ArrayLike) -> Array:
@@ -722,15 +885,15 @@ def r_factor(A: ArrayLike) -> Array:
     if p == 0:
         return np.zeros((0, 0))
     if M <= 2 * m:
-        return np.linalg.qr(A, mode="r")
+        return qr_triangle(A)
     k = M // m
     parts = []
     for start in range(0, k, _TILE_GROUP):
         stop = min(k, start + _TILE_GROUP)
         tiles = A[start * m: stop * m].reshape(stop - start, m, p)
-        parts.append(np.linalg.qr(tiles, mode="r").reshape(-1, p))
+        parts.append(qr_triangle(tiles).reshape(-1, p))
     if k * m < M:
-        parts.append(np.linalg.qr(A[k * m:], mode="r"))
+        parts.append(qr_triangle(A[k * m:]))
     return r_factor(np.concatenate(parts))
 
 
@@ -782,7 +945,7 @@ def singular_values(A: ArrayLike) -> Array:
         return np.zeros(0)
     if A.shape[0] > A.shape[1]:
         A = r_factor(A)
-    return np.linalg.svd(A, compute_uv=False)
+    return np.asarray(np.linalg.svd(A, compute_uv=False), dtype=np.float64)
 
 
 def lstsq(A: ArrayLike, b: ArrayLike, rcond: float = 1e-10) -> Array:
@@ -799,10 +962,13 @@ def lstsq(A: ArrayLike, b: ArrayLike, rcond: float = 1e-10) -> Array:
     if M <= p or p == 0:
         U, S, Vt = svd_thin(A)
         keep = S > rcond * (S[0] if S.size else 0.0)
-        return Vt[keep].T @ ((U[:, keep].T @ b) / S[keep].reshape((-1,) + (1,) * (b.ndim - 1)))
+        value: Array = Vt[keep].T @ ((U[:, keep].T @ b)
+                                     / S[keep].reshape((-1,) + (1,) * (b.ndim - 1)))
+        return value
     B = b.reshape(M, -1)
     Rab = r_factor(np.concatenate([A, B], axis=1))
     Ur, S, Vt = np.linalg.svd(Rab[:p, :p])
     keep = S > rcond * S[0]
     x = Vt[keep].T @ ((Ur[:, keep].T @ Rab[:p, p:]) / S[keep][:, None])
-    return x.reshape((p,) + b.shape[1:])
+    solution: Array = x.reshape((p,) + b.shape[1:])
+    return solution

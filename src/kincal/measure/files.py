@@ -443,11 +443,11 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         arr = None
     if arr is None:
         for (ln, _), r in zip(data_rows, cells, strict=True):
-            for k, s in enumerate(r):
+            for col, s in enumerate(r):
                 try:
                     float(s)
                 except ValueError:
-                    c = idx[k]
+                    c = idx[col]
                     what = "is empty" if not s.strip() else f"{s.strip()!r} is not a number"
                     raise fail(f"column {c + 1} ({names[c]}): {what}", line=ln) from None
         raise fail("unreadable numbers")  # pragma: no cover
@@ -471,15 +471,15 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
          else np.zeros((len(rows), 0)))
     values = {b: arr[:, k] for k, (_, b, _, r) in enumerate(used) if r == "obs"}
     col_names = {b: names[c] for c, b, _, r in used if r == "obs"}
-    for k, (c, b, u, r) in enumerate(used):
-        if r != "held":
+    for col, (c, b, u, role) in enumerate(used):
+        if role != "held":
             continue
-        off = np.abs(arr[:, k] - held[b])
+        off = np.abs(arr[:, col] - held[b])
         if np.max(off) > HELD_TOLERANCE:
             i = int(np.flatnonzero(off > HELD_TOLERANCE)[0])
             raise fail(f"column {c + 1} ({names[c]}): joint {b} is held at "
                        f"{held[b] / UNITS[u][1]:.6g} {u}, but this row reads "
-                       f"{cells[i][k].strip()} {u}: it moved (remove it from hold)",
+                       f"{cells[i][col].strip()} {u}: it moved (remove it from hold)",
                        line=int(linenos[i]))
         ignored.append(f"{names[c]} (held joint)")
     return MeasurementTable(src, tags, q, values, {b: u for _, b, u, r in used if r != "held"},

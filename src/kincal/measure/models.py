@@ -58,6 +58,7 @@ from kincal.measure.base import (
     Triangle,
     configuration_slices,
     frame_rotation_axes,
+    qr_triangle,
 )
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
@@ -92,7 +93,8 @@ def project_so3(A: Array) -> Array:
     """The rotation nearest to the 3x3 matrix ``A`` (Frobenius norm), ``det = +1``."""
     U, _, Vt = np.linalg.svd(A)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    return U @ D @ Vt
+    value: Array = U @ D @ Vt
+    return value
 
 
 def inverse_left_jacobian_so3(phi: Array) -> Array:
@@ -227,13 +229,17 @@ class PositionMeasurement(MeasurementModel):
     # ------------------------------------------------------------------ contract
     @property
     def N(self) -> int:
-        return self.q.shape[0]
+        return int(self.q.shape[0])
 
     def marker_prefixes(self) -> list[str]:
         """``[f"{name}.marker"]`` for one marker, else ``[f"{name}.marker1", ...]``."""
         if self.K == 1:
             return [f"{self.name}.marker"]
         return [f"{self.name}.marker{k + 1}" for k in range(self.K)]
+
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each marker position [m]: (N, K)."""
+        return self.sigma
 
     def parameters(self) -> ParamSpec:
         spec = ParamSpec.frame(self.name)
@@ -247,11 +253,13 @@ class PositionMeasurement(MeasurementModel):
     def subset(self, rows: ArrayLike) -> PositionMeasurement:
         """A block with the same name holding only ``rows`` (for cross-validation)."""
         rows = np.asarray(rows)
-        return PositionMeasurement(self.q[rows], self._y[rows], self.sigma[rows], self.name,
-                                   self.K)
+        out = PositionMeasurement(self.q[rows], self._y[rows], self.sigma[rows], self.name,
+                                  self.K)
+        out.provenance = self.provenance
+        return out
 
     def num_residuals(self) -> int:
-        return 3 * self.K * self.N
+        return int(3 * self.K * self.N)
 
     def predict(self, robot: Robot, extra: ArrayLike, out: Array | None = None) -> Array:
         """Predicted observations ``y_pred`` (N, K, 3) [m] (in pieces of configurations;
@@ -407,6 +415,7 @@ class PositionMeasurement(MeasurementModel):
         w = 1.0 / self.sigma[cs]                                  # (n, K)
         np.multiply(y - self._y[cs], w[:, :, None], out=r.reshape(n, K, 3))
         # robot columns: computed as (P, n) planes, written transposed into the rows
+        assert Jp is not None                                     # params=True
         V, W = _rotate_twists(G, Jp, ws)
         ar = np.ascontiguousarray((a @ G.T).transpose(1, 2, 0))  # a' (K, 3, n)
         out = Jr.reshape(n, K, 3, P)
@@ -510,7 +519,7 @@ class PositionMeasurement(MeasurementModel):
         # triangle with the columns in that order (A P = Q (R P))
         order = [*range(9, p1 + 1), *(3 * b + a for a in range(3) for b in range(3))]
         second = Triangle(p2 + 10)
-        second.R = np.linalg.qr(first.R[:, order], mode="r")
+        second.R = qr_triangle(first.R[:, order])
         sol = first.solve(p1)[:, 0]
         R = project_so3(sol[:9].reshape(3, 3, order="F"))
         m = sol[12:].reshape(K, 3)
@@ -579,7 +588,12 @@ class PoseMeasurement(MeasurementModel):
 
     @property
     def N(self) -> int:
-        return self.q.shape[0]
+        return int(self.q.shape[0])
+
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each position [m]: (N,) (orientations:
+        ``sigma_orientation`` [rad])."""
+        return self.sigma_position
 
     def parameters(self) -> ParamSpec:
         return ParamSpec.frame(self.name) + ParamSpec.frame(f"{self.name}.target", role="target")
@@ -675,6 +689,7 @@ class PoseMeasurement(MeasurementModel):
         np.multiply(dy, wp[:, None], out=rr[:, :3])
         np.multiply(e, wo[:, None], out=rr[:, 3:])
         L = inverse_left_jacobian_so3(e)                           # (n, 3, 3)
+        assert Jp is not None                                      # params=True
         V, W = _rotate_twists(G, Jp, ws)                           # R_I^T Jv, R_I^T Jw
         ar = np.ascontiguousarray((a @ G.T).T)                    # a' (3, n)
         Lc = np.ascontiguousarray(L.transpose(1, 2, 0))           # (3, 3, n)

@@ -25,64 +25,137 @@ and is otherwise an error asking for the tag line or ``instrument=`` (never a gu
 from __future__ import annotations
 
 import importlib
-import inspect
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from kincal.errors import MeasurementFileError
 from kincal.measure.files import tag_overrides
 
-#: Modules that register instruments when imported (added to as modules land).
-INSTRUMENT_MODULES: list[str] = [
+if TYPE_CHECKING:
+    from kincal.measure.base import MeasurementModel
+
+#: kincal's own modules that register instruments when imported.  An error in one of
+#: them is a bug and raises.
+INSTRUMENT_MODULES: tuple[str, ...] = (
     "kincal.measure.standard_instruments",
     "kincal.measure.instruments",
     "kincal.measure.artifacts",
-]
+)
+
+#: Entry-point group of third-party instrument plug-ins: each entry point names a
+#: module (or a callable of no arguments) that calls :func:`register`.
+ENTRY_POINT_GROUP = "kincal.instruments"
+
+
+#: ``simulate(true_robot, rng, n_poses, noise, **options) -> (blocks, truth)``.
+#:
+#: ``blocks`` are measured on ``true_robot`` (a :class:`~kincal.robots.chain.Robot`) at
+#: ``n_poses`` postures drawn with ``rng`` (a ``numpy.random.Generator``), with the
+#: instrument's main standard deviation ``noise`` (SI: see ``noise_unit``); ``truth`` is
+#: the ``{parameter name: true value}`` of the instrument's own parameters.  The keyword
+#: options are the instrument's declared ``options`` (checked against them before the
+#: call), plus ``truth=`` (a previous ``truth``: measure again with the same placement)
+#: when ``same_placement``.  Typed as a callable of any keywords because each
+#: instrument declares its own.
+Simulator = Callable[..., tuple[Sequence["MeasurementModel"], Mapping[str, float]]]
+
+
+class Writer(Protocol):
+    """``write(blocks, path, units, robot=None)``: the CSV, written atomically.
+
+    ``units`` is ``{"length": "m"|"mm"|..., "angle": "rad"|"deg"|...}``; ``robot``
+    names the joint columns as its joints (None: ``q1 q2 ...``).
+    """
+
+    def __call__(self, blocks: Sequence[Any], path: str | Path, units: dict[str, str], /,
+                 *, robot: Any = None) -> None: ...
+
+
+class Reader(Protocol):
+    """``read(path, robot, units, ignore=(), name=None) -> blocks``.
+
+    ``units`` maps a column (or a ``*`` pattern) to its unit when the header has none,
+    ``ignore`` lists columns to drop on purpose, ``name`` overrides the block name.
+    """
+
+    def __call__(self, path: str | Path, robot: Any, units: dict[str, str], /, *,
+                 ignore: Sequence[str] = (), name: str | None = None
+                 ) -> list[Any]: ...
+
+
+class InstrumentPlugin(Protocol):
+    """What the registry needs of a measurement technology (:class:`Instrument` is the
+    ready-made implementation): its name (the ``--instrument`` value and the CSV tag
+    ``instrument=NAME``), a one-line description, the SI unit of its main noise
+    (``"m"``, ``"rad"`` or ``"px"``), its simulator options ``{name: (default, help)}``,
+    whether its simulator takes ``truth=`` (:class:`Simulator`), and the three
+    functions."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def description(self) -> str: ...
+
+    @property
+    def noise_unit(self) -> str: ...
+
+    @property
+    def options(self) -> Mapping[str, tuple[Any, str]]: ...
+
+    @property
+    def same_placement(self) -> bool: ...
+
+    @property
+    def simulate(self) -> Simulator: ...
+
+    @property
+    def write(self) -> Writer: ...
+
+    @property
+    def read(self) -> Reader: ...
 
 
 @dataclass(frozen=True)
 class Instrument:
-    """How one measurement technology is simulated, stored and read.
+    """How one measurement technology is simulated, stored and read
+    (:class:`InstrumentPlugin`).
 
     Attributes:
         name: the ``--instrument`` value and the CSV header tag.
         description: one line for ``--help`` and tables.
-        simulate: ``simulate(true_robot, rng, n_poses, noise, **options) -> (blocks,
-            truth)`` where ``blocks`` is a list of :class:`~kincal.measure.base.MeasurementModel`
-            measured on ``true_robot`` and ``truth`` a ``{parameter name: true value}`` dict
-            for the instrument's own parameters; ``noise`` is the instrument's main
-            standard deviation in SI units (m for lengths, rad for angles, px for pixels;
-            see ``noise_unit``).  Optionally accepts ``truth=`` (a previous ``truth``
-            dict) to measure again with the same instrument placement (held-out data).
-        write: ``write(blocks, path, units)`` writes the CSV (atomically).  ``units`` is
-            ``{"length": "m"|"mm"|..., "angle": "rad"|"deg"|...}``; optionally accepts
-            ``robot=`` to name the joint columns as the robot's joints.
-        read: ``read(path, robot, units) -> list[MeasurementModel]``; ``units`` maps a
-            column (or a ``*`` pattern) to its unit when the header has none.  Optionally
-            accepts ``ignore=`` (columns to drop) and ``name=`` (block name override).
+        simulate: the simulator (:class:`Simulator`).
+        write: the CSV writer (:class:`Writer`).
+        read: the CSV reader (:class:`Reader`).
         options: extra keyword options ``{name: (default, help)}`` for ``simulate``.
         noise_unit: SI unit of ``noise``: ``"m"``, ``"rad"`` or ``"px"``.
+        same_placement: ``simulate`` takes ``truth=`` (a previous ``truth`` dict) to
+            measure again with the same instrument placement (held-out data); False:
+            every simulation places the instrument anew.
     """
 
     name: str
     description: str
-    simulate: Callable[..., tuple[list[Any], dict[str, float]]]
-    write: Callable[..., None]
-    read: Callable[..., list[Any]]
+    simulate: Simulator
+    write: Writer
+    read: Reader
     options: dict[str, tuple[Any, str]] = field(default_factory=dict)
     noise_unit: str = "m"
+    same_placement: bool = True
 
 
-_REGISTRY: dict[str, Instrument] = {}
+_REGISTRY: dict[str, InstrumentPlugin] = {}
 _loaded = False
-#: Instrument modules that failed to import: ``{module: "ErrorType: message"}``.
+#: Third-party plug-ins (entry points) that failed to load: ``{entry point: "Error: msg"}``,
+#: listed by ``kincal instruments`` and in the unknown-instrument error.
 LOAD_ERRORS: dict[str, str] = {}
 
 
-def register(instrument: Instrument) -> Instrument:
+def register(instrument: InstrumentPlugin) -> InstrumentPlugin:
     """Add (or replace) an instrument in the registry."""
     _REGISTRY[instrument.name] = instrument
     return instrument
@@ -93,55 +166,31 @@ def _load_all() -> None:
     if _loaded:
         return
     _loaded = True
-    for mod in INSTRUMENT_MODULES:
+    for mod in INSTRUMENT_MODULES:              # kincal's own: an error is a bug, raise it
+        importlib.import_module(mod)
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:  # a module not installed / not written yet
-            if exc.name != mod:
-                LOAD_ERRORS[mod] = f"{type(exc).__name__}: {exc}"
-        except Exception as exc:  # a broken plug-in must not take the others down
-            LOAD_ERRORS[mod] = f"{type(exc).__name__}: {exc}"
+            loaded = ep.load()
+            if callable(loaded):
+                loaded()
+        except Exception as exc:  # a broken third-party plug-in must not take kincal down
+            LOAD_ERRORS[f"{ep.name} ({ep.value})"] = f"{type(exc).__name__}: {exc}"
 
 
-def instruments() -> dict[str, Instrument]:
+def instruments() -> dict[str, InstrumentPlugin]:
     """All registered instruments by name."""
     _load_all()
     return dict(_REGISTRY)
 
 
-def get_instrument(name: str) -> Instrument:
+def get_instrument(name: str) -> InstrumentPlugin:
     """The instrument called ``name``, or a one-line error listing the known ones."""
     known = instruments()
     if name not in known:
-        broken = "".join(f"; {m} failed to load ({e})" for m, e in LOAD_ERRORS.items())
+        broken = "".join(f"; plug-in {m} failed to load ({e})" for m, e in LOAD_ERRORS.items())
         raise MeasurementFileError(f"unknown instrument {name!r}; known: "
                                    f"{', '.join(sorted(known))}{broken}")
     return known[name]
-
-
-def accepts(fn: Callable[..., Any], keyword: str) -> bool:
-    """True when ``fn`` takes the keyword argument ``keyword`` (or ``**kwargs``)."""
-    try:
-        params = inspect.signature(fn).parameters.values()
-    except (TypeError, ValueError):
-        return False
-    return any(p.name == keyword or p.kind is inspect.Parameter.VAR_KEYWORD for p in params)
-
-
-def _with_optional(fn: Callable[..., Any], args: tuple[Any, ...], optional: dict[str, Any],
-                   what: str) -> Any:
-    """Call ``fn(*args, **optional)`` passing only the optional keywords it accepts.
-
-    An optional keyword with a meaningful value that ``fn`` cannot take is an error
-    (``what`` names the call in the message), never silently dropped.
-    """
-    kwargs = {}
-    for k, v in optional.items():
-        if accepts(fn, k):
-            kwargs[k] = v
-        elif v:
-            raise MeasurementFileError(f"{what} does not support {k.replace('_', '-')}")
-    return fn(*args, **kwargs)
 
 
 # --------------------------------------------------------------------------- detection
@@ -232,30 +281,27 @@ def read_measurements(path: str | Path, robot: Any, units: dict[str, str] | None
                                        f"{tags['instrument']}, not {instrument}",
                                        source=str(path))
     inst = get_instrument(instrument or detected or "")
-    return _with_optional(inst.read, (path, robot, dict(units or {})),
-                          {"ignore": tuple(ignore), "name": name},
-                          f"instrument {inst.name!r}'s reader")
+    return inst.read(path, robot, dict(units or {}), ignore=tuple(ignore), name=name)
 
 
-def write_measurements(instrument: str | Instrument, blocks: list[Any], path: str | Path,
-                       units: dict[str, str] | None = None, robot: Any = None) -> None:
-    """Write blocks with an instrument's writer, passing ``robot`` when it accepts one."""
+def write_measurements(instrument: str | InstrumentPlugin, blocks: Sequence[Any],
+                       path: str | Path, units: dict[str, str] | None = None,
+                       robot: Any = None) -> None:
+    """Write blocks with an instrument's writer (joint columns named after ``robot``'s
+    joints when given)."""
     inst = get_instrument(instrument) if isinstance(instrument, str) else instrument
-    units = dict(units or {"length": "m", "angle": "rad"})
-    if accepts(inst.write, "robot"):
-        inst.write(blocks, path, units, robot=robot)
-    else:
-        inst.write(blocks, path, units)
+    inst.write(blocks, path, dict(units or {"length": "m", "angle": "rad"}), robot=robot)
 
 
-def simulate_measurements(instrument: str | Instrument, true_robot: Any, rng: Any,
+def simulate_measurements(instrument: str | InstrumentPlugin, true_robot: Any, rng: Any,
                           n_poses: int, noise: float, options: dict[str, Any] | None = None,
                           truth: dict[str, float] | None = None
                           ) -> tuple[list[Any], dict[str, float]]:
     """Run an instrument's simulator; ``truth`` reuses a previous placement when supported.
 
-    Returns ``(blocks, truth)``.  When the simulator cannot take ``truth`` the new data
-    has its own placement (the caller should then register it anew).
+    Returns ``(blocks, truth)``.  When the instrument cannot reuse a placement
+    (``same_placement`` False) the new data has its own placement (the caller should
+    then register it anew).
     """
     inst = get_instrument(instrument) if isinstance(instrument, str) else instrument
     opts = dict(options or {})
@@ -263,6 +309,7 @@ def simulate_measurements(instrument: str | Instrument, true_robot: Any, rng: An
     if unknown:
         raise MeasurementFileError(f"instrument {inst.name!r} has no option {unknown[0]!r} "
                                    f"(options: {', '.join(inst.options) or 'none'})")
-    if truth is not None and accepts(inst.simulate, "truth"):
+    if truth is not None and inst.same_placement:
         opts["truth"] = truth
-    return inst.simulate(true_robot, rng, int(n_poses), float(noise), **opts)
+    blocks, true_values = inst.simulate(true_robot, rng, int(n_poses), float(noise), **opts)
+    return list(blocks), dict(true_values)

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
+from kincal.measure.base import Provenance
 from kincal.measure.files import (
     Field,
     MeasurementTable,
@@ -88,7 +89,8 @@ def _truth_values(truth: Mapping[str, float], names: Sequence[str]) -> Array:
 
 def simulate_position(true_robot: Any, rng: np.random.Generator, n_poses: int, noise: float,
                       markers: int = 1, name: str = "tracker", margin: float = 0.05,
-                      truth: Mapping[str, float] | None = None) -> tuple[list[Any], dict]:
+                      truth: Mapping[str, float] | None = None
+                      ) -> tuple[list[Any], dict[str, float]]:
     """Simulate a position instrument measuring ``markers`` points on ``true_robot``.
 
     ``y_ik = R_I^T (p_e(q_i) + R_e(q_i) m_k - t_I) + noise`` with ``noise ~ N(0, noise^2)``
@@ -124,7 +126,7 @@ def simulate_position(true_robot: Any, rng: np.random.Generator, n_poses: int, n
 def simulate_pose(true_robot: Any, rng: np.random.Generator, n_poses: int, noise: float,
                   orientation_noise_deg: float = 0.005, name: str = "tracker",
                   margin: float = 0.05, truth: Mapping[str, float] | None = None
-                  ) -> tuple[list[Any], dict]:
+                  ) -> tuple[list[Any], dict[str, float]]:
     """Simulate a 6-DOF instrument measuring a frame on the tool of ``true_robot``.
 
     ``T_obs = T_I^-1 T_e(q) T_t`` perturbed by ``N(0, noise^2)`` per position coordinate
@@ -266,7 +268,7 @@ def marker_positions(t: MeasurementTable) -> tuple[Array, Array | None]:
         want = [f"sigma{k + 1}" for k in range(K)]
         if sig_cols != sorted(want) or "sigma" in t.values:
             raise t.error(f"per-marker sigma columns must be {', '.join(want)} (or one sigma)")
-        sigma = np.stack([t.values[w] for w in want], axis=1)
+        sigma: Array | None = np.stack([t.values[w] for w in want], axis=1)
     else:
         sigma = t.values.get("sigma")
     return y, sigma
@@ -282,7 +284,7 @@ def read_position(path: str | Path, robot: Any, units: Mapping[str, str] | None 
     K = 1 if y.ndim == 2 else y.shape[1]
     block = PositionMeasurement(t.q, y, sigma=_sigma_scalar(sigma, _tag_sigma(t, "sigma")),
                                 name=name or t.tags.get("name") or UNNAMED, markers=K)
-    block.table = t  # type: ignore[attr-defined]
+    block.provenance = Provenance(str(path), t)
     return [block]
 
 
@@ -311,7 +313,7 @@ def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = No
                             sigma_orientation=_sigma_scalar(t.values.get("sigma_rot"),
                                                             _tag_sigma(t, "sigma_rot")),
                             name=name or t.tags.get("name") or UNNAMED)
-    block.table = t  # type: ignore[attr-defined]
+    block.provenance = Provenance(str(path), t)
     return [block]
 
 

@@ -19,7 +19,7 @@ import html
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +28,88 @@ from kincal.io import atomic_write_text
 from kincal.report.metrics import ErrorComparison, error_keys, error_metrics, quantity
 
 Array = NDArray[np.float64]
+
+
+class IdentifiabilityView(Protocol):
+    """The identifiability analysis as the report reads it: the candidate names and
+    its facts, one sentence each."""
+
+    @property
+    def names(self) -> Sequence[str]: ...
+
+    def describe(self) -> Sequence[str]: ...
+
+
+class ProblemView(Protocol):
+    """The parameters of the calibrated problem: names, units and roles, in order."""
+
+    @property
+    def names(self) -> Sequence[str]: ...
+
+    @property
+    def units(self) -> Sequence[str]: ...
+
+    @property
+    def roles(self) -> Sequence[str]: ...
+
+
+class IterationView(Protocol):
+    """One solver iteration: the parameter values after it, its stage, cost and RMS."""
+
+    @property
+    def theta(self) -> Array: ...
+
+    @property
+    def stage(self) -> str: ...
+
+    @property
+    def cost(self) -> float: ...
+
+    @property
+    def rms(self) -> float: ...
+
+
+class RobotView(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+class CalibrationView(Protocol):
+    """What the report needs of a calibration: a serial
+    :class:`~kincal.identify.solver.CalibrationResult` or a five-bar's report view
+    (:class:`kincal.parallel.report.ReportView`)."""
+
+    @property
+    def names(self) -> Sequence[str]: ...
+
+    @property
+    def estimated(self) -> Sequence[str]: ...
+
+    @property
+    def theta(self) -> Array: ...
+
+    @property
+    def robot(self) -> RobotView: ...
+
+    @property
+    def problem(self) -> ProblemView: ...
+
+    @property
+    def identifiability(self) -> IdentifiabilityView | None: ...
+
+    @property
+    def held_by_prior(self) -> Sequence[str]: ...
+
+    @property
+    def history(self) -> Sequence[IterationView]: ...
+
+    @property
+    def correlation(self) -> Array | None: ...
+
+    @property
+    def message(self) -> str: ...
+
+    def to_dict(self) -> dict[str, Any]: ...
 
 
 # --------------------------------------------------------------------------- words
@@ -45,15 +127,15 @@ def _disp_unit(unit: str) -> str:
     return {"m": "mm", "rad": "deg"}.get(unit, unit)
 
 
-def identifiability_summary(result: Any) -> list[str]:
+def identifiability_summary(result: CalibrationView) -> list[str]:
     """The identifiability facts in a few lines, for the top of the section: how many
     parameters the data identifies, which were left out by choice, and what absorbs the
     rest (grouped, one line per group)."""
     d = result.to_dict()
     params = d.get("parameters", [])
-    rep = getattr(result, "identifiability", None)
-    problem = getattr(result, "problem", None)
-    candidates = set(getattr(rep, "names", []) or [p["name"] for p in params])
+    rep = result.identifiability
+    problem = result.problem
+    candidates = set((rep.names if rep is not None else []) or [p["name"] for p in params])
     by_choice = [p["name"] for p in params if p["name"] not in candidates]
     est = [p for p in params if p.get("estimated")]
     ident = d.get("identifiability") or {}
@@ -63,7 +145,7 @@ def identifiability_summary(result: Any) -> list[str]:
     if by_choice:
         out.append(f"{len(by_choice)} parameter(s) were not candidates (left out by "
                    f"--free / --fix, by choice): {_short_list(by_choice)}.")
-    if rep is not None and problem is not None:
+    if rep is not None:
         out += identifiability_groups(rep, problem.names, problem.roles)
     cs, cu = ident.get("cond_scaled"), ident.get("cond_unscaled")
     if cs is not None:
@@ -72,12 +154,11 @@ def identifiability_summary(result: Any) -> list[str]:
     return out
 
 
-def identifiability_details(result: Any) -> list[str]:
+def identifiability_details(result: CalibrationView) -> list[str]:
     """Every fact of the identifiability analysis, one sentence each (folded in the
     report under the summary)."""
-    describe = getattr(getattr(result, "identifiability", None), "describe", None)
-    if callable(describe):
-        told = describe()
+    if result.identifiability is not None:
+        told = result.identifiability.describe()
         lines = told.splitlines() if isinstance(told, str) else list(told)
         return [str(ln).strip() for ln in lines if str(ln).strip()]
     ident = result.to_dict().get("identifiability") or {}
@@ -197,11 +278,11 @@ def _param_status(p: Mapping[str, Any], candidates: set[str], held: set[str]
     return "not identifiable", "bad"
 
 
-def _param_table(result: Any, truth: Mapping[str, float] | None) -> str:
+def _param_table(result: CalibrationView, truth: Mapping[str, float] | None) -> str:
     params = result.to_dict()["parameters"]
-    rep = getattr(result, "identifiability", None)
-    candidates = set(getattr(rep, "names", []) or [p["name"] for p in params])
-    held = set(getattr(result, "held_by_prior", []) or [])
+    rep = result.identifiability
+    candidates = set((rep.names if rep is not None else []) or [p["name"] for p in params])
+    held = set(result.held_by_prior or [])
     head = ["parameter", "unit", "nominal", "estimate", "change", "std (1σ)", "status"]
     if truth:
         head.insert(5, "true")
@@ -224,9 +305,9 @@ def _param_table(result: Any, truth: Mapping[str, float] | None) -> str:
             + "</table>")
 
 
-def _history(result: Any) -> tuple[Array, list[str], Array, Array]:
+def _history(result: CalibrationView) -> tuple[Array, list[str], Array, Array]:
     """Parameter values per iteration (rows), stage names, cost and RMS."""
-    hist = list(getattr(result, "history", []) or [])
+    hist = list(result.history or [])
     if not hist:
         theta = np.asarray(result.theta, dtype=float)
         return theta[None], ["final"], np.array([np.nan]), np.array([np.nan])
@@ -235,7 +316,7 @@ def _history(result: Any) -> tuple[Array, list[str], Array, Array]:
             np.array([float(h.rms) for h in hist]))
 
 
-def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str = "",
+def render_html(result: CalibrationView, comparisons: Sequence[ErrorComparison], title: str = "",
                 inputs: Mapping[str, str] | None = None,
                 truth: Mapping[str, float] | None = None, plots: bool = True,
                 extra_sections: Sequence[str] = (), notice: str = "") -> str:
@@ -249,10 +330,10 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
 
     d = result.to_dict()
     names = list(result.names)
-    units = list(getattr(result.problem, "units", [""] * len(names)))
+    units = list(result.problem.units)
     chosen = set(result.estimated)
     est_mask = np.array([n in chosen for n in names], dtype=bool)
-    title = title or f"kincal calibration of {getattr(result.robot, 'name', 'robot')}"
+    title = title or f"kincal calibration of {result.robot.name}"
     parts = [_head(title, notice)]
     conv = '<span class="ok">converged</span>' if d.get("converged") else \
         '<span class="bad">did not converge</span>'
@@ -291,7 +372,7 @@ def render_html(result: Any, comparisons: Sequence[ErrorComparison], title: str 
                                         [units[i] for i in idx], stages, truth):
             parts.append(_img(png, "parameter history"))
         parts.append(_error_plots(comparisons))
-        C = getattr(result, "correlation", None)
+        C = result.correlation
         if C is not None and 1 < len(idx) <= 80:
             C = np.asarray(C, dtype=float)
             if C.shape == (len(names), len(names)):
@@ -358,20 +439,21 @@ def render_validation_html(title: str, comparisons: Sequence[ErrorComparison],
     return "\n".join(parts)
 
 
-def _solver_details(result: Any, d: Mapping[str, Any]) -> str:
+def _solver_details(result: CalibrationView, d: Mapping[str, Any]) -> str:
     """The solver's own account (stopping rule, stages, method), folded at the end."""
     rows = [("method", d.get("method")), ("loss", d.get("loss")),
             ("iterations", d.get("iterations")),
             ("stages", "; ".join(f"{s['stage']}: {len(s['estimated'])} parameters"
                                  for s in d.get("stages", [])) or "-"),
-            ("stopping", getattr(result, "message", "") or "-")]
+            ("stopping", result.message or "-")]
     return ("<details><summary>Solver details</summary><table>" + "".join(
         f'<tr><th class="l">{html.escape(str(k))}</th><td class="l">{html.escape(str(v))}'
         "</td></tr>" for k, v in rows) + "</table></details>")
 
 
-def write_html_report(path: str | Path, result: Any, comparisons: Sequence[ErrorComparison],
-                      title: str = "", inputs: Mapping[str, str] | None = None,
+def write_html_report(path: str | Path, result: CalibrationView,
+                      comparisons: Sequence[ErrorComparison], title: str = "",
+                      inputs: Mapping[str, str] | None = None,
                       truth: Mapping[str, float] | None = None,
                       extra_sections: Sequence[str] = ()) -> None:
     """Write :func:`render_html` to ``path`` atomically."""

@@ -80,7 +80,7 @@ def read_blocks(paths: Sequence[str | Path], robot: Any, units: str | None = Non
             files whose columns it matches (an entry matching no file is an error).
         ignore: ``--ignore`` patterns, likewise per file.
 
-    Every block gets ``source_path`` (its file).  Raises one-line errors for bad files.
+    Every block's ``provenance`` names its file.  Raises one-line errors for bad files.
     :func:`kincal.workflow.sources.read_sources` reads files with options of their own.
     """
     from kincal.workflow.sources import read_sources, sources_from_options
@@ -92,9 +92,9 @@ def ignored_columns(blocks: Sequence[Any]) -> list[tuple[str, list[str]]]:
     """``(file, [column ...])`` of the columns each block's reader did not read."""
     out = []
     for b in blocks:
-        table = getattr(b, "table", None)
+        table = b.provenance.table if b.provenance is not None else None
         if table is not None and table.ignored:
-            out.append((str(getattr(b, "source_path", b.name)), list(table.ignored)))
+            out.append((b.source_label, list(table.ignored)))
     return out
 
 
@@ -123,19 +123,6 @@ def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixe
                      loss_scale=options["loss_scale"], max_iter=options.get("max_iter") or 100,
                      progress=progress, prior=options.get("prior") or None,
                      prefer=options.get("prefer") or ())
-
-
-def _with_origin(kept: Sequence[Any], original: Sequence[Any]) -> list[Any]:
-    """The solver's blocks with ``source_path`` / ``table`` of the blocks they came from
-    (the patent's selection copies the blocks it thins out)."""
-    by_name = {b.name: b for b in original}
-    for b in kept:
-        src = by_name.get(b.name)
-        if src is not None and b is not src:
-            for attr in ("source_path", "table"):
-                if hasattr(src, attr) and not hasattr(b, attr):
-                    setattr(b, attr, getattr(src, attr))
-    return list(kept)
 
 
 def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
@@ -275,7 +262,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                            {**solver_options, "prior": prior_s or None}, mapper)
         cv = {"folds": cross_validate, "seed": 0, "split": split_kind(blocks),
               **{f"rms_{k}": v for k, v in got[0].items()}}
-    train = _with_origin(res.problem.blocks, blocks)
+    train = list(res.problem.blocks)    # thinned copies keep their provenance
     before = {b.name: reregister(robot, b, None, None) for b in train}
     after = {b.name: res.theta[res.problem.block_slice(b.name)] for b in train}
     comps = [ErrorComparison(
@@ -313,7 +300,7 @@ def _accuracy(res: Any, cv: Mapping[str, Any] | None,
     except (KincalError, ValueError, IndexError):
         return None
     inst = model.instrument
-    if inst is not None and before and inst["block"] in before:
+    if isinstance(inst, dict) and before and inst["block"] in before:
         inst["nominal_values"] = [float(v) for v in np.asarray(before[inst["block"]])[:9]]
     rms = (cv or {}).get("rms_position_m")
     if rms is not None and model.region is not None:
@@ -384,7 +371,8 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
     files = []
     default = frames
     for h in holdouts:
-        frames = getattr(getattr(h, "source", None), "frames", None) or default
+        source = h.provenance.source if h.provenance is not None else None
+        frames = (source.frames if source is not None else None) or default
         twin = _training_twin(h, train)
         if frames == "training" and twin is None:
             raise KincalError(f"held-out block {h.name!r} has no training block of its "
@@ -409,7 +397,7 @@ def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdout
 
 def _explicit_name(block: Any) -> bool:
     """True when the block's name came from its file's tag (not a default)."""
-    table = getattr(block, "table", None)
+    table = block.provenance.table if block.provenance is not None else None
     return table is None or "name" in table.tags
 
 
@@ -457,7 +445,8 @@ def block_values(values: Mapping[str, float], block: Any) -> Array:
 
 
 def _files(blocks: Sequence[Any]) -> str:
-    names = [Path(getattr(b, "source_path", "")).name for b in blocks]
+    names = [Path(b.provenance.path).name if b.provenance is not None else ""
+             for b in blocks]
     names = [n for n in names if n]
     return f" ({', '.join(names)})" if names else ""
 
@@ -601,6 +590,7 @@ def _untrusted_notice(flow: FlowResult, force: bool, planned: Mapping[str, str])
     if files:
         what = (f"; written anyway (--force): {', '.join(files)}" if force else
                 f"; no calibrated robot written ({', '.join(files)}; --force writes it)")
+    assert flow.verdict is not None           # not trusted: there is a verdict
     return flow.verdict.line() + what
 
 

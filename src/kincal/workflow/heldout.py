@@ -241,15 +241,16 @@ def evaluate_file(nominal: Any, calibrated: Any, h: Any, protocol: str, *,
         accuracy: the calibration's :class:`~kincal.identify.accuracy.AccuracyModel`.
     """
     from kincal.measure.artifacts.model import ArtifactMeasurement
+    from kincal.measure.base import BlockWrapper
 
     if protocol not in PROTOCOLS:
         raise KincalError(f"unknown validation protocol {protocol!r}")
-    file = Path(getattr(h, "source_path", h.name)).name
+    file = Path(h.source_label).name
     known_b = dict(known_before or {})
     known_a = dict(known_after or {})
     before_robot = nominal if nominal is not None else calibrated
-    artifact = isinstance(getattr(h, "inner", h), ArtifactMeasurement) or \
-        isinstance(h, ArtifactMeasurement)
+    inner = h.inner if isinstance(h, BlockWrapper) else h
+    artifact = isinstance(inner, ArtifactMeasurement)
     if artifact:
         protocol = "artifact"
         probe = [n for n, r in zip(h.parameters().names, h.parameters().roles, strict=True)
@@ -284,7 +285,6 @@ def evaluate_file(nominal: Any, calibrated: Any, h: Any, protocol: str, *,
     out = HeldOutFile(file, h, protocol, note, before, after,
                       values={"before": xb, "after": xa})
     if artifact:
-        inner = getattr(h, "inner", h)
         out.artifact = {"before": _artifact_metrics(inner, before_robot, xb),
                         "after": _artifact_metrics(inner, calibrated, xa)}
         if nominal is None:

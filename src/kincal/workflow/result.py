@@ -8,10 +8,22 @@ each other.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:                  # types only: no import cost, no circle
+    from kincal.identify.accuracy import AccuracyModel
+    from kincal.identify.checks import Verdict
+    from kincal.identify.selection import Selection
+    from kincal.identify.solver import CalibrationResult
+    from kincal.identify.tolerances import Tolerances
+    from kincal.identify.weak import WeakParameter
+    from kincal.measure.base import MeasurementModel
+    from kincal.report.metrics import ErrorComparison
+    from kincal.robots.chain import Robot
+    from kincal.workflow.heldout import HeldOutFile
 
 Array = NDArray[np.float64]
 
@@ -50,21 +62,21 @@ class FlowResult:
         notes: sentences on what the run did (e.g. a shared tool point).
     """
 
-    result: Any
-    comparisons: list[Any]
+    result: CalibrationResult
+    comparisons: list[ErrorComparison]
     seconds: float
     warnings: list[str] = dataclasses.field(default_factory=list)
-    nominal: Any = None
-    train: list[Any] = dataclasses.field(default_factory=list)
+    nominal: Robot | None = None
+    train: list[MeasurementModel] = dataclasses.field(default_factory=list)
     before: dict[str, Array] = dataclasses.field(default_factory=dict)
     after: dict[str, Array] = dataclasses.field(default_factory=dict)
     cross_validation: dict[str, Any] | None = None
-    tolerances: Any = None
-    verdict: Any = None
-    weak: list[Any] = dataclasses.field(default_factory=list)
-    selection: Any = None
-    accuracy: Any = None
-    heldout: list[Any] = dataclasses.field(default_factory=list)
+    tolerances: Tolerances | None = None
+    verdict: Verdict | None = None
+    weak: list[WeakParameter] = dataclasses.field(default_factory=list)
+    selection: Selection | None = None
+    accuracy: AccuracyModel | None = None
+    heldout: list[HeldOutFile] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
 
     @property

@@ -32,33 +32,29 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import CHUNK_ROWS, MeasurementModel, ParamSpec
+from kincal.measure.base import CHUNK_ROWS, BlockWrapper, ParamSpec
 
 Array = NDArray[np.float64]
 
 __all__ = ["ToolPointBlock", "share_tool_point"]
 
 
-class ToolPointBlock(MeasurementModel):
+class ToolPointBlock(BlockWrapper):
     """A position block whose marker is the robot's tool origin (marker held at 0).
 
     Parameters: the inner block's without its marker (``{name}.marker.*``); residuals,
     Jacobians and errors are the inner block's at marker 0.
     """
 
+    inner: Any          # a position block (its ``subset`` and ``{name}.marker.*``)
+
     def __init__(self, inner: Any) -> None:
         self.inner = inner
         self.name = inner.name
+        self.q = inner.q
         spec = inner.parameters()
         self._keep = np.array([not n.startswith(f"{inner.name}.marker")
                                for n in spec.names], dtype=bool)
-        for attr in ("source_path", "table", "source"):
-            if hasattr(inner, attr):
-                setattr(self, attr, getattr(inner, attr))
-
-    @property
-    def q(self) -> Array:
-        return self.inner.q
 
     @property
     def N(self) -> int:
@@ -155,11 +151,7 @@ def _shared(block: Any) -> Any:
         out._checked = False
         return out
     if isinstance(block, ArtifactMeasurement):
-        out = block.replace(probe=Probe("tool"))
-        for attr in ("source_path", "table", "source"):
-            if hasattr(block, attr):
-                setattr(out, attr, getattr(block, attr))
-        return out
+        return block.replace(probe=Probe("tool"))     # keeps the block's provenance
     return ToolPointBlock(block)
 
 

@@ -193,9 +193,11 @@ def _read_one(src: DataSource, robot: Any, name: str | None) -> list[Any]:
 def read_sources(sources: Sequence[DataSource], robot: Any) -> list[Any]:
     """Read measurement sources, one block each (a clashing block name gets 2, 3 ...).
 
-    Every block gets ``source_path`` (its file) and ``source`` (its
-    :class:`DataSource`).  Raises one-line errors for bad files.
+    Every block's ``provenance`` holds its file, its parsed table and its
+    :class:`DataSource`.  Raises one-line errors for bad files.
     """
+    from kincal.measure.base import Provenance
+
     blocks: list[Any] = []
     taken: set[str] = set()
     for src in sources:
@@ -211,7 +213,7 @@ def read_sources(sources: Sequence[DataSource], robot: Any) -> list[Any]:
                     k += 1
                 b = _read_one(src, robot, f"{b.name}{k}")[0]
             taken.add(b.name)
-            b.source_path = src.path
-            b.source = src
+            b.provenance = Provenance(src.path, b.provenance.table if b.provenance else None,
+                                      src)
             blocks.append(b)
     return blocks

@@ -137,7 +137,8 @@ class Contrasts:
         ex = ex - ex[self.start]                    # ... restricted to the site
         jj = self.j[self.keep].reshape((-1,) + (1,) * (values.ndim - 1)).astype(float)
         prev_mean = ex[self.keep] / jj
-        return np.sqrt(jj / (jj + 1.0)) * (v[self.keep] - prev_mean)
+        value: Array = np.sqrt(jj / (jj + 1.0)) * (v[self.keep] - prev_mean)
+        return value
 
     def variance(self, var: Array) -> Array:
         """Variance of each contrast component from independent row variances (N,).
@@ -148,7 +149,8 @@ class Contrasts:
         ex = np.cumsum(s) - s
         ex = ex - ex[self.start]
         jj = self.j[self.keep].astype(float)
-        return jj / (jj + 1.0) * (s[self.keep] + ex[self.keep] / jj**2)
+        value: Array = jj / (jj + 1.0) * (s[self.keep] + ex[self.keep] / jj**2)
+        return value
 
 
 def check_mode(mode: str) -> str:

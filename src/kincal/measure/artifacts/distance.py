@@ -41,4 +41,5 @@ def distance_residuals(Xa: Array, Xb: Array, length: Array, dXa: Array | None = 
 def distance_variance(Xa: Array, Xb: Array, Ca: Array, Cb: Array) -> Array:
     """Variance of ``|X_b - X_a|`` (K,) [m^2] from independent point covariances (K, 3, 3)."""
     _, u = distances(Xa, Xb)
-    return np.einsum("ki,kij,kj->k", u, Ca + Cb, u)
+    value: Array = np.einsum("ki,kij,kj->k", u, Ca + Cb, u)
+    return value

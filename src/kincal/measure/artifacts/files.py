@@ -58,6 +58,7 @@ from kincal.measure.artifacts.geometry import (
 )
 from kincal.measure.artifacts.model import ArtifactMeasurement
 from kincal.measure.artifacts.probe import Probe
+from kincal.measure.base import Provenance
 from kincal.measure.files import (
     joint_columns,
     read_table,
@@ -170,7 +171,7 @@ def read_artifact(path: str | Path, robot: Any, units: Mapping[str, str] | None 
             raise t.error(f"socket {so!r} is not one of the {geom.kind}'s sockets "
                           f"({', '.join(geom.sockets)})", int(t.lines[i]))
     block = _block(t.q, placement, point, tags, path, robot, name, geom, probe, sockets)
-    block.table = t  # type: ignore[attr-defined]
+    block.provenance = Provenance(str(path), t)
     return [block]
 
 
@@ -383,7 +384,7 @@ def read_socket_files(source: str | Path | Sequence[str | Path], angle_unit: str
                 if ln.strip() and not ln.lstrip().startswith("#")]
         if not rows:
             raise MeasurementFileError("line 1: no data", source=str(f))
-        values = []
+        values: list[list[float]] = []
         for line, row in rows:
             cells = [c.strip() for c in row.split(",")]
             try:

@@ -426,6 +426,7 @@ class ArtifactMeasurement(MeasurementModel):
         a, b = self._dist[:, 0], self._dist[:, 1]
         k = self._perp
         if jacobian:
+            assert dX is not None and dP is not None
             ed, Jd = distance_residuals(X[a], X[b], self._dist_L, dX[a], dX[b])
             ep, Jpp = perpendicularity_residuals(X[k[:, 0]], X[k[:, 1]], X[k[:, 2]],
                                                  X[k[:, 3]], dX[k[:, 0]], dX[k[:, 1]],
@@ -437,6 +438,7 @@ class ArtifactMeasurement(MeasurementModel):
         r = np.concatenate([(rc * wc[:, None]).reshape(-1), ed * wd, ep * wp])
         if not jacobian:
             return r, None, None
+        assert dP is not None and Jc is not None and Jd is not None and Jpp is not None
         J = np.concatenate([(Jc * wc[:, None, None]).reshape(-1, dP.shape[2]),
                             Jd * wd[:, None], Jpp * wp[:, None]])
         Pr = robot.num_params
@@ -503,7 +505,13 @@ class ArtifactMeasurement(MeasurementModel):
             geometry=self.geometry, probe=self.probe, sockets=self.sockets, name=self.name,
             joint_std=self.joint_std, point_std=self.point_std, robot=self.noise_robot)
         args.update(changes)
-        return ArtifactMeasurement(**args)  # type: ignore[arg-type]
+        out = ArtifactMeasurement(**args)  # type: ignore[arg-type]
+        out.provenance = self.provenance                # the same file's rows
+        return out
+
+    def with_q(self, q: Array) -> ArtifactMeasurement:
+        """The same rows measured at joint readings ``q``."""
+        return self.replace(q=q)
 
     def subset_placements(self, placements: Sequence[str]) -> ArtifactMeasurement:
         """A block with the same name holding only the rows of ``placements``."""

@@ -48,8 +48,9 @@ def perpendicularity_variance(Xa: Array, Xc: Array, Xb: Array, Xd: Array, Ca: Ar
                               Cc: Array, Cb: Array, Cd: Array) -> Array:
     """Variance of the cosine (K,) from independent point covariances (K, 3, 3)."""
     _, gu, gv = cosines(Xc - Xa, Xd - Xb)
-    return (np.einsum("ki,kij,kj->k", gu, Ca + Cc, gu)
-            + np.einsum("ki,kij,kj->k", gv, Cb + Cd, gv))
+    value: Array = (np.einsum("ki,kij,kj->k", gu, Ca + Cc, gu)
+                    + np.einsum("ki,kij,kj->k", gv, Cb + Cd, gv))
+    return value
 
 
 def angle_deviation(c: Array) -> Array:

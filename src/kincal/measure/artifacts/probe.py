@@ -122,7 +122,7 @@ class Probe:
         R = T[:, :3, :3]
         a = R @ self.tip(values)                                   # R_e t (N, 3)
         P = T[:, :3, 3] + a
-        if not jacobian:
+        if Jp is None:             # jacobian False
             return P, None, None
         dr = Jp[:, :3] + np.cross(Jp[:, 3:], a[:, :, None], axis=1)
         if self.size == 0:
@@ -136,6 +136,7 @@ class Probe:
     def joint_jacobian(self, robot: Robot, q: Array) -> Array:
         """``dP/dq`` (N, 3, n) at the probe's own value [m/rad or m/m]."""
         T, J, _ = robot.fk_with_jacobians(q, joints=True, params=False)
+        assert J is not None                           # joints=True
         a = T[:, :3, :3] @ self.tip()
         return J[:, :3] + np.cross(J[:, 3:], a[:, :, None], axis=1)
 

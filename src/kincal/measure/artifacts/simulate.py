@@ -62,7 +62,8 @@ def _unit_perpendicular(n: Array, rng: np.random.Generator) -> Array:
     """Random unit vectors perpendicular to the unit vectors ``n`` (K, 3)."""
     a = rng.standard_normal(n.shape)
     a -= np.sum(a * n, axis=1, keepdims=True) * n
-    return a / np.linalg.norm(a, axis=1, keepdims=True)
+    value: Array = a / np.linalg.norm(a, axis=1, keepdims=True)
+    return value
 
 
 def _tilted(n: Array, max_deg: float, rng: np.random.Generator) -> Array:
@@ -94,7 +95,7 @@ def _centres(robot: Robot, probe_tip: Array, count: int, rng: np.random.Generato
 
 
 def seat(true_robot: Robot, sockets: Array, normals: Array, tip: Array, q0: Array,
-         rng: np.random.Generator, cone_deg: float) -> tuple[Array, Array]:
+         rng: np.random.Generator, cone_deg: float) -> tuple[Array, NDArray[np.bool_]]:
     """Configurations seating ``tip`` in ``sockets`` (K, 3) approached along ``-normals``.
 
     Returns ``(q (K, n), success (K,))``.
@@ -166,7 +167,7 @@ def simulate_artifact(true_robot: Robot, geometry: ArtifactGeometry, placements:
         q0 = np.repeat(qc, K * visits, axis=0)
         q, ok = seat(true_robot, targets.reshape(-1, 3), normals.reshape(-1, 3), tip, q0, rng,
                      cone_deg)
-        ok = ok.reshape(m, K * visits).all(axis=1)
+        ok = np.asarray(ok.reshape(m, K * visits).all(axis=1))
         for i in np.flatnonzero(ok)[:need]:
             got_q.append(q.reshape(m, K * visits, -1)[i])
             got_s.append(S[i])

@@ -123,7 +123,7 @@ register(Instrument(
     options={"planes": (4, "number of planes"),
              "known": (False, "planes known (True) or estimated (False)"),
              "name": ("plane", "block name (prefix of its parameters)"), **_COMMON},
-    noise_unit="m"))
+    noise_unit="m", same_placement=False))
 
 register(Instrument(
     name="fixture",

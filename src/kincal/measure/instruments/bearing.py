@@ -107,6 +107,7 @@ class BearingMeasurement(PointBlock):
         ang, D = bearing_angles(x, jacobian)
         if not jacobian:
             return ang, None, None
+        assert D is not None and dxdp is not None and dxds is not None
         return ang, D @ dxdp, station_columns(self.station_index, D @ dxds, own.size)
 
     def own_guess(self, robot: Robot, p: Array) -> Array:

@@ -121,6 +121,7 @@ class CameraMeasurement(PointBlock):
         uv, D = project(x, self.K, jacobian)
         if not jacobian:
             return uv, None, None
+        assert D is not None and dxdp is not None and dxds is not None
         return uv, D @ dxdp, station_columns(self.station_index, D @ dxds, own.size)
 
     def own_guess(self, robot: Robot, p: Array) -> Array:
@@ -158,6 +159,10 @@ class HandCameraMeasurement(MeasurementModel):
         self.intrinsics = tuple(float(v) for v in intrinsics)
         self.K = np.broadcast_to(check_intrinsics(np.array(self.intrinsics), name), (N, 4))
 
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each image coordinate [px]: (N,)."""
+        return self.sigma
+
     def parameters(self) -> ParamSpec:
         return frame_spec(f"{self.name}.target", role="target")
 
@@ -173,6 +178,7 @@ class HandCameraMeasurement(MeasurementModel):
         r = ((uv - self.obs) / self.sigma[:, None]).reshape(-1)
         if not jacobian:
             return r, None, None
+        assert Jp is not None and D is not None and dw is not None
         dx_robot = Rt @ (np.cross(d[:, :, None], Jp[:, 3:], axis=1) - Jp[:, :3])
         scale = self.sigma[:, None, None]
         Jr = (D @ dx_robot / scale).reshape(r.size, -1)

@@ -138,10 +138,10 @@ def tool_point(robot: Robot, q: Array, m: Array | None, jacobian: bool
     R = T[:, :3, :3]
     p = T[:, :3, 3]
     if m is None:
-        return p, R, (Jp[:, :3] if jacobian else None), None
+        return p, R, (Jp[:, :3] if Jp is not None else None), None
     Rm = R @ m
     p = p + Rm
-    if not jacobian:
+    if Jp is None:                 # jacobian False
         return p, R, None, None
     dp = Jp[:, :3] + np.cross(Jp[:, 3:], Rm[:, :, None], axis=1)
     return p, R, dp, R
@@ -259,7 +259,8 @@ def check_shapes(what: str, block: str, n: int, **arrays: Array) -> None:
 def chain_rows(dobs_dp: Array, dp: Array, sigma: Array) -> Array:
     """``(d obs/d p) (d p/d theta) / sigma`` flattened to (N k, P)."""
     J = np.einsum("nkj,njp->nkp", dobs_dp, dp) / sigma[:, None, None]
-    return J.reshape(-1, J.shape[2])
+    value: Array = J.reshape(-1, J.shape[2])
+    return value
 
 
 def station_columns(station_index: NDArray[np.intp], local: Array, size: int) -> Array:

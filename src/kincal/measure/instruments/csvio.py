@@ -41,7 +41,6 @@ from kincal.io import atomic_write_text
 from kincal.measure.files import (
     LOOKS_MEASURED,
     TAG_PREFIX,
-    UNITS,
     Field,
     MeasurementTable,
     glob_regex,
@@ -49,6 +48,7 @@ from kincal.measure.files import (
     read_table,
     split_unit,
 )
+from kincal.units import UNITS
 
 Array = NDArray[np.float64]
 

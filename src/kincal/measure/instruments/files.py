@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
+from kincal.measure.base import Provenance
 from kincal.measure.files import Field, read_header
 from kincal.measure.instruments.bearing import BearingMeasurement
 from kincal.measure.instruments.camera import CameraMeasurement, HandCameraMeasurement
@@ -92,7 +93,8 @@ def _choice(tab: BlockTable, key: str, choices: Sequence[str]) -> list[str]:
 def _build(tab: BlockTable, make: Any) -> Any:
     try:
         block = make()
-        block.table = tab.table  # lets the CLI list the bookkeeping columns it skipped
+        block.provenance = Provenance(str(tab.table.path), tab.table)  # the CLI lists the
+        # bookkeeping columns it skipped
         return block
     except MeasurementFileError:
         raise

@@ -35,7 +35,7 @@ it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -90,7 +90,7 @@ class PlaneMeasurement(PointBlock):
     row_fields = PointBlock.row_fields + ("plane_index", "plane_labels")
 
     def __init__(self, name: str, q: ArrayLike, plane: Sequence[str], sigma: ArrayLike,
-                 planes: dict[str, tuple[Sequence[float], float, bool]],
+                 planes: Mapping[str, tuple[ArrayLike, float, bool]],
                  marker: str = "own") -> None:
         N = self._init_rows("plane", name, q, None, 1, "contacts", sigma, marker)
         self.plane_labels = [str(s) for s in plane]
@@ -102,8 +102,8 @@ class PlaneMeasurement(PointBlock):
             raise KincalError(f"block {name!r}: plane {missing[0]!r} is not described")
         self.plane_defs: dict[str, tuple[Array, float, bool]] = {}
         for s in self.planes:
-            n0, d0, known = planes[s]
-            n0 = np.asarray(n0, dtype=float).reshape(3)
+            given, d0, known = planes[s]
+            n0 = np.asarray(given, dtype=float).reshape(3)
             norm = np.linalg.norm(n0)
             if not np.isfinite(norm) or norm < 1e-12:
                 raise KincalError(f"block {name!r}: plane {s!r} has no normal direction")

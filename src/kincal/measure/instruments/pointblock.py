@@ -72,6 +72,7 @@ def refine_block(model: MeasurementModel, robot: Robot, x0: Array, iterations: i
     def system(x: Array) -> tuple[Triangle, float]:
         tri, cost = Triangle(E + 1), 0.0
         for r, Je in _own_pieces(model, robot, x, True):
+            assert Je is not None                     # jacobian=True
             tri.add(np.column_stack([Je, r]))
             cost += float(r @ r)
         return tri, cost
@@ -128,7 +129,7 @@ class PointBlock(MeasurementModel):
         check_shapes(kind, name, N, **{column: self.obs})
         self.sigma = as_sigma(sigma, N, name)
         self.marker = check_marker_mode(marker)
-        return N
+        return int(N)
 
     def _init_stations(self, labels: Sequence[str], what: str, rows: int | None = None
                        ) -> None:
@@ -156,6 +157,10 @@ class PointBlock(MeasurementModel):
         return self.own_parameters().values
 
     # -- the contract
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each measured quantity [SI: m, rad or px]: (N,)."""
+        return self.sigma
+
     def parameters(self) -> ParamSpec:
         own = self.own_parameters()
         if self.marker == "own":
@@ -176,6 +181,7 @@ class PointBlock(MeasurementModel):
         r = (self.difference(pred) / self.sigma[:, None]).reshape(-1)
         if not jacobian:
             return r, None, None
+        assert dodp is not None and dp is not None and dodown is not None
         Jr = chain_rows(dodp, dp, self.sigma)
         parts = [(dodown / self.sigma[:, None, None]).reshape(r.size, -1)]
         if dpm is not None:

@@ -67,7 +67,8 @@ def look_at(eye: Array, target: Array) -> Array:
 
 def marker_truth(rng: np.random.Generator) -> Array:
     """A marker within ~0.1 m of the tool origin, mostly along the tool z axis."""
-    return rng.uniform(-0.05, 0.05, 3) + np.array([0.0, 0.0, 0.08])
+    value: Array = rng.uniform(-0.05, 0.05, 3) + np.array([0.0, 0.0, 0.08])
+    return value
 
 
 def stated_sigma(noise: float, unit: str) -> float:
@@ -109,7 +110,7 @@ def labels_for(k: int, prefix: str) -> list[str]:
 def simulate_range(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
                    stations: int = 4, incremental: bool = False, marker: str = "own",
                    name: str = "range", margin: float = 0.05,
-                   truth: Mapping[str, float] | None = None) -> tuple[list[Any], dict]:
+                   truth: Mapping[str, float] | None = None) -> tuple[list[Any], dict[str, float]]:
     """Distances from ``stations`` stations to the tool marker at every pose.
 
     ``rho = |p - s_k| (- L0_k)`` + N(0, noise^2) [m]; incremental stations were zeroed at
@@ -149,7 +150,7 @@ def simulate_range(true_robot: Robot, rng: np.random.Generator, n_poses: int, no
 def simulate_bearing(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
                      stations: int = 2, marker: str = "own", name: str = "theodolite",
                      margin: float = 0.05, truth: Mapping[str, float] | None = None
-                     ) -> tuple[list[Any], dict]:
+                     ) -> tuple[list[Any], dict[str, float]]:
     """Horizontal and vertical angles from ``stations`` levelled theodolites [rad]."""
     if int(stations) < 1:
         raise MeasurementFileError("option stations must be >= 1")
@@ -193,7 +194,7 @@ def simulate_camera(true_robot: Robot, rng: np.random.Generator, n_poses: int, n
                     width_px: int = 2048, height_px: int = 1536, grid: int = 5,
                     spacing_mm: float = 40.0, marker: str = "own", name: str = "camera",
                     margin: float = 0.05, truth: Mapping[str, float] | None = None
-                    ) -> tuple[list[Any], dict]:
+                    ) -> tuple[list[Any], dict[str, float]]:
     """Pixel coordinates [px] seen by fixed cameras or by a camera on the flange.
 
     ``mount="fixed"``: ``cameras`` cameras 2-3 m from the workspace look at its centre;
@@ -249,7 +250,7 @@ def target_grid(grid: int, spacing: float) -> Array:
 def _simulate_hand(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
                    K: tuple[float, ...], size: tuple[float, float], grid: int, spacing: float,
                    name: str, margin: float, truth: Mapping[str, float] | None, sigma: float
-                   ) -> tuple[list[Any], dict]:
+                   ) -> tuple[list[Any], dict[str, float]]:
     pts = target_grid(grid, spacing)
     probe = HandCameraMeasurement(name, np.zeros((1, true_robot.n)), pts[:1], np.zeros((1, 2)),
                                   sigma, K)

@@ -36,6 +36,7 @@ Array = NDArray[np.float64]
 def point_jacobian(robot: Robot, q: Array, m: Array | None) -> tuple[Array, Array]:
     """Marker positions (N, 3) and their joint Jacobians (N, 3, n)."""
     T, J, _ = robot.fk_with_jacobians(q, joints=True, params=False)
+    assert J is not None                               # joints=True
     if m is None:
         return T[:, :3, 3], J[:, :3]
     Rm = T[:, :3, :3] @ m
@@ -67,7 +68,7 @@ def solve_contacts(robot: Robot, q0: Array, m: Array | None, A: Array, b: Array,
 # ---------------------------------------------------------------------------- plane
 def simulate_plane(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
                    planes: int = 4, known: bool = False, marker: str = "own",
-                   name: str = "plane", margin: float = 0.05) -> tuple[list[Any], dict]:
+                   name: str = "plane", margin: float = 0.05) -> tuple[list[Any], dict[str, float]]:
     """Contacts of the tool marker with ``planes`` planes, ``n_poses`` in all.
 
     The planes cut the workspace with normals spread over directions; the contact
@@ -116,7 +117,7 @@ def simulate_plane(true_robot: Robot, rng: np.random.Generator, n_poses: int, no
 def simulate_fixture(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
                      points: int = 8, marker: str = "own", name: str = "fixture",
                      margin: float = 0.05, truth: Mapping[str, float] | None = None
-                     ) -> tuple[list[Any], dict]:
+                     ) -> tuple[list[Any], dict[str, float]]:
     """The tool marker placed on ``points`` known fixture points, ``n_poses`` contacts.
 
     Each point is approached in several orientations; the placement error is

@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.measure.base import CHUNK_ROWS, MeasurementModel, ParamSpec
+from kincal.measure.base import CHUNK_ROWS, BlockWrapper, MeasurementModel, ParamSpec
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -56,7 +56,7 @@ Array = NDArray[np.float64]
 __all__ = ["JointDeflection"]
 
 
-class JointDeflection(MeasurementModel):
+class JointDeflection(BlockWrapper):
     """Evaluate ``block`` at ``q + c (.) u`` and estimate one coefficient ``c`` per joint.
 
     Args:
@@ -177,10 +177,9 @@ class JointDeflection(MeasurementModel):
 
     def _at(self, q: Array) -> MeasurementModel:
         """The inner block with joint readings ``q`` (a copy; the inner block is unchanged)."""
-        with_q = getattr(self.inner, "with_q", None)
-        if callable(with_q):
-            return with_q(q)  # type: ignore[no-any-return]
-        blk = copy.copy(self.inner)
+        if isinstance(self.inner, JointDeflection):  # an inner joint-model term
+            return self.inner.with_q(q)
+        blk = copy.copy(self.inner)      # a plain copy: the inner block keeps its weights
         blk.q = q
         return blk
 
@@ -226,7 +225,7 @@ class JointDeflection(MeasurementModel):
             raise KincalError(f"{self.WHAT} of {self.name!r}: the inner block's residuals "
                               "are not owned by rows of its joint readings")
         r0 = self._at(self.q).evaluate(robot, inner_extra, jacobian=False)[0]
-        half = np.random.default_rng(0).random(N) < 0.5
+        half = np.asarray(np.random.default_rng(0).random(N) < 0.5, dtype=bool)
         for moved in (half, ~half):
             q = self.q.copy()
             q[moved] += 1e-3
@@ -268,7 +267,8 @@ class JointDeflection(MeasurementModel):
                    cols: tuple[NDArray[np.intp], Array] | None = None) -> Array:
         """``dr/dc_j = s_j (dr/do_j) u_j[owner]`` for the rows of ``Jr``."""
         params, scales = self._offset_columns(robot) if cols is None else cols
-        return Jr[:, params] * scales * self.regressor[owner][:, self._columns]
+        value: Array = Jr[:, params] * scales * self.regressor[owner][:, self._columns]
+        return value
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         inner_extra, q = self._split(robot, extra)

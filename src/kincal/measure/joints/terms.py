@@ -56,8 +56,9 @@ def with_joint_model(blocks: Sequence[Any], robot: Any, terms: Sequence[str],
         masses: :class:`~kincal.robots.gravity.PointMass` list for ``compliance`` (e.g.
             :func:`kincal.robots.urdf.load_urdf_inertials`).
 
-    The wrapped blocks keep the file they came from (``source_path``, ``table``), so
-    reports and held-out protocols treat them as the files' blocks.
+    The wrapped blocks share the provenance of the blocks they wrap
+    (:class:`~kincal.measure.base.BlockWrapper`), so reports and held-out protocols
+    treat them as the files' blocks.
     """
     from kincal.measure.joints.compliance import JointCompliance
     from kincal.measure.joints.hysteresis import JointHysteresis
@@ -72,8 +73,5 @@ def with_joint_model(blocks: Sequence[Any], robot: Any, terms: Sequence[str],
             w = JointHysteresis(w, robot)
         if "compliance" in terms:
             w = JointCompliance.gravity(w, robot, list(masses or ()))
-        for attr in ("source_path", "source", "table"):
-            if hasattr(b, attr):
-                setattr(w, attr, getattr(b, attr))
         out.append(w)
     return out
