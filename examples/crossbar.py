@@ -56,8 +56,8 @@ def main() -> None:
     cycled = calibrate_patent(nominal, [train])
     same = calibrate(nominal, [train], free=literal.estimated)
     print("\n== the patent's two stages ==")
-    print("stage 1:", ", ".join(literal.patent.estimated[0][2]))
-    print("stage 2:", ", ".join(literal.patent.estimated[1][2]))
+    print("stage 1:", ", ".join(literal.procedure_record.estimated[0][2]))
+    print("stage 2:", ", ".join(literal.procedure_record.estimated[1][2]))
     for label, res in (("one pass (literal)", literal), ("cycled to convergence", cycled)):
         c = compare_results(res, same)
         print(f"{label:>24}: {res.message}")
@@ -66,7 +66,7 @@ def main() -> None:
               f"{c['sigma0'][0]:.3f} vs {c['sigma0'][1]:.3f}")
 
     chosen = calibrate_patent(nominal, [train], condition_growth=1.0)
-    info = chosen.patent
+    info = chosen.procedure_record
     print(f"\ncondition-number selection (growth 1.0): kept {len(info.kept)} of "
           f"{len(info.kept) + len(info.discarded)} placements")
 

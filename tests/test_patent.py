@@ -50,7 +50,7 @@ def test_two_stage_agrees_with_one_stage_within_uncertainty(data):
     nominal, train, held = data
     res = calibrate_patent(nominal, [train], compare=True)
     assert isinstance(res, CalibrationResult) and res.method == "patent" and res.converged
-    info = res.patent
+    info = res.procedure_record
     stage1, stage2 = info.estimated[0][2], info.estimated[1][2]
     units = dict(zip(res.names, res.problem.units, strict=True))
     assert stage1 and all(units[n] == "rad" for n in stage1)       # dtheta, dalpha
@@ -85,7 +85,7 @@ def test_condition_number_selection_keeps_fewer_placements(data):
     nominal, train, held = data
     full = calibrate_patent(nominal, [train])
     sel = calibrate_patent(nominal, [train], condition_growth=1.0)
-    info = sel.patent
+    info = sel.procedure_record
     total = len(train.placements)
     assert len(info.kept) + len(info.discarded) == total and 0 < len(info.discarded)
     assert [c.kept for c in info.selection].count(True) == len(info.kept)

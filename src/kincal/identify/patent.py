@@ -3,7 +3,7 @@
 :func:`calibrate_patent` follows the patent step by step and returns the same
 :class:`~kincal.identify.solver.CalibrationResult` as :func:`~kincal.identify.solver.calibrate`
 (so reports and JSON work unchanged), with the procedure's own record in
-``result.patent`` (:class:`PatentInfo`).
+``result.procedure_record`` (:class:`PatentInfo`).
 
 1. **Data selection by the condition number** (``condition_growth`` = ``g``).  The
    placements are added one at a time, in data order, to the stacked whitened
@@ -351,10 +351,10 @@ def calibrate_patent(robot: Robot, blocks: MeasurementModel | Sequence[Measureme
         tol_rank: tolerance of the identifiability analysis.
         trust_sigma: ``sigma0 = 1`` instead of the a-posteriori estimate.
         compare: also run the one-stage solver on the same data and store
-            :func:`one_stage_comparison` in ``result.patent.comparison``.
+            :func:`one_stage_comparison` in ``result.procedure_record.comparison``.
 
     Returns:
-        A :class:`CalibrationResult` (``method="patent"``) with ``result.patent`` a
+        A :class:`CalibrationResult` (``method="patent"``) with ``result.procedure_record`` a
         :class:`PatentInfo`.
     """
     if isinstance(blocks, MeasurementModel):
@@ -446,8 +446,7 @@ def calibrate_patent(robot: Robot, blocks: MeasurementModel | Sequence[Measureme
         history=history, converged=bool(converged),
         iterations=sum(1 for h in history if h.iteration > 0), message="; ".join(messages),
         stages=[(f"c{c}:{s}", n) for c, s, n in estimated[-len(specs):]], method="patent",
-        loss="linear")
-    res.patent = info  # type: ignore[attr-defined]
+        loss="linear", procedure_record=info)
     if compare:
         info.comparison = one_stage_comparison(res)
     return res

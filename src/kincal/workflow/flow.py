@@ -634,7 +634,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         withheld = {k: planned.pop(k) for k in ("robot", "urdf") if k in planned}
         output = urdf = None
     contents: dict[str, str | bytes] = {}
-    info = getattr(res, "patent", None)
+    info = res.procedure_record
     figures = artifact_figures(flow, report) if report else {}
     for key, (path, png) in figures.items():
         planned[key] = path
