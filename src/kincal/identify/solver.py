@@ -1353,7 +1353,7 @@ class Calibration:
 
     Example::
 
-        result = Calibration(robot, stages=["offsets", "all"]).fit([tracker_block])
+        result = Calibration(robot, stages=["offsets", "all"]).fit([tracker_block]).result_
         print(result.summary())
 
     After :meth:`fit`, ``result_`` holds the :class:`CalibrationResult`.
@@ -1370,11 +1370,12 @@ class Calibration:
         self.options = options
         self.result_: CalibrationResult | None = None
 
-    def fit(self, blocks: MeasurementModel | Sequence[MeasurementModel]) -> CalibrationResult:
-        """Run the calibration on ``blocks`` and return (and keep) the result."""
+    def fit(self, blocks: MeasurementModel | Sequence[MeasurementModel]) -> Calibration:
+        """Run the calibration on ``blocks``, keep the result in ``result_`` and return
+        ``self`` (as scikit-learn's estimators do)."""
         self.result_ = calibrate(self.robot, blocks, free=self.free, method=self.method,
                                  stages=self.stages, loss=self.loss, **self.options)
-        return self.result_
+        return self
 
     def __repr__(self) -> str:
         opts = "".join(f", {k}={v!r}" for k, v in self.options.items())
