@@ -160,6 +160,8 @@ from kincal.spatial import wrap_angle
 from kincal.units import display_scale
 
 Array = NDArray[np.float64]
+#: measurement index per residual row
+IndexArray = NDArray[np.integer[Any]]
 
 __all__ = ["calibrate", "Calibration", "CalibrationResult", "IterationRecord", "match_names",
            "format_error", "METHODS", "LOSSES"]
@@ -488,7 +490,7 @@ class CalibrationResult:
 
 
 # --------------------------------------------------------------------------- robust weights
-def _robust_weights(r: Array, ids: Array | None, dims: Array | None, loss: str,
+def _robust_weights(r: Array, ids: IndexArray | None, dims: Array | None, loss: str,
                     loss_scale: float, n_fixed: int = 0) -> Array:
     """Per-residual IRLS weights from per-measurement RMS whitened residuals.
 
@@ -517,7 +519,7 @@ def _robust_weights(r: Array, ids: Array | None, dims: Array | None, loss: str,
             w = np.where(e <= c, 1.0, c / np.maximum(e, 1e-300))
         else:
             w = 1.0 / (1.0 + (e / c) ** 2)
-    return w[ids]
+    return np.asarray(w[ids], dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- the loop
@@ -623,7 +625,8 @@ def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> di
 
 
 def _noise_scale(aug: _WithPrior, r: Array, data: CompressedSystem, theta: Array,
-                 ids: Array, dims: Array, loss: str, loss_scale: float, scale: float
+                 ids: IndexArray | None, dims: Array | None, loss: str, loss_scale: float,
+                 scale: float
                  ) -> tuple[float | None, float | None]:
     """The measurements' noise scale ``sigma0`` at a MAP solution, and ``p_eff``.
 
@@ -835,9 +838,10 @@ def _triangular_step(A: Array, z: Array) -> Array | None:
     return dx if np.all(np.isfinite(dx)) else None
 
 
-def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
-               loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
-               ids: Array | None, dims: Array | None, history: list[IterationRecord],
+def _run_stage(prob: StackedProblem | _WithPrior, theta: Array, est: list[int], label: str,
+               method: str, loss: str, loss_scale: float, max_iter: int, tol_step: float,
+               tol_cost: float,
+               ids: IndexArray | None, dims: Array | None, history: list[IterationRecord],
                progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0,
                start: CompressedSystem | None = None, tol_std: float = 0.0) -> _StageEnd:
     """Iterate one stage to convergence from ``theta`` over the columns ``est``.
@@ -934,10 +938,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             return done(StageStatus.WITHIN_STANDARD_ERRORS, it - 1)
         C = r = C_new = r_new = None                        # see `speculate` above
         if method == "gauss-newton":
-            U, S, Vt = np.linalg.svd(A)
-            g = U.T @ here.z
-            keep = S > S[0] * 1e-12
-            z = -Vt[keep].T @ (g[keep] / S[keep])
+            U_gn, S_gn, Vt_gn = np.linalg.svd(A)
+            g_gn = U_gn.T @ here.z
+            kept = S_gn > S_gn[0] * 1e-12
+            z = -Vt_gn[kept].T @ (g_gn[kept] / S_gn[kept])
             dx = z / Ds
             new = theta.copy()
             new[est] += dx
@@ -945,6 +949,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             # a step within tol_step ends the stage: no triangle there (see here_theta)
             C_new = prob.compressed(new, w, est) if speculate and step > tol_step else None
             r_new = prob.residuals(new) if C_new is None else C_new.r
+            assert r_new is not None            # C_new.r: built with its residuals
             c_new = cost_of(r_new, w)
             if not np.isfinite(c_new):
                 return done(StageStatus.GAUSS_NEWTON_DIVERGED, it - 1)
@@ -969,7 +974,11 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         # the SVD of A = R D^-1 (U S V^T, g = U^T z) serves every damped trial; an
         # undamped trial on a well-conditioned A is the triangular solve A dx = -z (the
         # same step: every singular value kept), so the SVD is made only when needed
-        S = S2 = g = Vt = keep = None
+        S: Array | None = None
+        S2: Array | None = None
+        g: Array | None = None
+        Vt: Array | None = None
+        keep: NDArray[np.bool_] | None = None
         tiny = False
         # After a very successful step, first try the undamped Gauss-Newton step: in a
         # long curved valley (a weakly determined direction) it saves many iterations.
@@ -987,6 +996,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                     g = U.T @ here.z
                     S2 = S * S
                     keep = S > S[0] * 1e-12
+                assert S2 is not None and keep is not None and g is not None and Vt is not None
                 f = np.where(keep, S / np.where(keep, S2 + lam_k, 1.0), 0.0)
                 dx = -(Vt.T @ (f * g)) / Ds
                 pred = 0.5 * float(np.sum(g * g) - np.sum(
@@ -1003,6 +1013,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             C_new = prob.compressed(new, w, est) if speculate and first and not tiny else None
             first = False
             r_new = prob.residuals(new) if C_new is None else C_new.r
+            assert r_new is not None            # C_new.r: built with its residuals
             c_new = cost_of(r_new, w)
             rho = (cost - c_new) / pred if pred > 0 else (0.0 if c_new > cost else 1.0)
             if try_gn:
@@ -1136,8 +1147,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         return _WithPrior(prob, idx, np.array([prior_s[i] for i in idx]) / scale[0], center)
 
     if initial:
-        for k, v in initial.items():
-            theta0[prob.index(k)] = float(v)
+        for name, v in initial.items():
+            theta0[prob.index(name)] = float(v)
     names = prob.names
     cand = list(range(len(names))) if free is None else match_names(names, free)
     preferred = set(match_names(names, prefer)) if prefer else set()
