@@ -47,7 +47,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,7 +69,35 @@ __all__ = ["calibrate_staged_selection", "select_placements", "staged_selection_
 #: Stage selectors: ``unit:rad`` / ``unit:m`` / ``role:offset`` pick robot parameters;
 #: anything else is a name or ``*`` pattern over all names.
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (("unit:rad",), ("unit:m",))
-_LABELS = {("unit:rad",): "angles (dtheta, dalpha)", ("unit:m",): "lengths (dd, da)"}
+_LABELS: dict[tuple[str, ...], str] = {("unit:rad",): "angles (dtheta, dalpha)",
+                                        ("unit:m",): "lengths (dd, da)"}
+
+
+def _finite_or_none(x: float) -> float | None:
+    """``x`` as a float, or None (JSON null) when it is not finite."""
+    return float(x) if np.isfinite(x) else None
+
+
+@runtime_checkable
+class _PlacedRows(Protocol):
+    """A block whose residual rows belong to placements (an artifact block)."""
+
+    placements: Sequence[str]
+
+    def residual_placement(self) -> NDArray[np.intp]:
+        """The placement index of every residual row."""
+        ...
+
+
+@runtime_checkable
+class _PlacementSubsets(Protocol):
+    """A block that can keep a subset of its placements."""
+
+    placements: Sequence[str]
+
+    def subset_placements(self, placements: Sequence[str]) -> MeasurementModel:
+        """The block over the given placements only."""
+        ...
 
 
 @dataclass
@@ -91,9 +119,9 @@ class PlacementChoice:
     kept: bool
 
     def to_dict(self) -> dict[str, Any]:
-        fin = (lambda x: float(x) if np.isfinite(x) else None)  # noqa: E731
         return {"block": self.block, "placement": self.placement,
-                "condition": fin(self.condition), "previous": fin(self.previous),
+                "condition": _finite_or_none(self.condition),
+                "previous": _finite_or_none(self.previous),
                 "kept": self.kept}
 
 
@@ -254,7 +282,7 @@ def _placement_rows(prob: StackedProblem) -> list[tuple[str, str, NDArray[np.int
     for b in prob.blocks:
         m = len(b.residual_owner())
         rows = np.arange(start, start + m)
-        if hasattr(b, "residual_placement"):
+        if isinstance(b, _PlacedRows):
             rp = b.residual_placement()
             for i, p in enumerate(b.placements):
                 out.append((b.name, p, rows[rp == i]))
@@ -314,7 +342,7 @@ def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: 
             keep.setdefault(bname, []).append(pl)
     out: list[MeasurementModel] = []
     for b in prob.blocks:
-        if hasattr(b, "subset_placements"):
+        if isinstance(b, _PlacementSubsets):
             kept = keep.get(b.name, [])
             if not kept:
                 continue
@@ -617,7 +645,7 @@ def compare_results(first: CalibrationResult, other: CalibrationResult) -> dict[
     Returns ``{"rows": [{name, a, b, diff, sigmas}], "max_sigmas", "worst", "only_a",
     "only_b", "sigma0": (a, b), "cost": (a, b)}``.
     """
-    rows = []
+    rows: list[dict[str, Any]] = []
     for n in first.estimated:
         if n not in other.estimated:
             continue
