@@ -163,7 +163,8 @@ def _selected_rows(problem: DesignProblem, poses: Any) -> Array:
     if arr.ndim == 1 and np.issubdtype(arr.dtype, np.integer):
         if arr.size and (arr.min() < 0 or arr.max() >= problem.num_candidates):
             raise KincalError("pose index outside the candidate set")
-        return problem.J[arr]
+        out: Array = problem.J[arr]
+        return out
     return problem.base_rows(np.atleast_2d(arr.astype(float)))
 
 
