@@ -256,6 +256,7 @@ def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike | Eva
             ori = np.sqrt(np.clip(propagated_variance(ev.Go, cov), 0.0, None))
         var = propagated_variance(ev.G, cov).mean(axis=1)
     else:
+        assert ev.columns is not None       # evaluation rows in the robot's frame carry them
         var = propagated_variance(ev.G, cov[np.ix_(ev.columns, ev.columns)])
     std = np.sqrt(np.clip(var, 0.0, None))
     return AccuracyPrediction(list(problem.names), list(problem.units), cov,
