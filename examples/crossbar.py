@@ -23,8 +23,8 @@ import argparse
 
 import numpy as np
 
-from kincal.identify.patent import calibrate_patent, compare_results
 from kincal.identify.solver import calibrate
+from kincal.identify.staged_selection import calibrate_staged_selection, compare_results
 from kincal.measure.artifacts import ArtifactGeometry, Probe, simulate_artifact
 from kincal.measure.simulate import perturb_robot
 from kincal.report.artifact_plots import length_summary, save_patent_figures
@@ -52,12 +52,12 @@ def main() -> None:
     print("\n== one-stage Levenberg-Marquardt ==")
     print(lm.summary())
 
-    literal = calibrate_patent(nominal, [train], cycles=1)
-    cycled = calibrate_patent(nominal, [train])
+    literal = calibrate_staged_selection(nominal, [train], cycles=1)
+    cycled = calibrate_staged_selection(nominal, [train])
     same = calibrate(nominal, [train], free=literal.estimated)
     print("\n== the patent's two stages ==")
-    print("stage 1:", ", ".join(literal.patent.estimated[0][2]))
-    print("stage 2:", ", ".join(literal.patent.estimated[1][2]))
+    print("stage 1:", ", ".join(literal.procedure_record.estimated[0][2]))
+    print("stage 2:", ", ".join(literal.procedure_record.estimated[1][2]))
     for label, res in (("one pass (literal)", literal), ("cycled to convergence", cycled)):
         c = compare_results(res, same)
         print(f"{label:>24}: {res.message}")
@@ -65,8 +65,8 @@ def main() -> None:
               f"{c['max_sigmas']:.2f} standard errors ({c['worst']}); sigma0 "
               f"{c['sigma0'][0]:.3f} vs {c['sigma0'][1]:.3f}")
 
-    chosen = calibrate_patent(nominal, [train], condition_growth=1.0)
-    info = chosen.patent
+    chosen = calibrate_staged_selection(nominal, [train], condition_growth=1.0)
+    info = chosen.procedure_record
     print(f"\ncondition-number selection (growth 1.0): kept {len(info.kept)} of "
           f"{len(info.kept) + len(info.discarded)} placements")
 

@@ -220,8 +220,9 @@ def test_result_objects_and_estimator():
     blk = make_block(perturb_robot(robot, rng), q, rng, "pose", noise=1e-5)
     est = Calibration(robot, stages=["offsets", "all"])
     assert "Calibration('puma560'" in repr(est)
-    res = est.fit(blk)
-    assert isinstance(res, CalibrationResult) and est.result_ is res
+    assert est.fit(blk) is est
+    res = est.result_
+    assert isinstance(res, CalibrationResult)
     assert repr(res).startswith("CalibrationResult(converged=True")
     assert set(res.block_values("tracker")) == set(res.names[robot.num_params:])
     assert res.correlation.shape == (len(res.estimated),) * 2

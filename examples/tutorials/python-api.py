@@ -35,7 +35,8 @@ subprocess.run(["kincal", "simulate", "puma560", "-o", "train.csv", "-n", "40", 
 robot = kincal.load_robot("puma560")
 blocks = kincal.read_measurements("train.csv", robot)     # units from the column headers
 print([f"{type(b).__name__} '{b.name}', {len(b.q)} poses" for b in blocks])
-result = kincal.Calibration(robot, stages=["offsets", "all"], prior="tolerances").fit(blocks)
+estimator = kincal.Calibration(robot, stages=["offsets", "all"], prior="tolerances")
+result = estimator.fit(blocks).result_
 print(repr(result))
 held = kincal.read_measurements("holdout.csv", robot)
 print({k: f"{v * 1e3:.4f} mm" if k.endswith("_m") else v

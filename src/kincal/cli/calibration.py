@@ -340,7 +340,7 @@ def calibrate_cmd(
         print_cross_validation(out, flow.cross_validation)
     print_identifiability(out, res)
     print_weak(out, flow.weak)
-    info: Any = getattr(res, "patent", None)
+    info: Any = res.procedure_record
     if info is not None:
         print_patent(out, info)
     for w in flow.warnings:

@@ -9,7 +9,8 @@
 * :mod:`~kincal.identify.validation` - held-out errors and cross-validation;
 * :mod:`~kincal.identify.observability`, :mod:`~kincal.identify.design`,
   :mod:`~kincal.identify.prediction` - choosing poses before measuring;
-* :mod:`~kincal.identify.patent` - the cross-bar two-stage procedure.
+* :mod:`~kincal.identify.staged_selection` - condition-number data selection and staged
+  least squares (cross-bar artifacts).
 
 Layer rule: imports :mod:`kincal.measure` and everything below it, nothing above.
 """

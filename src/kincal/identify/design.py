@@ -131,7 +131,8 @@ class PoseDesign:
 # --------------------------------------------------------------------------- constraints
 def joint_distance(q: Array, qj: Array) -> Array:
     """Euclidean joint-space distance ``||q_i - q_j||`` of every row of ``q`` to ``qj``."""
-    return np.linalg.norm(q - qj, axis=1)
+    out: Array = np.linalg.norm(q - qj, axis=1)
+    return out
 
 
 class _Pool:
@@ -174,7 +175,8 @@ class _Pool:
 # --------------------------------------------------------------------------- linear algebra
 def _info(A: Array, idx: Sequence[int] | NDArray[np.intp]) -> Array:
     Ai = A[np.asarray(idx, dtype=np.intp)]
-    return np.einsum("nri,nrj->ij", Ai, Ai)
+    out: Array = np.einsum("nri,nrj->ij", Ai, Ai)
+    return out
 
 
 def _lemma_terms(A: Array, idx: NDArray[np.intp], M: Array) -> Array:
@@ -184,7 +186,8 @@ def _lemma_terms(A: Array, idx: NDArray[np.intp], M: Array) -> Array:
     K, r, L = Ai.shape
     Y = solve_triangular(c, Ai.reshape(K * r, L).T, lower=True)   # L^-1 A_i^T: (L, K r)
     Y = Y.T.reshape(K, r, L)
-    return np.einsum("kal,kbl->kab", Y, Y)
+    out: Array = np.einsum("kal,kbl->kab", Y, Y)
+    return out
 
 
 def _logdet_psd(G: Array, sign: float) -> Array:
@@ -406,7 +409,7 @@ def select_poses(problem: DesignProblem, poses: int, criterion: str = "O1", *,
         # smooth and the exchange stops in local optima; two starts find better ones)
         pool2 = _Pool(problem.q, min_distance)
         pool2.reset(start)
-        sel2, hist2 = list(start), []
+        sel2, hist2 = list(start), list[float]()
         M2 = _greedy(A, pool2, sel2, poses, "O1", shortlist, ridge, hist2, progress)
         sel2, M2, acc2 = _exchange(A, pool2, sel2, M2, criterion, shortlist, max_passes,
                                    hist2, progress)
@@ -442,7 +445,8 @@ def within_limits(robot: Robot, q: ArrayLike) -> NDArray[np.bool_]:
     """Rows of ``q`` (N, n) inside the joint limits (bounds included)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     lim = robot.joint_limits
-    return np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=1)
+    out: NDArray[np.bool_] = np.all((q >= lim[:, 0]) & (q <= lim[:, 1]), axis=1)
+    return out
 
 
 def random_candidates(robot: Robot, n: int, rng: np.random.Generator,

@@ -239,7 +239,8 @@ def scaling_matrix(J: Array, scaling: str, errors: Array | None = None) -> Array
         if lam[0] <= 1e-14 * lam[-1]:
             raise KincalError("the candidate poses do not identify the base set (singular "
                               "information); use more or more varied candidates")
-        return (V / np.sqrt(lam)) @ V.T
+        out: Array = (V / np.sqrt(lam)) @ V.T
+        return out
     if scaling == "unit":
         return np.diag(1.0 / np.sqrt(np.einsum("nrj,nrj->j", J, J) / N))
     if scaling == "errors":
@@ -310,7 +311,8 @@ class DesignProblem:
     def information(self, selected: ArrayLike) -> Array:
         """Scaled information ``M = sum_i A_i^T A_i`` of candidates ``selected``: (L, L)."""
         A = self.A[np.asarray(selected, dtype=np.intp)]
-        return np.einsum("nri,nrj->ij", A, A)
+        out: Array = np.einsum("nri,nrj->ij", A, A)
+        return out
 
     def indices(self, selected: ArrayLike) -> ObservabilityIndices:
         """O1-O5 and kappa of the design made of candidates ``selected``."""

@@ -163,7 +163,8 @@ def _selected_rows(problem: DesignProblem, poses: Any) -> Array:
     if arr.ndim == 1 and np.issubdtype(arr.dtype, np.integer):
         if arr.size and (arr.min() < 0 or arr.max() >= problem.num_candidates):
             raise KincalError("pose index outside the candidate set")
-        return problem.J[arr]
+        out: Array = problem.J[arr]
+        return out
     return problem.base_rows(np.atleast_2d(arr.astype(float)))
 
 
@@ -255,6 +256,7 @@ def predict_accuracy(problem: DesignProblem, poses: Any, q_eval: ArrayLike | Eva
             ori = np.sqrt(np.clip(propagated_variance(ev.Go, cov), 0.0, None))
         var = propagated_variance(ev.G, cov).mean(axis=1)
     else:
+        assert ev.columns is not None       # evaluation rows in the robot's frame carry them
         var = propagated_variance(ev.G, cov[np.ix_(ev.columns, ev.columns)])
     std = np.sqrt(np.clip(var, 0.0, None))
     return AccuracyPrediction(list(problem.names), list(problem.units), cov,

@@ -129,7 +129,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -146,6 +146,13 @@ from kincal.identify.identifiability import (
     default_priority,
 )
 from kincal.identify.names import match_names
+from kincal.identify.status import StageStatus, stage_message
+from kincal.identify.stopping import (
+    cost_change_below,
+    no_further_decrease,
+    step_below,
+    step_within_standard_errors,
+)
 from kincal.identify.uncertainty import correlation, inverse_normal_matrix, standard_errors
 from kincal.measure.base import CompressedSystem, MeasurementModel, StackedProblem, stack
 from kincal.robots.chain import Robot
@@ -153,6 +160,8 @@ from kincal.spatial import wrap_angle
 from kincal.units import display_scale
 
 Array = NDArray[np.float64]
+#: measurement index per residual row
+IndexArray = NDArray[np.integer[Any]]
 
 __all__ = ["calibrate", "Calibration", "CalibrationResult", "IterationRecord", "match_names",
            "format_error", "METHODS", "LOSSES"]
@@ -239,6 +248,15 @@ class IterationRecord:
                 "damping": float(self.damping)}
 
 
+class ProcedureRecord(Protocol):
+    """What a calibration procedure records beside its result (see
+    ``CalibrationResult.procedure_record``): anything that serialises itself."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The record as plain JSON-ready values."""
+        ...
+
+
 @dataclass
 class CalibrationResult:
     """The outcome of :func:`calibrate` (shaped like scipy's ``OptimizeResult``).
@@ -276,6 +294,11 @@ class CalibrationResult:
             (module docstring, "Prior").
         effective_parameters: with a prior, ``p_eff = trace((J^T J + sigma0^2 P^-2)^-1
             J^T J)``, the number of parameters the data actually fix.
+        stage_status: ``(label, status)`` per stage: the rule that ended its last solve
+            (:class:`~kincal.identify.status.StageStatus`; ``status.converged``,
+            :func:`~kincal.identify.status.stage_message` for the sentence).
+        procedure_record: what a staged procedure recorded beside the fit (e.g. the
+            staged selection's per-stage condition numbers); None for :func:`calibrate`.
     """
 
     robot: Robot
@@ -305,6 +328,8 @@ class CalibrationResult:
     held_by_prior: list[str] = field(default_factory=list)
     noise_scale_estimated: bool = False
     effective_parameters: float | None = None
+    stage_status: list[tuple[str, StageStatus]] = field(default_factory=list)
+    procedure_record: ProcedureRecord | None = None
 
     # ------------------------------------------------------------------ access
     @property
@@ -465,7 +490,7 @@ class CalibrationResult:
 
 
 # --------------------------------------------------------------------------- robust weights
-def _robust_weights(r: Array, ids: Array | None, dims: Array | None, loss: str,
+def _robust_weights(r: Array, ids: IndexArray | None, dims: Array | None, loss: str,
                     loss_scale: float, n_fixed: int = 0) -> Array:
     """Per-residual IRLS weights from per-measurement RMS whitened residuals.
 
@@ -494,7 +519,7 @@ def _robust_weights(r: Array, ids: Array | None, dims: Array | None, loss: str,
             w = np.where(e <= c, 1.0, c / np.maximum(e, 1e-300))
         else:
             w = 1.0 / (1.0 + (e / c) ** 2)
-    return w[ids]
+    return np.asarray(w[ids], dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- the loop
@@ -600,7 +625,8 @@ def _prior_sigmas(names: Sequence[str], prior: Mapping[str, float] | None) -> di
 
 
 def _noise_scale(aug: _WithPrior, r: Array, data: CompressedSystem, theta: Array,
-                 ids: Array, dims: Array, loss: str, loss_scale: float, scale: float
+                 ids: IndexArray | None, dims: Array | None, loss: str, loss_scale: float,
+                 scale: float
                  ) -> tuple[float | None, float | None]:
     """The measurements' noise scale ``sigma0`` at a MAP solution, and ``p_eff``.
 
@@ -773,7 +799,7 @@ class _StageEnd(NamedTuple):
     """What :func:`_run_stage` ends with; ``r`` (prior rows included) at ``theta``."""
 
     theta: Array
-    converged: bool
+    status: StageStatus
     iterations: int
     message: str
     r: Array
@@ -786,6 +812,11 @@ class _StageEnd(NamedTuple):
     #: shorter than tol_step, whose triangle was not built: they are those where that
     #: step started (``R`` stands for the one at ``theta``; ``z``, ``rho``, ``cost`` do not)
     exact: bool = True
+
+    @property
+    def converged(self) -> bool:
+        """Whether the stage ended at a minimum (derived from ``status``)."""
+        return self.status.converged
 
 
 def _triangular_step(A: Array, z: Array) -> Array | None:
@@ -807,9 +838,10 @@ def _triangular_step(A: Array, z: Array) -> Array | None:
     return dx if np.all(np.isfinite(dx)) else None
 
 
-def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, method: str,
-               loss: str, loss_scale: float, max_iter: int, tol_step: float, tol_cost: float,
-               ids: Array | None, dims: Array | None, history: list[IterationRecord],
+def _run_stage(prob: StackedProblem | _WithPrior, theta: Array, est: list[int], label: str,
+               method: str, loss: str, loss_scale: float, max_iter: int, tol_step: float,
+               tol_cost: float,
+               ids: IndexArray | None, dims: Array | None, history: list[IterationRecord],
                progress: Callable[[IterationRecord], Any] | None, n_fixed: int = 0,
                start: CompressedSystem | None = None, tol_std: float = 0.0) -> _StageEnd:
     """Iterate one stage to convergence from ``theta`` over the columns ``est``.
@@ -851,10 +883,11 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             r = r_here if r_here is not None and here_theta is theta else prob.residuals(theta)
         return r
 
-    def done(converged: bool, iterations: int, message: str) -> _StageEnd:
+    def done(status: StageStatus, iterations: int) -> _StageEnd:
         data = prob.measurements_at(here_theta) if isinstance(prob, _WithPrior) and prob.rows \
             else here
-        return _StageEnd(theta, converged, iterations, message, current(), here, data,
+        message = stage_message(status, label, tol_std=tol_std, max_iter=max_iter)
+        return _StageEnd(theta, status, iterations, message, current(), here, data,
                          here_theta is theta)
 
     cost_of = _half_weighted_ss
@@ -878,7 +911,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
 
     record(0, 0.0, 0.0)
     if not est:
-        return done(True, 0, f"stage {label!r}: nothing to estimate")
+        return done(StageStatus.NOTHING_TO_ESTIMATE, 0)
     lam, nu = -1.0, 2.0
     Dmax = np.zeros(len(est))
     C_new: CompressedSystem | None = None
@@ -896,20 +929,19 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         A = here.R / Ds
         cost = cost_here()
         if not np.isfinite(cost):
-            return done(False, it - 1, f"stage {label!r}: the residuals are not finite")
+            return done(StageStatus.NON_FINITE_RESIDUALS, it - 1)
         # the full Gauss-Newton step moves |R dx| = |z| (at most): within tol_std
         # standard errors the stage is at its minimum (s0^2 = 2 cost / dof, or 1 if
         # smaller: never looser than the stated sigmas' standard errors)
-        if (speculate and here_theta is theta and dof > 0
-                and float(here.z @ here.z) <= tol_std**2 * min(2.0 * cost / dof, 1.0)):
-            return done(True, it - 1, f"stage {label!r}: the remaining step is below "
-                                      f"tol_std = {tol_std:g} standard errors")
+        if (speculate and here_theta is theta
+                and step_within_standard_errors(float(here.z @ here.z), cost, dof, tol_std)):
+            return done(StageStatus.WITHIN_STANDARD_ERRORS, it - 1)
         C = r = C_new = r_new = None                        # see `speculate` above
         if method == "gauss-newton":
-            U, S, Vt = np.linalg.svd(A)
-            g = U.T @ here.z
-            keep = S > S[0] * 1e-12
-            z = -Vt[keep].T @ (g[keep] / S[keep])
+            U_gn, S_gn, Vt_gn = np.linalg.svd(A)
+            g_gn = U_gn.T @ here.z
+            kept = S_gn > S_gn[0] * 1e-12
+            z = -Vt_gn[kept].T @ (g_gn[kept] / S_gn[kept])
             dx = z / Ds
             new = theta.copy()
             new[est] += dx
@@ -917,10 +949,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             # a step within tol_step ends the stage: no triangle there (see here_theta)
             C_new = prob.compressed(new, w, est) if speculate and step > tol_step else None
             r_new = prob.residuals(new) if C_new is None else C_new.r
+            assert r_new is not None            # C_new.r: built with its residuals
             c_new = cost_of(r_new, w)
             if not np.isfinite(c_new):
-                return done(False, it - 1, (f"stage {label!r}: Gauss-Newton diverged "
-                                            "(non-finite residuals); try method='lm'"))
+                return done(StageStatus.GAUSS_NEWTON_DIVERGED, it - 1)
             theta, r = new, r_new
             if C_new is not None:
                 here, here_theta = dataclasses.replace(C_new, r=None), theta
@@ -929,10 +961,10 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                 here = None
             w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
             record(it, step, 0.0)
-            if step <= tol_step:
-                return done(True, it, f"stage {label!r}: step below tol_step")
-            if abs(cost - c_new) <= tol_cost * max(cost, 1e-300):
-                return done(True, it, f"stage {label!r}: cost change below tol_cost")
+            if step_below(step, tol_step):
+                return done(StageStatus.STEP_BELOW_TOL, it)
+            if cost_change_below(cost, c_new, tol_cost):
+                return done(StageStatus.COST_CHANGE_BELOW_TOL, it)
             continue
         # Levenberg-Marquardt
         if lam < 0:
@@ -942,7 +974,11 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         # the SVD of A = R D^-1 (U S V^T, g = U^T z) serves every damped trial; an
         # undamped trial on a well-conditioned A is the triangular solve A dx = -z (the
         # same step: every singular value kept), so the SVD is made only when needed
-        S = S2 = g = Vt = keep = None
+        S: Array | None = None
+        S2: Array | None = None
+        g: Array | None = None
+        Vt: Array | None = None
+        keep: NDArray[np.bool_] | None = None
         tiny = False
         # After a very successful step, first try the undamped Gauss-Newton step: in a
         # long curved valley (a weakly determined direction) it saves many iterations.
@@ -960,6 +996,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                     g = U.T @ here.z
                     S2 = S * S
                     keep = S > S[0] * 1e-12
+                assert S2 is not None and keep is not None and g is not None and Vt is not None
                 f = np.where(keep, S / np.where(keep, S2 + lam_k, 1.0), 0.0)
                 dx = -(Vt.T @ (f * g)) / Ds
                 pred = 0.5 * float(np.sum(g * g) - np.sum(
@@ -976,6 +1013,7 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
             C_new = prob.compressed(new, w, est) if speculate and first and not tiny else None
             first = False
             r_new = prob.residuals(new) if C_new is None else C_new.r
+            assert r_new is not None            # C_new.r: built with its residuals
             c_new = cost_of(r_new, w)
             rho = (cost - c_new) / pred if pred > 0 else (0.0 if c_new > cost else 1.0)
             if try_gn:
@@ -1000,16 +1038,14 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
                 break
             lam *= nu
             nu *= 2.0
-            if pred <= 1e-30 * max(cost, 1e-300) or lam > 1e30:
+            if no_further_decrease(pred, cost, lam):
                 record(it, 0.0, lam)
-                return done(True, it, (f"stage {label!r}: no further decrease possible "
-                                       "(at a minimum to machine precision)"))
+                return done(StageStatus.NO_FURTHER_DECREASE, it)
         else:
-            return done(False, it, f"stage {label!r}: the damping did not find a descent step")
+            return done(StageStatus.DAMPING_FAILED, it)
         if tiny and not (np.isfinite(c_new) and c_new < cost):
             record(it, 0.0, lam)
-            return done(True, it, (f"stage {label!r}: no descent step longer than "
-                                   "tol_step (at a minimum)"))
+            return done(StageStatus.NO_DESCENT_STEP, it)
         step = _scaled_step(dx, theta[est])
         theta, r = new, r_new                    # C_new: the triangle there, if built
         if C_new is not None:
@@ -1020,13 +1056,14 @@ def _run_stage(prob: StackedProblem, theta: Array, est: list[int], label: str, m
         w_old = w
         w = _robust_weights(r, ids, dims, loss, loss_scale, n_fixed)
         record(it, step, lam)
-        if step <= tol_step:
-            return done(True, it, f"stage {label!r}: step below tol_step")
-        if cost - c_new <= tol_cost * max(cost, 1e-300) and np.allclose(w, w_old, atol=1e-6):
-            return done(True, it, f"stage {label!r}: cost change below tol_cost")
+        if step_below(step, tol_step):
+            return done(StageStatus.STEP_BELOW_TOL, it)
+        if (cost_change_below(cost, c_new, tol_cost, absolute=False)
+                and np.allclose(w, w_old, atol=1e-6)):
+            return done(StageStatus.COST_CHANGE_BELOW_TOL, it)
         if c_new == 0.0:
-            return done(True, it, f"stage {label!r}: zero residual")
-    return done(False, max_iter, f"stage {label!r}: max_iter={max_iter} reached")
+            return done(StageStatus.ZERO_RESIDUAL, it)
+    return done(StageStatus.MAX_ITER_REACHED, max_iter)
 
 
 def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
@@ -1110,8 +1147,8 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         return _WithPrior(prob, idx, np.array([prior_s[i] for i in idx]) / scale[0], center)
 
     if initial:
-        for k, v in initial.items():
-            theta0[prob.index(k)] = float(v)
+        for name, v in initial.items():
+            theta0[prob.index(name)] = float(v)
     names = prob.names
     cand = list(range(len(names))) if free is None else match_names(names, free)
     preferred = set(match_names(names, prefer)) if prefer else set()
@@ -1126,6 +1163,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
     theta = theta0.copy()
     stage_info: list[tuple[str, list[str]]] = []
     messages: list[str] = []
+    stage_status: list[tuple[str, StageStatus]] = []
     converged = True
     total_it = 0
     report: IdentifiabilityReport | None = None
@@ -1220,6 +1258,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         earlier_ok = converged
         converged &= last.converged
         messages.append(last.message)
+        stage_status.append((label, last.status))
     assert report is not None and last is not None and end_c is not None
     p_eff = None
     if estimate_noise and est:
@@ -1238,6 +1277,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             total_it += last.iterations
             converged = earlier_ok and last.converged
             messages[-1] = last.message
+            stage_status[-1] = (label, last.status)
         else:
             messages.append(f"the noise scale did not settle in {MAX_NOISE_ITER} re-solves "
                             f"(sigma0 = {scale[0]:.4g})")
@@ -1315,7 +1355,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         outliers=outliers, history=history, converged=bool(converged), iterations=total_it,
         message="; ".join(messages), stages=stage_info, method=method, loss=loss,
         prior=pri, data_std=data_std, held_by_prior=held_by_prior,
-        noise_scale_estimated=estimate_noise,
+        noise_scale_estimated=estimate_noise, stage_status=stage_status,
         effective_parameters=None if p_eff is None else float(p_eff))
 
 
@@ -1324,7 +1364,7 @@ class Calibration:
 
     Example::
 
-        result = Calibration(robot, stages=["offsets", "all"]).fit([tracker_block])
+        result = Calibration(robot, stages=["offsets", "all"]).fit([tracker_block]).result_
         print(result.summary())
 
     After :meth:`fit`, ``result_`` holds the :class:`CalibrationResult`.
@@ -1341,11 +1381,12 @@ class Calibration:
         self.options = options
         self.result_: CalibrationResult | None = None
 
-    def fit(self, blocks: MeasurementModel | Sequence[MeasurementModel]) -> CalibrationResult:
-        """Run the calibration on ``blocks`` and return (and keep) the result."""
+    def fit(self, blocks: MeasurementModel | Sequence[MeasurementModel]) -> Calibration:
+        """Run the calibration on ``blocks``, keep the result in ``result_`` and return
+        ``self`` (as scikit-learn's estimators do)."""
         self.result_ = calibrate(self.robot, blocks, free=self.free, method=self.method,
                                  stages=self.stages, loss=self.loss, **self.options)
-        return self.result_
+        return self
 
     def __repr__(self) -> str:
         opts = "".join(f", {k}={v!r}" for k, v in self.options.items())

@@ -65,7 +65,8 @@ def cramer_rao(J_whitened: ArrayLike) -> Array:
 
 def standard_errors(cov: ArrayLike) -> Array:
     """Standard errors ``sqrt(diag(Cov))`` (negative round-off clipped to 0)."""
-    return np.sqrt(np.clip(np.diag(np.asarray(cov, dtype=float)), 0.0, None))
+    out: Array = np.sqrt(np.clip(np.diag(np.asarray(cov, dtype=float)), 0.0, None))
+    return out
 
 
 def correlation(cov: ArrayLike) -> Array:
@@ -87,4 +88,5 @@ def propagated_variance(G: ArrayLike, cov: ArrayLike) -> Array:
     ``einsum`` of the same sum is evaluated term by term, several times slower.
     """
     G = np.asarray(G, dtype=float)
-    return np.einsum("...ip,...ip->...", G @ np.asarray(cov, dtype=float), G)
+    out: Array = np.einsum("...ip,...ip->...", G @ np.asarray(cov, dtype=float), G)
+    return out

@@ -12,7 +12,8 @@ What ``kincal calibrate`` / ``validate`` / ``demo`` do, usable from Python::
 
 * :func:`read_blocks` - measurement files, one block each, clashing names renamed;
 * :func:`run_flow` - calibrate (``procedure="lm"``: :func:`~kincal.identify.solver.calibrate`;
-  ``"patent"``: :func:`~kincal.identify.patent.calibrate_patent`), then the errors
+  ``"patent"``: :func:`~kincal.identify.staged_selection.calibrate_staged_selection`), then
+  the errors
   before/after on the training and held-out data (:class:`~kincal.report.html.ErrorComparison`);
 * :func:`validate_blocks` - errors of a robot on held-out files;
 * :func:`write_outputs` - calibrated robot (YAML, URDF), result JSON, HTML report and,
@@ -108,10 +109,10 @@ def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixe
                procedure: str, progress: Callable[[Any], Any] | None,
                options: Mapping[str, Any]) -> Any:
     if procedure == "patent":
-        from kincal.identify.patent import calibrate_patent
+        from kincal.identify.staged_selection import calibrate_staged_selection
 
         extra = {"max_iter": options["max_iter"]} if options.get("max_iter") else {}
-        return calibrate_patent(robot, blocks, free=free_names, fixed=fixed,
+        return calibrate_staged_selection(robot, blocks, free=free_names, fixed=fixed,
                                 condition_growth=options.get("condition_growth"),
                                 cycles=options.get("cycles"),
                                 tolerance=options.get("tolerance") or 1e-7,
@@ -147,7 +148,8 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         max_iter: iterations (lm: in all, default 100; patent: per stage, default 20).
         validation_frames: ``auto`` | ``training`` | ``register`` (see below).
         procedure: ``lm`` (the one-stage solver) or ``patent`` (the cross-bar patent's
-            two stages, :func:`~kincal.identify.patent.calibrate_patent`, with its
+            two stages,
+            :func:`~kincal.identify.staged_selection.calibrate_staged_selection`, with its
             comparison against one-stage LM).
         condition_growth: patent only: discard a placement when the condition number
             grows by more than this factor (None: keep every placement).
@@ -624,7 +626,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         withheld = {k: planned.pop(k) for k in ("robot", "urdf") if k in planned}
         output = urdf = None
     contents: dict[str, str | bytes] = {}
-    info = getattr(res, "patent", None)
+    info = res.procedure_record
     figures = artifact_figures(flow, report) if report else {}
     for key, (path, png) in figures.items():
         planned[key] = path

@@ -77,7 +77,8 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
     their condition numbers, the comparison with one-stage LM and figures 4 and 5.
 
     Args:
-        info: :class:`~kincal.identify.patent.PatentInfo` (or its ``to_dict()``).
+        info: :class:`~kincal.identify.staged_selection.StagedSelectionRecord` (or its
+            ``to_dict()``).
         figures: ``{key: (file, PNG bytes)}`` embedded at the end.
         units: ``{parameter: "m" | "rad"}`` to show lengths in mm and angles in deg.
     """

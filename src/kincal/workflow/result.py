@@ -35,7 +35,7 @@ class FlowResult:
     """Everything one calibration run produced.
 
     Attributes:
-        result: the :class:`~kincal.identify.solver.CalibrationResult` (``result.patent``
+        result: the :class:`~kincal.identify.solver.CalibrationResult` (``result.procedure_record``
             for the patent procedure).
         comparisons: errors before/after, ``train`` then ``validation``.
         seconds: wall time of the calibration itself [s].

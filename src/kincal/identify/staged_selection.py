@@ -1,9 +1,10 @@
-"""The cross-bar patent's identification procedure, as an alternative solver.
+"""Staged selection: condition-number-driven data selection, then staged linearised least
+squares, for artifact (cross-bar) data; the procedure of the cross-bar patent.
 
-:func:`calibrate_patent` follows the patent step by step and returns the same
+:func:`calibrate_staged_selection` follows the patent step by step and returns the same
 :class:`~kincal.identify.solver.CalibrationResult` as :func:`~kincal.identify.solver.calibrate`
 (so reports and JSON work unchanged), with the procedure's own record in
-``result.patent`` (:class:`PatentInfo`).
+``result.procedure_record`` (:class:`StagedSelectionRecord`).
 
 1. **Data selection by the condition number** (``condition_growth`` = ``g``).  The
    placements are added one at a time, in data order, to the stacked whitened
@@ -28,7 +29,7 @@
    ``k``-th member of every group of dependent parameters instead of the first (the
    patent's "several identifications recover all the dependent ones"): the runs give
    *alternative* values that each explain the data alone; the data determine only
-   their combination (:func:`patent_runs` collects them).
+   their combination (:func:`staged_selection_runs` collects them).
 4. **Cycles.**  The patent does one pass (``cycles=1``).  A single pass is biased when
    the first stage's angles absorb length errors held at nominal (joint offsets and
    link offsets of the same link are nearly collinear: canonical correlations of
@@ -46,7 +47,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,14 +67,43 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["calibrate_patent", "select_placements", "patent_runs", "dependent_groups",
-           "compare_results", "one_stage_comparison", "PatentInfo", "PlacementChoice",
+__all__ = ["calibrate_staged_selection", "select_placements", "staged_selection_runs",
+           "dependent_groups", "compare_results", "one_stage_comparison",
+           "StagedSelectionRecord", "PlacementChoice",
            "DEFAULT_STAGES"]
 
 #: Stage selectors: ``unit:rad`` / ``unit:m`` / ``role:offset`` pick robot parameters;
 #: anything else is a name or ``*`` pattern over all names.
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (("unit:rad",), ("unit:m",))
-_LABELS = {("unit:rad",): "angles (dtheta, dalpha)", ("unit:m",): "lengths (dd, da)"}
+_LABELS: dict[tuple[str, ...], str] = {("unit:rad",): "angles (dtheta, dalpha)",
+                                        ("unit:m",): "lengths (dd, da)"}
+
+
+def _finite_or_none(x: float) -> float | None:
+    """``x`` as a float, or None (JSON null) when it is not finite."""
+    return float(x) if np.isfinite(x) else None
+
+
+@runtime_checkable
+class _PlacedRows(Protocol):
+    """A block whose residual rows belong to placements (an artifact block)."""
+
+    placements: Sequence[str]
+
+    def residual_placement(self) -> NDArray[np.intp]:
+        """The placement index of every residual row."""
+        ...
+
+
+@runtime_checkable
+class _PlacementSubsets(Protocol):
+    """A block that can keep a subset of its placements."""
+
+    placements: Sequence[str]
+
+    def subset_placements(self, placements: Sequence[str]) -> MeasurementModel:
+        """The block over the given placements only."""
+        ...
 
 
 @dataclass
@@ -95,15 +125,15 @@ class PlacementChoice:
     kept: bool
 
     def to_dict(self) -> dict[str, Any]:
-        fin = (lambda x: float(x) if np.isfinite(x) else None)  # noqa: E731
         return {"block": self.block, "placement": self.placement,
-                "condition": fin(self.condition), "previous": fin(self.previous),
+                "condition": _finite_or_none(self.condition),
+                "previous": _finite_or_none(self.previous),
                 "kept": self.kept}
 
 
 @dataclass
-class PatentInfo:
-    """What :func:`calibrate_patent` did, beyond the :class:`CalibrationResult`.
+class StagedSelectionRecord:
+    """What :func:`calibrate_staged_selection` did, beyond the :class:`CalibrationResult`.
 
     Attributes:
         stages: ``(label, candidate names)`` of each stage.
@@ -258,7 +288,7 @@ def _placement_rows(prob: StackedProblem) -> list[tuple[str, str, NDArray[np.int
     for b in prob.blocks:
         m = len(b.residual_owner())
         rows = np.arange(start, start + m)
-        if isinstance(b, HasPlacements):
+        if isinstance(b, _PlacedRows):
             rp = b.residual_placement()
             for i, p in enumerate(b.placements):
                 out.append((b.name, p, rows[rp == i]))
@@ -318,7 +348,7 @@ def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: 
             keep.setdefault(bname, []).append(pl)
     out: list[MeasurementModel] = []
     for b in prob.blocks:
-        if isinstance(b, HasPlacements):
+        if isinstance(b, _PlacementSubsets):
             kept = keep.get(b.name, [])
             if not kept:
                 continue
@@ -329,7 +359,7 @@ def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: 
 
 
 # --------------------------------------------------------------------------- procedure
-def calibrate_patent(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
+def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
                      stages: Sequence[Sequence[str]] = DEFAULT_STAGES,
                      tolerance: float = 1e-7, condition_growth: float | None = None,
                      progress: Callable[[IterationRecord], Any] | None = None, *,
@@ -357,11 +387,11 @@ def calibrate_patent(robot: Robot, blocks: MeasurementModel | Sequence[Measureme
         tol_rank: tolerance of the identifiability analysis.
         trust_sigma: ``sigma0 = 1`` instead of the a-posteriori estimate.
         compare: also run the one-stage solver on the same data and store
-            :func:`one_stage_comparison` in ``result.patent.comparison``.
+            :func:`one_stage_comparison` in ``result.procedure_record.comparison``.
 
     Returns:
-        A :class:`CalibrationResult` (``method="patent"``) with ``result.patent`` a
-        :class:`PatentInfo`.
+        A :class:`CalibrationResult` (``method="patent"``) with ``result.procedure_record`` a
+        :class:`StagedSelectionRecord`.
     """
     if isinstance(blocks, MeasurementModel):
         blocks = [blocks]
@@ -440,10 +470,11 @@ def calibrate_patent(robot: Robot, blocks: MeasurementModel | Sequence[Measureme
     if selection:
         messages.append(f"condition-number selection kept {len(kept)} of "
                         f"{len(kept) + len(discarded)} placements")
-    info = PatentInfo([(lb, [names[i] for i in sc]) for lb, sc in zip(labels, stage_cands,
-                                                                      strict=True)],
-                      estimated, selection, kept, discarded, corrections, n_cyc, cycle_moves,
-                      bool(converged), float(tolerance), condition_growth, int(run), groups)
+    stage_names = [(lb, [names[i] for i in sc])
+                   for lb, sc in zip(labels, stage_cands, strict=True)]
+    info = StagedSelectionRecord(stage_names, estimated, selection, kept, discarded,
+                                 corrections, n_cyc, cycle_moves, bool(converged),
+                                 float(tolerance), condition_growth, int(run), groups)
     robot_cal, _ = prob.split(theta)
     res = CalibrationResult(
         robot=robot_cal, robot_initial=robot, problem=prob, theta0=theta0, theta=theta,
@@ -452,8 +483,7 @@ def calibrate_patent(robot: Robot, blocks: MeasurementModel | Sequence[Measureme
         history=history, converged=bool(converged),
         iterations=sum(1 for h in history if h.iteration > 0), message="; ".join(messages),
         stages=[(f"c{c}:{s}", n) for c, s, n in estimated[-len(specs):]], method="patent",
-        loss="linear")
-    res.patent = info  # type: ignore[attr-defined]
+        loss="linear", procedure_record=info)
     if compare:
         info.comparison = one_stage_comparison(res)
     return res
@@ -483,7 +513,7 @@ def one_stage_comparison(result: CalibrationResult) -> dict[str, Any]:
 
 
 class _Procedure:
-    """The stages and cycles of :func:`calibrate_patent`, with their records."""
+    """The stages and cycles of :func:`calibrate_staged_selection`, with their records."""
 
     def __init__(self, prob: StackedProblem, stages: list[tuple[str, list[int]]],
                  max_iter: int, progress: Callable[[IterationRecord], Any] | None) -> None:
@@ -588,20 +618,20 @@ def _kept(prob: StackedProblem, selection: list[PlacementChoice]
     return kept, discarded
 
 
-def patent_runs(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
+def staged_selection_runs(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
                 runs: int | None = None, **options: Any
                 ) -> tuple[list[CalibrationResult], dict[str, list[float]]]:
-    """Repeat :func:`calibrate_patent` with ``run = 0, 1, ...`` (the patent's rule).
+    """Repeat :func:`calibrate_staged_selection` with ``run = 0, 1, ...`` (the patent's rule).
 
     Returns the results and, for every parameter of a dependent group, its value in
     each run where it was the identified member (NaN where it was held).  The values
     are alternatives: each run explains the data with one member of a group; the
     data determine only their combination.
     """
-    first = calibrate_patent(robot, blocks, run=0, **options)
+    first = calibrate_staged_selection(robot, blocks, run=0, **options)
     groups = dependent_groups(first.identifiability)
     n = runs if runs is not None else max((len(g) for g in groups), default=1)
-    results = [first] + [calibrate_patent(robot, blocks, run=k, **options)
+    results = [first] + [calibrate_staged_selection(robot, blocks, run=k, **options)
                          for k in range(1, n)]
     values: dict[str, list[float]] = {}
     for g in groups:
@@ -611,30 +641,30 @@ def patent_runs(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementMod
     return results, values
 
 
-def compare_results(patent: CalibrationResult, other: CalibrationResult) -> dict[str, Any]:
+def compare_results(first: CalibrationResult, other: CalibrationResult) -> dict[str, Any]:
     """Compare two calibrations parameter by parameter (e.g. the patent vs one-stage LM).
 
     For every parameter both estimated: the difference [m / rad] and the difference in
     units of the larger of the two standard errors.  Compare like with like: run the
-    one-stage solver with ``free=patent.estimated`` so both estimate the same base set
+    one-stage solver with ``free=first.estimated`` so both estimate the same base set
     (different base sets absorb dependent parameters differently).
 
     Returns ``{"rows": [{name, a, b, diff, sigmas}], "max_sigmas", "worst", "only_a",
     "only_b", "sigma0": (a, b), "cost": (a, b)}``.
     """
-    rows = []
-    for n in patent.estimated:
+    rows: list[dict[str, Any]] = []
+    for n in first.estimated:
         if n not in other.estimated:
             continue
-        i, j = patent.names.index(n), other.names.index(n)
-        s = max(float(patent.std[i]), float(other.std[j]))
-        d = float(patent.theta[i] - other.theta[j])
-        rows.append({"name": n, "a": float(patent.theta[i]), "b": float(other.theta[j]),
+        i, j = first.names.index(n), other.names.index(n)
+        s = max(float(first.std[i]), float(other.std[j]))
+        d = float(first.theta[i] - other.theta[j])
+        rows.append({"name": n, "a": float(first.theta[i]), "b": float(other.theta[j]),
                      "diff": d, "sigmas": abs(d) / s if s > 0 else float("inf")})
     worst = max(rows, key=lambda r: r["sigmas"]) if rows else None
     return {"rows": rows, "max_sigmas": worst["sigmas"] if worst else 0.0,
             "worst": worst["name"] if worst else "",
-            "only_a": [n for n in patent.estimated if n not in other.estimated],
-            "only_b": [n for n in other.estimated if n not in patent.estimated],
-            "sigma0": (float(patent.sigma0), float(other.sigma0)),
-            "cost": (float(patent.cost), float(other.cost))}
+            "only_a": [n for n in first.estimated if n not in other.estimated],
+            "only_b": [n for n in other.estimated if n not in first.estimated],
+            "sigma0": (float(first.sigma0), float(other.sigma0)),
+            "cost": (float(first.cost), float(other.cost))}

@@ -12,14 +12,14 @@ import json
 import numpy as np
 import pytest
 
-from kincal.identify.patent import (
-    calibrate_patent,
+from kincal.identify.solver import CalibrationResult, calibrate
+from kincal.identify.staged_selection import (
+    calibrate_staged_selection,
     compare_results,
     dependent_groups,
-    patent_runs,
     select_placements,
+    staged_selection_runs,
 )
-from kincal.identify.solver import CalibrationResult, calibrate
 from kincal.measure.artifacts import ArtifactGeometry, Probe
 from kincal.measure.artifacts.simulate import simulate_artifact
 from kincal.measure.simulate import perturb_robot
@@ -48,9 +48,9 @@ def _rms_mm(block, robot) -> float:
 
 def test_two_stage_agrees_with_one_stage_within_uncertainty(data):
     nominal, train, held = data
-    res = calibrate_patent(nominal, [train], compare=True)
+    res = calibrate_staged_selection(nominal, [train], compare=True)
     assert isinstance(res, CalibrationResult) and res.method == "patent" and res.converged
-    info = res.patent
+    info = res.procedure_record
     stage1, stage2 = info.estimated[0][2], info.estimated[1][2]
     units = dict(zip(res.names, res.problem.units, strict=True))
     assert stage1 and all(units[n] == "rad" for n in stage1)       # dtheta, dalpha
@@ -59,7 +59,7 @@ def test_two_stage_agrees_with_one_stage_within_uncertainty(data):
     one = calibrate(nominal, [train], free=res.estimated)
     assert one.estimated == res.estimated
     c = compare_results(res, one)
-    literal = calibrate_patent(nominal, [train], cycles=1)
+    literal = calibrate_staged_selection(nominal, [train], cycles=1)
     c1 = compare_results(literal, one)
     lm = calibrate(nominal, [train])
     print(f"\ntwo-stage cycled ({info.cycles} cycles) vs one-stage LM: largest difference "
@@ -83,9 +83,9 @@ def test_two_stage_agrees_with_one_stage_within_uncertainty(data):
 
 def test_condition_number_selection_keeps_fewer_placements(data):
     nominal, train, held = data
-    full = calibrate_patent(nominal, [train])
-    sel = calibrate_patent(nominal, [train], condition_growth=1.0)
-    info = sel.patent
+    full = calibrate_staged_selection(nominal, [train])
+    sel = calibrate_staged_selection(nominal, [train], condition_growth=1.0)
+    info = sel.procedure_record
     total = len(train.placements)
     assert len(info.kept) + len(info.discarded) == total and 0 < len(info.discarded)
     assert [c.kept for c in info.selection].count(True) == len(info.kept)
@@ -102,7 +102,7 @@ def test_one_dependent_parameter_per_identification(data):
     """The patent's rule: of dependent columns identify one, another in the next run.
     The runs give alternatives: the data fix only their combination."""
     nominal, train, _ = data
-    results, values = patent_runs(nominal, [train], runs=2)
+    results, values = staged_selection_runs(nominal, [train], runs=2)
     groups = dependent_groups(results[0].identifiability)
     pair = next(g for g in groups if set(g) == {"d[2]", "d[3]"})   # parallel axes 2, 3
     assert pair[0] in results[0].estimated and pair[1] not in results[0].estimated
