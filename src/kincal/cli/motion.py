@@ -30,7 +30,7 @@ from kincal.cli.common import (
     point_vector,
     robot_arg,
 )
-from kincal.cli.options import DegOpt, SeedOpt, SiOpt, Units, legacy_quantity, quantity
+from kincal.cli.options import DegOpt, SeedOpt, SiOpt, Units, quantity
 from kincal.errors import KincalError, UnreachableError
 from kincal.io import write_json
 
@@ -223,7 +223,6 @@ def trajectory(robot: RobotArg,
                out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for "
                                                      "trajectory.csv and trajectory.png.")]
                = Path("."),
-               out_old: Annotated[Path | None, typer.Option("--out", hidden=True)] = None,
                json_out: JsonOut = None) -> None:
     """Plan a trajectory and write it as CSV (units in the header) and a PNG plot.
 
@@ -235,7 +234,7 @@ def trajectory(robot: RobotArg,
 
     from kincal.motion import trajectory as tj
 
-    out = out_old if out_old is not None else out_dir
+    out = out_dir
     step = quantity(dt, "time", "--dt", positive=True)
     total = quantity(duration, "time", "--duration", positive=True)
     r = robot_arg(robot)
@@ -340,8 +339,6 @@ def clik_command(
         deg: DegOpt = False, si: SiOpt = False,
         out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for the CSV files and "
                                               "the plot.")] = Path("clik"),
-        out_old: Annotated[Path | None, typer.Option("--out", hidden=True)] = None,
-        tf_old: Annotated[float | None, typer.Option("--tf", hidden=True)] = None,
         json_out: JsonOut = None) -> None:
     """Closed-loop inverse kinematics along a straight line: q_dot = J#(q)(p_dot_d + K e).
 
@@ -356,10 +353,9 @@ def clik_command(
     from kincal.motion.clik import METHODS, clik, plot_clik
     from kincal.motion.trajectory import CartesianMotion, LinePath, TimingLaw
 
-    out = out_old if out_old is not None else out_dir
+    out = out_dir
     step = quantity(dt, "time", "--dt", positive=True)
-    total = legacy_quantity(duration if tf_old is None else None, "--duration", tf_old, "--tf",
-                            "time", "s", positive=True)
+    total = quantity(duration, "time", "--duration", positive=True)
     k = quantity(damping, "length", "--damping", minimum=0.0)
     eps = quantity(threshold, "length", "--threshold", minimum=0.0)
     methods = method or ["inverse", "dls"]
