@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from kincal.cli.app import app
@@ -385,9 +385,13 @@ def clik_command(
                   transient=True) as bar:
         for m in methods:
             task = bar.add_task(f"CLIK {m}", total=1.0)
+
+            def advance(i: int, n: int, task: TaskID = task) -> None:
+                bar.update(task, completed=i / n)
+
             res = clik(r, motion, q0, step, g if g.size == 3 else float(g[0]), m,  # type: ignore[arg-type]
                        k, eps, task="position", integrator=integrator,  # type: ignore[arg-type]
-                       progress=lambda i, n, task=task: bar.update(task, completed=i / n))
+                       progress=advance)
             res.meta["segment"] = (T0[:3, 3].tolist(), p_end.tolist())
             res.meta["damping_k"] = k
             res.to_csv(out / f"clik_{m}.csv")

@@ -11,7 +11,7 @@ types below are the options' one spelling: ``-o/--output``, ``--out-dir``, ``--j
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, overload
 
 import typer
 
@@ -28,6 +28,12 @@ SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of every rando
                                       "same command gives the same numbers.")]
 
 
+@overload
+def quantity(text: str, dimension: str | tuple[str, ...], option: str, *,
+             positive: bool = False, minimum: float | None = None) -> float: ...
+@overload
+def quantity(text: str | None, dimension: str | tuple[str, ...], option: str, *,
+             positive: bool = False, minimum: float | None = None) -> float | None: ...
 def quantity(text: str | None, dimension: str | tuple[str, ...], option: str, *,
              positive: bool = False, minimum: float | None = None) -> float | None:
     """``"0.01mm" -> 1e-5`` (SI) for option ``option``; None stays None."""

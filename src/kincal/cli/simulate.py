@@ -274,7 +274,7 @@ def simulate(
     true = dataclasses.replace(true, meta={**dict(true.meta), "notes": note})
     truth_text = robot_yaml_text(true) if truth else None
     write_measurements(inst, blocks, output, units, nominal)
-    if held is not None:
+    if held is not None and holdout is not None:
         write_measurements(inst, held, holdout, units, nominal)
     if truth and truth_text is not None:
         from kincal.io import atomic_write_text
@@ -291,10 +291,10 @@ def simulate(
         hrows = sum(int(b.q.shape[0]) for b in held)
         out.print(f"held-out: {hrows} measurements -> {escape(str(holdout))}")
     lin = np.array([u == "m" for u in nominal.param_units])
-    units = Units(si)
+    console = Units(si)
     out.print(f"injected errors: {int(np.count_nonzero(delta))} parameters, largest "
-              f"{units.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
-              f"{units.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
+              f"{console.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
+              f"{console.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
               + (f"; truth -> {escape(truth)}" if truth else ""))
     if json_out:
         doc: dict[str, Any] = {

@@ -110,7 +110,7 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
 
     from kincal.measure.registry import simulate_measurements, write_measurements
     from kincal.measure.simulate import perturb_robot
-    from kincal.robots.chain import ROLES
+    from kincal.robots.chain import ROLES, Robot
     from kincal.workflow.robots import load_any_robot
 
     if robots < 1 or sessions < 1 or poses < 1:
@@ -125,7 +125,7 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
     except ValueError:
         raise KincalError(f"option --start: {start!r} is not a date YYYY-MM-DD") from None
     nominal = load_any_robot(robot)
-    if not hasattr(nominal, "param_roles"):
+    if not isinstance(nominal, Robot):
         raise KincalError("simulated fleets are of serial robots")
     root = Path(root)
     order = np.random.default_rng([seed, 2**31]).permutation(robots)
