@@ -238,10 +238,7 @@ def simulate_cmd(
     if json_out:
         from kincal.io import write_json
 
-        write_json(json_out, {"root": str(got.root), "manifest": str(got.manifest),
-                              "truth": str(got.truth),
-                              "robots": [{k: v for k, v in r.items()
-                                          if k != "true_parameters"} for r in got.robots]})
+        write_json(json_out, got.to_dict())
 
 
 # --------------------------------------------------------------------------- drift

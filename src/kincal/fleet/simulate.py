@@ -55,6 +55,14 @@ class SimulatedFleet:
     truth: Path
     robots: list[dict[str, Any]]
 
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary: the paths as text and each robot's record without its true
+        parameters (those are in ``truth.json``)."""
+        return {"root": str(self.root), "manifest": str(self.manifest),
+                "truth": str(self.truth),
+                "robots": [{k: v for k, v in r.items() if k != "true_parameters"}
+                           for r in self.robots]}
+
 
 def serial_name(k: int) -> str:
     """The serial number of the ``k``-th simulated robot (``R-00001``)."""
