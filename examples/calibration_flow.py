@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+import kincal
 from kincal.compensation.compensate import compensate
 from kincal.identify.solver import calibrate
 from kincal.identify.validation import validate
@@ -33,7 +34,7 @@ from kincal.measure.registry import read_measurements, simulate_measurements, wr
 from kincal.measure.simulate import perturb_robot
 from kincal.report.html import write_html_report
 from kincal.report.metrics import ErrorComparison, error_metrics, result_json
-from kincal.robots.files import load_robot, write_robot_yaml
+from kincal.robots.files import write_robot_yaml
 
 
 def main() -> None:
@@ -46,7 +47,7 @@ def main() -> None:
     rng = np.random.default_rng(a.seed)
 
     # 1. the nominal model and the "real" robot
-    nominal = load_robot("puma560")
+    nominal = kincal.load_robot("puma560")
     real = perturb_robot(nominal, rng, length_std=5e-4)
 
     # 2. a simulated laser tracker; the held-out data reuse the same placement (truth=)

@@ -23,12 +23,12 @@ import argparse
 
 import numpy as np
 
+import kincal
 from kincal.identify.solver import calibrate
 from kincal.identify.staged_selection import calibrate_staged_selection, compare_results
 from kincal.measure.artifacts import ArtifactGeometry, Probe, simulate_artifact
 from kincal.measure.simulate import perturb_robot
 from kincal.report.artifact_plots import length_summary, save_patent_figures
-from kincal.robots.files import load_robot
 
 
 def main() -> None:
@@ -37,7 +37,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
-    nominal = load_robot("puma560")
+    nominal = kincal.load_robot("puma560")
     true = perturb_robot(nominal, rng)
     cross = ArtifactGeometry.cross_bar(0.300)
     probe = Probe.length(0.100)

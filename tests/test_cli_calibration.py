@@ -40,7 +40,7 @@ def flow(tmp_path_factory):
                                    ("cal", "cal.yaml"), ("res", "res.json"),
                                    ("rep", "report.html"))}
     args_sim = ["simulate", "puma560", "-o", files["train"], "--truth", files["truth"],
-                "--poses", "60", "--noise-mm", str(NOISE * 1e3), "--seed", "5",
+                "--poses", "60", "--noise", f"{NOISE * 1e3!r}mm", "--seed", "5",
                 "--holdout", files["hold"], "--holdout-poses", "40", "--length-unit", "mm",
                 "--angle-unit", "deg", "--json", files["sim"]]
     args_cal = ["calibrate", "puma560", "--data", files["train"], "--validate", files["hold"],
@@ -441,7 +441,7 @@ def test_urdf_robot_real_data_writes_calibrated_urdf(capsys, tmp_path):
 
 
 def test_demo_runs_and_writes_its_files(capsys, tmp_path):
-    code, stdout, err = run(capsys, "demo", "--out", tmp_path / "demo")
+    code, stdout, err = run(capsys, "demo", "--out-dir", tmp_path / "demo")
     assert code == 0, err
     assert "Errors before -> after" in stdout and "report:" in stdout
     for name in ("report.html", "result.json", "calibrated.yaml", "train.csv", "holdout.csv",
@@ -468,9 +468,9 @@ def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
     q = "0.3,-0.7,1.1,0.4,-0.9,2.0"
     urdf, yaml_ets, from_urdf = (tmp_path / n for n in ("puma.urdf", "puma_ets.yaml",
                                                          "from_urdf.yaml"))
-    assert run(capsys, "export", "puma560", urdf)[0] == 0
-    assert run(capsys, "export", "puma560", yaml_ets, "--as-ets")[0] == 0
-    code, _, err = run(capsys, "export", urdf, from_urdf)
+    assert run(capsys, "export", "puma560", "-o", urdf)[0] == 0
+    assert run(capsys, "export", "puma560", "-o", yaml_ets, "--as-ets")[0] == 0
+    code, _, err = run(capsys, "export", urdf, "-o", from_urdf)
     assert code == 0, err
     Ts = []
     for spec in ("puma560", urdf, yaml_ets, from_urdf):
@@ -497,7 +497,7 @@ def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
     with pytest.raises(MeasurementFileError, match="have no unit"):
         read_measurements(csv, load_robot("puma560"))
     # bad output names: one line, nothing written
-    code, _, err = run(capsys, "export", "puma560", tmp_path / "puma.txt")
+    code, _, err = run(capsys, "export", "puma560", "-o", tmp_path / "puma.txt")
     assert code == 2 and "name it .yaml, .yml or .urdf" in err
     assert not (tmp_path / "puma.txt").exists()
     urdf_before = Path(urdf).read_bytes()

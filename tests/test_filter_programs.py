@@ -514,7 +514,7 @@ def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys
 
     train = tmp_path / "train.csv"
     code, _, err = run(capsys, "simulate", "kr6", "-o", train, "--truth", tmp_path / "t.yaml",
-                       "--poses", "60", "--noise-mm", "0.01", "--seed", "1")
+                       "--poses", "60", "--noise", "0.01mm", "--seed", "1")
     assert code == 0, err
     cal, rj = tmp_path / "cal.yaml", tmp_path / "r.json"
     code, _, err = run(capsys, "calibrate", "kr6", "--data", train, "-o", cal, "--json", rj)

@@ -300,9 +300,9 @@ def test_exported_robot_files_are_what_kincal_calibrate_writes(fleet, tmp_path, 
                        "--out-dir", tmp_path / "robots")
     assert code == 0 and f"{ROBOTS} calibrated robot file(s)" in _flat(out)
     code, out, _ = run(capsys, "fleet", "export", "--db", db, "-o", tmp_path / "h2.csv",
-                     "--robots", f"{tmp_path / 'old'}/")          # the old spelling, hidden
+                       "--out-dir", f"{tmp_path / 'slash'}/")     # a trailing slash
     assert code == 0 and "//" not in out
-    assert sorted(p.name for p in (tmp_path / "old").iterdir()) == \
+    assert sorted(p.name for p in (tmp_path / "slash").iterdir()) == \
         sorted(p.name for p in (tmp_path / "robots").iterdir())
     r = fleet.robots[0]
     latest = fleet.root / r["serial"] / r["dates"][-1] / "tracker.csv"

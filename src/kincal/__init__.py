@@ -21,13 +21,15 @@ Calibration
     :func:`calibrate` / :class:`Calibration` -> :class:`CalibrationResult`;
     :func:`validate` and :func:`cross_validate` on held-out data;
     :func:`accuracy_model` and :func:`predict_accuracy`: the predicted error of the
-    calibrated model where it is used, and where it is extrapolating.
+    calibrated model where it is used, and where it is extrapolating (after
+    calibrating; before measuring it is :func:`predict_plan_accuracy`).
 Putting it to use
     :func:`compensate` -> :class:`Compensation` (joint commands, filtered targets),
     :func:`solve_ik` -> :class:`IKSolutions`.
 Planning
     :func:`plan_poses` -> :class:`Plan`: choose calibration poses and predict the
-    accuracy before measuring.
+    accuracy before measuring; :func:`predict_plan_accuracy` -> the accuracy a pose
+    design will give, from the design alone.
 Set-ups
     :func:`load_setup`: a calibration set-up file (the same one ``kincal calibrate
     --config`` reads).
@@ -76,6 +78,7 @@ _API: dict[str, tuple[str, str]] = {
     "IKSolutions": ("kincal.motion.ik", "IKSolutions"),
     # planning
     "plan_poses": ("kincal.identify.plan", "plan_poses"),
+    "predict_plan_accuracy": ("kincal.identify.prediction", "predict_accuracy"),
     "Plan": ("kincal.identify.plan", "Plan"),
     # set-ups
     "load_setup": ("kincal.workflow.config", "load_setup"),

@@ -143,9 +143,9 @@ def check_outputs(outputs: Mapping[str, str | os.PathLike[str] | None],
     for opt, paths in inputs.items():
         if paths is None:
             continue
-        for p in [paths] if isinstance(paths, str | os.PathLike) else paths:
-            if p is not None and str(p) != "-":
-                ins.append((opt, Path(p)))
+        for given in [paths] if isinstance(paths, str | os.PathLike) else paths:
+            if given is not None and str(given) != "-":
+                ins.append((opt, Path(given)))
     seen: list[tuple[str, Path]] = []
     for opt, p in outputs.items():
         if p is None or str(p) == "-":

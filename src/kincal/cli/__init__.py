@@ -16,7 +16,7 @@ import sys
 
 import typer
 
-from kincal.cli.app import app
+from kincal.cli.app import APP_HELP, APP_NAME, app, kincal
 from kincal.errors import KincalError
 
 #: Command modules in the order their commands appear in ``kincal --help``: the robot
@@ -36,32 +36,25 @@ def _one_command(argv: list[str]) -> typer.Typer:
         if info.callback is None:
             continue
         if (info.name or info.callback.__name__.lower().replace("_", "-")) == name:
-            single = typer.Typer(**{k: getattr(app.info, k) for k in ("name", "help")},
-                                 no_args_is_help=True, add_completion=False,
-                                 pretty_exceptions_enable=False, rich_markup_mode=None)
-            single.registered_callback = app.registered_callback
-            single.registered_commands = [info]
+            single = typer.Typer(name=APP_NAME, help=APP_HELP, no_args_is_help=True,
+                                 add_completion=False, pretty_exceptions_enable=False,
+                                 rich_markup_mode=None)
+            single.callback()(kincal)
+            single.registered_commands.append(info)
             return single
     return app
 
 
-def _click_exceptions() -> tuple[type, type]:
-    """(ClickException, Abort) of the click that typer uses (vendored since typer 0.26)."""
-    try:
-        from typer._click.exceptions import ClickException
-    except ImportError:                                  # typer < 0.26: click itself
-        from click.exceptions import ClickException  # type: ignore[no-redef]
-    return ClickException, typer.Abort
-
-
 def _run(argv: list[str]) -> int:
     """Run the command line; a usage error (an unknown option, a value out of range) is
-    one line too, naming the command whose --help explains it."""
-    click_error, abort = _click_exceptions()
-    command = typer.main.get_command(_one_command(argv))
+    one line too, naming the command whose --help explains it.
+
+    Typer's public API only: calling the application with ``standalone_mode=False``
+    returns the command's value and raises what it cannot handle; every command-line
+    error of typer's click is a :class:`typer.TyperException` (typer >= 0.27.2)."""
     try:
-        rv = command.main(args=argv, prog_name="kincal", standalone_mode=False)
-    except click_error as exc:
+        rv = _one_command(argv)(args=argv, prog_name="kincal", standalone_mode=False)
+    except typer.TyperException as exc:
         ctx = getattr(exc, "ctx", None)
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:
             print(ctx.get_help())
@@ -70,7 +63,7 @@ def _run(argv: list[str]) -> int:
         message = " ".join(exc.format_message().split())
         print(f"error: {message} (see `{where} --help`)", file=sys.stderr)
         return exc.exit_code if exc.exit_code else 2
-    except abort:
+    except typer.Abort:
         print("error: interrupted", file=sys.stderr)
         return 130
     return rv if isinstance(rv, int) else 0

@@ -6,10 +6,15 @@ from typing import Annotated
 
 import typer
 
+#: The program's name and one-line help, shared by the whole application and by the
+#: one-command application :func:`kincal.cli._one_command` builds for a fast start.
+APP_NAME = "kincal"
+APP_HELP = ("Kinematic calibration of robot manipulators: robots, kinematics, "
+            "measurements, identification, compensation.")
+
 app = typer.Typer(
-    name="kincal",
-    help="Kinematic calibration of robot manipulators: robots, kinematics, "
-    "measurements, identification, compensation.",
+    name=APP_NAME,
+    help=APP_HELP,
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,

@@ -161,7 +161,6 @@ def calibrate_cmd(
         "--tolerance", metavar="LENGTH", help="--procedure patent: a stage stops when no "
         "predicted probe point moves more than this, with its unit (default 0.1um).")
     ] = None,
-    tolerance_mm: Annotated[float | None, typer.Option("--tolerance-mm", hidden=True)] = None,
     free: Annotated[str | None, typer.Option("--free", help="Parameters to estimate: names, * "
                                              "patterns or role:offset (default: every "
                                              "identifiable one).")] = None,
@@ -254,7 +253,7 @@ def calibrate_cmd(
             raise KincalError("--prior and --joint-model work on serial robots")
         calibrate_fivebar_file(r, data[0], output, json_out, report, method)
         return
-    tolerance = length_option(tolerance_text, "--tolerance", tolerance_mm, "--tolerance-mm")
+    tolerance = length_option(tolerance_text, "--tolerance")
     check_flow_options(procedure=procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,

@@ -8,6 +8,7 @@ Tables show mm and degrees; everything computed stays SI (m, rad).
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 from collections.abc import Iterator, Sequence
 from typing import Annotated, Any
@@ -334,8 +335,8 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
         if not everything and not p["estimated"]:
             continue
         factor, _ = u.scale(p["unit"])
-        f = (lambda v, k=factor: scaled(v, k)) if p["unit"] in ("m", "rad") else \
-            (lambda v: f"{v:g}")
+        f = functools.partial(scaled, factor=factor) if p["unit"] in ("m", "rad") else \
+            "{:g}".format
         cells = [escape(p["name"]), f(p["nominal"]), f(p["estimate"]),
                  f(p["estimate"] - p["nominal"]), f(p["std"]) if p["std"] is not None else "-"]
         if with_prior:

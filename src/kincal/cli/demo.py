@@ -20,7 +20,7 @@ from rich.markup import escape
 from kincal.cli.app import app
 from kincal.cli.calibration_common import Progress, out_console, print_errors, print_identifiability
 from kincal.cli.common import JsonOut
-from kincal.cli.options import SeedOpt, SiOpt, legacy_quantity, use_si
+from kincal.cli.options import SeedOpt, SiOpt, quantity, use_si
 
 
 @app.command()
@@ -34,8 +34,6 @@ def demo(
                                        "its unit.")] = "0.01mm",
     si: SiOpt = False,
     json_out: JsonOut = None,
-    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
-    noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
 ) -> None:
     """A complete calibration in a few seconds: PUMA 560 measured by a simulated laser tracker,
     calibrated, validated on held-out poses; writes the report into ./kincal-demo/."""
@@ -49,9 +47,8 @@ def demo(
     from kincal.workflow.flow import block_values, run_flow, write_outputs
 
     t0 = time.perf_counter()
-    folder = Path(out_old or out_dir)
-    sd = legacy_quantity(noise if noise_mm is None else None, "--noise", noise_mm,
-                         "--noise-mm", "length", "mm", minimum=0.0) or 0.0
+    folder = Path(out_dir)
+    sd = quantity(noise, "length", "--noise", minimum=0.0) or 0.0
     cu = use_si(si)
     out = out_console(json_out)
     nominal = load_robot("puma560")

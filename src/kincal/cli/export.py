@@ -33,8 +33,6 @@ from kincal.io import check_outputs
 @app.command("export")
 def export_cmd(
     robot: RobotArg,
-    output_arg: Annotated[str | None, typer.Argument(hidden=True, metavar="[OUT]",
-                                                     show_default=False)] = None,
     output_opt: Annotated[str | None, typer.Option(
         "-o", "--output", metavar="OUT.(yaml|urdf)", help="File to write: .yaml / .yml "
         "(kincal robot file) or .urdf.")] = None,
@@ -48,9 +46,7 @@ def export_cmd(
     """Write ROBOT (built-in name, YAML or URDF with --base-link/--tip-link) as a YAML robot
     file or a URDF with the same forward kinematics (SI units): kincal export ROBOT -o
     OUT.urdf."""
-    if output_arg is not None and output_opt is not None:
-        raise KincalError("give the file to write once: -o OUT")
-    output = output_opt or output_arg
+    output = output_opt
     if output is None:
         raise KincalError("`kincal export` needs -o OUT.yaml or -o OUT.urdf")
     console = out_console(json_out)

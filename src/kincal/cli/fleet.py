@@ -238,10 +238,7 @@ def simulate_cmd(
     if json_out:
         from kincal.io import write_json
 
-        write_json(json_out, {"root": str(got.root), "manifest": str(got.manifest),
-                              "truth": str(got.truth),
-                              "robots": [{k: v for k, v in r.items()
-                                          if k != "true_parameters"} for r in got.robots]})
+        write_json(json_out, got.to_dict())
 
 
 # --------------------------------------------------------------------------- drift
@@ -368,10 +365,8 @@ def export_cmd(
     robots_dir: Annotated[str | None, typer.Option(
         "--out-dir", metavar="DIR", help="Also write each robot's latest calibrated robot "
         "file, DIR/<serial>.yaml (SI; what `kincal calibrate -o` writes).")] = None,
-    robots_old: Annotated[str | None, typer.Option("--robots", hidden=True)] = None,
 ) -> None:
     """Write the calibration history as CSV or JSON (and the calibrated robot files)."""
-    robots_dir = robots_dir or robots_old
     from kincal.fleet.export import history_csv, history_json, parameters_csv
     from kincal.io import atomic_write_text, check_outputs
 

@@ -152,7 +152,7 @@ def jacobian(robot: RobotArg, q: QOpt, deg: DegOpt = False,
     import numpy as np
 
     r = robot_arg(robot, base_link, tip_link)
-    J = r.jacobian(joint_vector(r, q, deg), frame=frame)  # type: ignore[arg-type]
+    J = r.jacobian(joint_vector(r, q, deg), frame=frame)
     if json_out != "-":
         u = Units(si)
         M = J.copy()

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from kincal.cli.app import app
@@ -30,7 +30,7 @@ from kincal.cli.common import (
     point_vector,
     robot_arg,
 )
-from kincal.cli.options import DegOpt, SeedOpt, SiOpt, Units, legacy_quantity, quantity
+from kincal.cli.options import DegOpt, SeedOpt, SiOpt, Units, quantity
 from kincal.errors import KincalError, UnreachableError
 from kincal.io import write_json
 
@@ -223,7 +223,6 @@ def trajectory(robot: RobotArg,
                out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for "
                                                      "trajectory.csv and trajectory.png.")]
                = Path("."),
-               out_old: Annotated[Path | None, typer.Option("--out", hidden=True)] = None,
                json_out: JsonOut = None) -> None:
     """Plan a trajectory and write it as CSV (units in the header) and a PNG plot.
 
@@ -235,7 +234,7 @@ def trajectory(robot: RobotArg,
 
     from kincal.motion import trajectory as tj
 
-    out = out_old if out_old is not None else out_dir
+    out = out_dir
     step = quantity(dt, "time", "--dt", positive=True)
     total = quantity(duration, "time", "--duration", positive=True)
     r = robot_arg(robot)
@@ -340,8 +339,6 @@ def clik_command(
         deg: DegOpt = False, si: SiOpt = False,
         out_dir: Annotated[Path, typer.Option("--out-dir", help="Folder for the CSV files and "
                                               "the plot.")] = Path("clik"),
-        out_old: Annotated[Path | None, typer.Option("--out", hidden=True)] = None,
-        tf_old: Annotated[float | None, typer.Option("--tf", hidden=True)] = None,
         json_out: JsonOut = None) -> None:
     """Closed-loop inverse kinematics along a straight line: q_dot = J#(q)(p_dot_d + K e).
 
@@ -356,10 +353,9 @@ def clik_command(
     from kincal.motion.clik import METHODS, clik, plot_clik
     from kincal.motion.trajectory import CartesianMotion, LinePath, TimingLaw
 
-    out = out_old if out_old is not None else out_dir
+    out = out_dir
     step = quantity(dt, "time", "--dt", positive=True)
-    total = legacy_quantity(duration if tf_old is None else None, "--duration", tf_old, "--tf",
-                            "time", "s", positive=True)
+    total = quantity(duration, "time", "--duration", positive=True)
     k = quantity(damping, "length", "--damping", minimum=0.0)
     eps = quantity(threshold, "length", "--threshold", minimum=0.0)
     methods = method or ["inverse", "dls"]
@@ -389,9 +385,13 @@ def clik_command(
                   transient=True) as bar:
         for m in methods:
             task = bar.add_task(f"CLIK {m}", total=1.0)
+
+            def advance(i: int, n: int, task: TaskID = task) -> None:
+                bar.update(task, completed=i / n)
+
             res = clik(r, motion, q0, step, g if g.size == 3 else float(g[0]), m,  # type: ignore[arg-type]
                        k, eps, task="position", integrator=integrator,  # type: ignore[arg-type]
-                       progress=lambda i, n, task=task: bar.update(task, completed=i / n))
+                       progress=advance)
             res.meta["segment"] = (T0[:3, 3].tolist(), p_end.tolist())
             res.meta["damping_k"] = k
             res.to_csv(out / f"clik_{m}.csv")

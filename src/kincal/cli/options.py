@@ -1,17 +1,17 @@
 """Options every command shares, spelled one way (docs/conventions.md).
 
 Quantities carry their unit in the value (``--noise 0.01mm``, ``--tolerance 0.1um``,
-``--dt 2ms``): :func:`quantity` parses one, :func:`length_option` and
-:func:`legacy_quantity` also accept an old unit-in-the-flag spelling
-(``--tolerance-mm 1e-4``) kept as a hidden alias.  The annotated types below are the
-options' one spelling: ``-o/--output``, ``--out-dir``, ``--json``, ``--deg``, ``--si``,
-``--seed``.
+``--dt 2ms``): :func:`quantity` parses one, :func:`length_option` a length;
+:func:`legacy_quantity` also accepts an old unit-in-the-flag spelling, for the hidden
+aliases that ``kincal plan`` and the five-bar commands still carry.  The annotated
+types below are the options' one spelling: ``-o/--output``, ``--out-dir``, ``--json``,
+``--deg``, ``--si``, ``--seed``.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Annotated
+from typing import Annotated, overload
 
 import typer
 
@@ -28,6 +28,12 @@ SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of every rando
                                       "same command gives the same numbers.")]
 
 
+@overload
+def quantity(text: str, dimension: str | tuple[str, ...], option: str, *,
+             positive: bool = False, minimum: float | None = None) -> float: ...
+@overload
+def quantity(text: str | None, dimension: str | tuple[str, ...], option: str, *,
+             positive: bool = False, minimum: float | None = None) -> float | None: ...
 def quantity(text: str | None, dimension: str | tuple[str, ...], option: str, *,
              positive: bool = False, minimum: float | None = None) -> float | None:
     """``"0.01mm" -> 1e-5`` (SI) for option ``option``; None stays None."""
@@ -51,10 +57,9 @@ def legacy_quantity(text: str | None, option: str, old: float | None, old_option
     return quantity(text, dimension, option, positive=positive, minimum=minimum)
 
 
-def length_option(text: str | None, option: str, old_mm: float | None = None,
-                  old_option: str = "") -> float | None:
-    """A length option [m]: ``--tolerance 0.1um``, or its old ``--tolerance-mm`` spelling."""
-    return legacy_quantity(text, option, old_mm, old_option or f"{option}-mm", "length", "mm")
+def length_option(text: str | None, option: str) -> float | None:
+    """A length option [m]: ``--tolerance 0.1um -> 1e-7``; None stays None."""
+    return quantity(text, "length", option)
 
 
 class Units:

@@ -32,7 +32,7 @@ from kincal.cli.calibration_common import (
     serial,
 )
 from kincal.cli.common import console
-from kincal.cli.options import SeedOpt, SiOpt, Units, legacy_quantity
+from kincal.cli.options import SeedOpt, SiOpt, Units, quantity
 from kincal.errors import KincalError
 from kincal.io import check_outputs
 
@@ -132,15 +132,11 @@ def artifact_options(inst: Any, flags: dict[str, str | int | None]) -> dict[str,
     return out
 
 
-def parse_noise(noise_mm: float | None, noise: str | None, inst: Any,
-                option: str = "--noise") -> float:
+def parse_noise(noise: str | None, inst: Any, option: str = "--noise") -> float:
     """The instrument's main noise in its SI unit from ``--noise 0.01mm`` (its dimension:
-    length, angle or pixel) or the old ``--noise-mm`` spelling; the instrument's default
-    otherwise."""
+    length, angle or pixel); the instrument's default otherwise."""
     dim = {"m": "length", "rad": "angle", "px": "pixel"}.get(inst.noise_unit, "dimensionless")
-    if noise_mm is not None and dim != "length":
-        raise KincalError(f"instrument {inst.name!r} has {dim} noise: use --noise VALUE+UNIT")
-    value = legacy_quantity(noise, option, noise_mm, "--noise-mm", dim, "mm", minimum=0.0)
+    value = quantity(noise, dim, option, minimum=0.0)
     if value is None:
         value = {"length": 1e-5, "angle": 2e-6, "pixel": 0.2}.get(dim, 1e-5)
     return float(value)
@@ -212,15 +208,6 @@ def simulate(
     length_unit: LengthUnit = "m", angle_unit: AngleUnit = "rad",
     base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
     json_out: JsonOpt = None,
-    noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
-    encoder_noise_deg: Annotated[float | None, typer.Option("--encoder-noise-deg", hidden=True)
-                                 ] = None,
-    length_error_mm: Annotated[float | None, typer.Option("--length-error-mm", hidden=True)
-                               ] = None,
-    angle_error_deg: Annotated[float | None, typer.Option("--angle-error-deg", hidden=True)
-                               ] = None,
-    offset_error_deg: Annotated[float | None, typer.Option("--offset-error-deg", hidden=True)
-                                ] = None,
 ) -> None:
     """Simulate a calibration experiment: a true robot (nominal + errors) measured by an
     instrument with noise. Writes the measurements (and the truth) for `kincal calibrate`.
@@ -239,18 +226,10 @@ def simulate(
     from kincal.robots.files import robot_yaml_text
 
     out = out_console(json_out)
-    errors = {what: legacy_quantity(text, f"--{what}-error", old, f"--{what}-error-"
-                                    f"{'mm' if what == 'length' else 'deg'}",
-                                    "length" if what == "length" else "angle",
-                                    "mm" if what == "length" else "deg", minimum=0.0)
-              for what, text, old in (("length", length_error, length_error_mm),
-                                      ("angle", angle_error, angle_error_deg),
-                                      ("offset", offset_error, offset_error_deg))}
-    if encoder_noise_deg is not None:
-        if encoder_noise is not None:
-            raise KincalError("give --encoder-noise (with its unit) or --encoder-noise-deg, "
-                              "not both")
-        encoder_noise = f"{encoder_noise_deg!r}deg"
+    errors = {what: quantity(text, "length" if what == "length" else "angle",
+                             f"--{what}-error", minimum=0.0)
+              for what, text in (("length", length_error), ("angle", angle_error),
+                                 ("offset", offset_error))}
     check_outputs({"-o": output, "--holdout": holdout, "--truth": truth, "--json": json_out},
                   {"ROBOT": [robot] if Path(robot).is_file() else []})
     nominal = serial(load(robot, base_link, tip_link), "simulate")
@@ -263,9 +242,9 @@ def simulate(
     if both:
         raise KincalError(f"option {both[0]} is given twice (as a flag and as --option)")
     opts.update(flags)
-    if encoder_noise is not None and (noise is not None or noise_mm is not None):
+    if encoder_noise is not None and noise is not None:
         raise KincalError("give either --encoder-noise or --noise, not both")
-    sd = parse_noise(noise_mm, noise, inst)
+    sd = parse_noise(noise, inst)
     used, noise_text = noise_used(inst, opts, sd, si)
     units = {"length": check_unit(length_unit, "length", "--length-unit"),
              "angle": check_unit(angle_unit, "angle", "--angle-unit")}
@@ -294,7 +273,7 @@ def simulate(
     true = dataclasses.replace(true, meta={**dict(true.meta), "notes": note})
     truth_text = robot_yaml_text(true) if truth else None
     write_measurements(inst, blocks, output, units, nominal)
-    if held is not None:
+    if held is not None and holdout is not None:
         write_measurements(inst, held, holdout, units, nominal)
     if truth and truth_text is not None:
         from kincal.io import atomic_write_text
@@ -313,10 +292,10 @@ def simulate(
         hrows = sum(int(b.q.shape[0]) for b in held)
         out.print(f"held-out: {hrows} measurements -> {escape(str(holdout))}")
     lin = np.array([u == "m" for u in nominal.param_units])
-    units = Units(si)
+    console = Units(si)
     out.print(f"injected errors: {int(np.count_nonzero(delta))} parameters, largest "
-              f"{units.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
-              f"{units.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
+              f"{console.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
+              f"{console.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
               + (f"; truth -> {escape(truth)}" if truth else ""))
     if json_out:
         doc: dict[str, Any] = {

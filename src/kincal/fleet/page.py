@@ -47,7 +47,7 @@ def accuracy_plot(serials: Sequence[str], series: Mapping[str, Sequence[float | 
     width = min(16.0, max(6.0, 0.18 * len(serials) + 2))
     fig, ax = plt.subplots(figsize=(width, 3.6))
     for (label, values), marker in zip(series.items(), "os^vD", strict=False):
-        y = np.array([np.nan if values[i] is None else values[i] * 1e3 for i in order])
+        y = np.array([np.nan if (v := values[i]) is None else v * 1e3 for i in order])
         if np.isfinite(y).any():
             ax.plot(np.arange(len(order)), y, marker, ms=4, label=label)
     ax.set_ylabel("position RMS [mm]")
@@ -165,14 +165,14 @@ def fleet_page(summaries: Sequence[Mapping[str, Any]], drifts: Sequence[Any],
                      + "".join(f"<th>{heads[k]} [mm]</th>" for k in present)
                      + "<th>previous model [mm]</th><th>max |z|</th><th class='l'>drift</th>"
                      "</tr>")
-        for s, p in zip(order, prev, strict=True):
-            rec, d = latest[s], by_serial.get(s)
+        for serial, previous in zip(order, prev, strict=True):
+            rec, d = latest[serial], by_serial.get(serial)
             mark = ("<span class='bad'>flagged</span>" if d is not None and d.flagged else
                     "no" if d is not None else "<span class='small'>one session</span>")
             parts.append(
-                f"<tr><td class='l'>{esc(s)}</td><td class='l'>{esc(rec['date'])}</td>"
+                f"<tr><td class='l'>{esc(serial)}</td><td class='l'>{esc(rec['date'])}</td>"
                 + "".join(f"<td>{_mm(rec.get(k))}</td>" for k in present)
-                + f"<td>{_mm(p)}</td><td>{'-' if d is None else f'{d.z_max:.1f}'}</td>"
+                + f"<td>{_mm(previous)}</td><td>{'-' if d is None else f'{d.z_max:.1f}'}</td>"
                 f"<td class='l'>{mark}</td></tr>")
         parts.append("</table>")
     shown = [d for d in flagged if d.serial in histories][:_MAX_HISTORY_ROBOTS]

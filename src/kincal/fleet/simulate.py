@@ -55,6 +55,14 @@ class SimulatedFleet:
     truth: Path
     robots: list[dict[str, Any]]
 
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary: the paths as text and each robot's record without its true
+        parameters (those are in ``truth.json``)."""
+        return {"root": str(self.root), "manifest": str(self.manifest),
+                "truth": str(self.truth),
+                "robots": [{k: v for k, v in r.items() if k != "true_parameters"}
+                           for r in self.robots]}
+
 
 def serial_name(k: int) -> str:
     """The serial number of the ``k``-th simulated robot (``R-00001``)."""
@@ -110,7 +118,7 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
 
     from kincal.measure.registry import simulate_measurements, write_measurements
     from kincal.measure.simulate import perturb_robot
-    from kincal.robots.chain import ROLES
+    from kincal.robots.chain import ROLES, Robot
     from kincal.workflow.robots import load_any_robot
 
     if robots < 1 or sessions < 1 or poses < 1:
@@ -125,7 +133,7 @@ def simulate_fleet(root: str | Path, robot: str = "puma560", robots: int = 20,
     except ValueError:
         raise KincalError(f"option --start: {start!r} is not a date YYYY-MM-DD") from None
     nominal = load_any_robot(robot)
-    if not hasattr(nominal, "param_roles"):
+    if not isinstance(nominal, Robot):
         raise KincalError("simulated fleets are of serial robots")
     root = Path(root)
     order = np.random.default_rng([seed, 2**31]).permutation(robots)

@@ -226,7 +226,9 @@ class HistoryStore:
                 & ((c_.fingerprint == row["fingerprint"]) | (c_.status == "failed"))))]
             if old:
                 self._delete(c, old)
-            new_id = int(c.execute(insert(calibrations).values(**row)).inserted_primary_key[0])
+            key = c.execute(insert(calibrations).values(**row)).inserted_primary_key
+            assert key is not None                # a single-row insert always has its key
+            new_id = int(key[0])
             params = [{"calibration_id": new_id, "name": p["name"], "unit": p["unit"],
                        "role": p["role"], "nominal": p["nominal"], "estimate": p["estimate"],
                        "std": p.get("std"), "estimated": bool(p["estimated"]),

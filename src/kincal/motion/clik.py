@@ -273,8 +273,9 @@ def clik(robot: Robot, motion: CartesianMotion | Callable[[Array], tuple[Array, 
         """q_dot and the diagnostics at time tk (desired from cache or the motion)."""
         Tdk, vdk = (cached if cached is not None else (lambda r: (r[0][0], r[1][0]))(
             motion(np.array([tk]))))
-        T, Jg, _ = robot.fk_with_jacobians(q[None], joints=True, params=False)
-        T, Jg = T[0], Jg[0]
+        T, J, _ = robot.fk_with_jacobians(q[None], joints=True, params=False)
+        assert J is not None                      # joints=True: the joint Jacobian is made
+        T, Jg = T[0], J[0]
         ep = Tdk[:3, 3] - T[:3, 3]
         if task == "position":
             J, e, ff = Jg[:3], ep, vdk[:3]

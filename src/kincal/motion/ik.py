@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -169,7 +170,7 @@ class IKSolutions:
 # set-up helpers
 
 
-def parse_mask(mask: str | Sequence[bool]) -> NDArray[np.bool_]:
+def parse_mask(mask: str | Sequence[bool] | NDArray[np.bool_]) -> NDArray[np.bool_]:
     """The 6 selected rows ``[x y z rx ry rz]`` of the pose error from a name or 6 bools."""
     if isinstance(mask, str):
         if mask not in MASKS:
@@ -225,7 +226,7 @@ def reach_bound(robot: Robot) -> tuple[Array, float]:
 
 
 def check_solutions(robot: Robot, targets: ArrayLike, q: ArrayLike,
-                    mask: str | Sequence[bool] = "pose") -> tuple[Array, Array]:
+                    mask: str | Sequence[bool] | NDArray[np.bool_] = "pose") -> tuple[Array, Array]:
     """Position [m] and orientation [rad] error norms of ``FK(q)`` against the targets.
 
     An independent check of any IK result: ``e = [p_t - p(q); log(R_t R(q)^T)]`` on
@@ -294,8 +295,8 @@ def _attempt(pb: IKProblem, idx: NDArray[np.intp], q_init: Array, max_iter: int)
             keep = ~finish
             if not np.any(keep):
                 break
-            pos, q, e, J, ep, eo, cost, mu, clamp, ref = (
-                a[keep] for a in (pos, q, e, J, ep, eo, cost, mu, clamp, ref))
+            alive: tuple[Any, ...] = (pos, q, e, J, ep, eo, cost, mu, clamp, ref)
+            pos, q, e, J, ep, eo, cost, mu, clamp, ref = (a[keep] for a in alive)
         # normal equations in "structure of arrays" layout (row, column, target): every
         # operation below is a vector operation over all M targets at once
         Js = np.transpose(J, (1, 2, 0))
@@ -362,7 +363,7 @@ def solve_spd(H: Array, g: Array) -> Array:
 
 
 def solve_ik(robot: Robot, targets: ArrayLike, q0: ArrayLike | None = None,
-             mask: str | Sequence[bool] = "pose", tol_position: float = 1e-9,
+             mask: str | Sequence[bool] | NDArray[np.bool_] = "pose", tol_position: float = 1e-9,
              tol_orientation: float = 1e-9, max_iter: int = 100, restarts: int = 5,
              rng: np.random.Generator | int | None = None,
              respect_limits: bool = True) -> IKSolutions:

@@ -219,7 +219,8 @@ def _wrist(M: Array, sigma: float, tau: float) -> tuple[tuple[Array, Array, Arra
     return tuple(out)
 
 
-def spherical_wrist_angles(L: list[DHLink], T: Array) -> tuple[Array, Array]:
+def spherical_wrist_angles(L: list[DHLink], T: Array
+                           ) -> tuple[Array, NDArray[np.bool_]]:
     """DH angles ``theta`` (N, 8, 6) and ``reachable`` (N, 8) of a 6R arm with a spherical
     wrist (the family and derivation of :mod:`kincal.motion.ik_wrist`) for targets T
     (N, 4, 4) of the frame after ``Tz(d6)`` (:func:`_strip_frames`).

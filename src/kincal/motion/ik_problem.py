@@ -48,6 +48,7 @@ class IKProblem:
     def evaluate(self, q: Array, idx: NDArray[np.intp]) -> tuple[Array, Array, Array, Array]:
         """Masked error (M, m), masked Jacobian (M, m, n), |e_p| and |e_o| for targets idx."""
         T, J, _ = self.robot.fk_with_jacobians(q, joints=True, params=False)
+        assert J is not None                      # joints=True: the joint Jacobian is made
         dp = self.p_t[idx] - T[:, :3, 3]
         if self.R_t is None:
             w = np.zeros_like(dp)

@@ -189,4 +189,4 @@ def sample_times(duration: float, dt: float) -> Array:
     t = np.arange(n + 1) * dt
     if duration - t[-1] > 1e-9 * max(dt, 1.0):
         t = np.append(t, duration)
-    return t
+    return np.asarray(t, dtype=np.float64)                # already float64: no copy

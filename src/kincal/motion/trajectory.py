@@ -282,8 +282,8 @@ class CartesianMotion:
 
 
 def cartesian_trajectory(robot: Robot, motion: CartesianMotion, q0: ArrayLike, dt: float,
-                         mask: str | Sequence[bool] = "pose", chunk: int = 50,
-                         kind: str = "line", tol: float = 1e-9) -> Trajectory:
+                         mask: str | Sequence[bool] | NDArray[np.bool_] = "pose",
+                         chunk: int = 50, kind: str = "line", tol: float = 1e-9) -> Trajectory:
     """Sample a Cartesian motion every ``dt`` and solve the joints by batched IK.
 
     The samples are solved in consecutive chunks of ``chunk``; each chunk's starts are
@@ -308,6 +308,7 @@ def cartesian_trajectory(robot: Robot, motion: CartesianMotion, q0: ArrayLike, d
     for s0 in range(0, N, chunk):              # loop over chunks; each chunk is batched
         sl = slice(s0, min(s0 + chunk, N))
         T_seed, J_seed, _ = robot.fk_with_jacobians(seed[None], joints=True, params=False)
+        assert J_seed is not None                 # joints=True: the joint Jacobian is made
         e = pose_error(X[sl], T_seed[0])[:, rows]
         starts = seed + e @ np.linalg.pinv(J_seed[0][rows]).T
         sol = solve_ik(robot, X[sl], q0=starts, mask=m, tol_position=tol,
@@ -384,7 +385,7 @@ def concatenate(parts: Sequence[Trajectory]) -> Trajectory:
 def cartesian_via(robot: Robot, poses: Sequence[ArrayLike], q0: ArrayLike, dt: float,
                   timing: str = "quintic", durations: Sequence[float] | None = None,
                   v_max: float | None = None, a_max: float | None = None,
-                  mask: str | Sequence[bool] = "pose") -> Trajectory:
+                  mask: str | Sequence[bool] | NDArray[np.bool_] = "pose") -> Trajectory:
     """Straight segments through via poses, at rest at each via point, joined in time."""
     if len(poses) < 2:
         raise KincalError("a Cartesian path needs at least two poses")

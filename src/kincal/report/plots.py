@@ -14,12 +14,15 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from kincal.units import display_scale
+
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
 
 Array = NDArray[np.float64]
 
@@ -32,7 +35,7 @@ DPI = 100
 MAX_WIDTH_IN = 11.6
 #: Smallest text [pt]: 8 pt at 100 dpi is 11.1 px.
 MIN_TEXT_PT = 8.0
-_TEXT = {"font.size": 9.5, "axes.titlesize": 10.5, "axes.labelsize": 9.5,
+_TEXT: dict[RcKeyType, float] = {"font.size": 9.5, "axes.titlesize": 10.5, "axes.labelsize": 9.5,
          "xtick.labelsize": 9.0, "ytick.labelsize": 9.0, "legend.fontsize": 9.0,
          "figure.titlesize": 11.0, "figure.labelsize": 10.0}
 
