@@ -35,7 +35,7 @@ from kincal.parallel import residuals as res
 from kincal.parallel.fivebar import FiveBar
 from kincal.parallel.identifiability import Identifiability, analyse
 
-THESIS_FREE: tuple[str, ...] = ("l1", "l2", "l3", "l4")
+LENGTHS_FREE: tuple[str, ...] = ("l1", "l2", "l3", "l4")
 ROBOT_FREE: tuple[str, ...] = res.ALL_NAMES[: res.N_ROBOT]
 
 
