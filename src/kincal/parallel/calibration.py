@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from kincal.defaults import FIVEBAR_MAX_ITER, FIVEBAR_TOL
 from kincal.errors import IdentifiabilityError, KincalError, UnreachableError
 from kincal.parallel import residuals as res
 from kincal.parallel.fivebar import FiveBar
@@ -210,8 +211,8 @@ def calibrate(
     method: str = "gauss-newton",
     frame: Sequence[float] = (0.0, 0.0, 0.0),
     sigma: float | None = None,
-    tol: float = 1e-10,
-    max_iter: int = 100,
+    tol: float = FIVEBAR_TOL,
+    max_iter: int = FIVEBAR_MAX_ITER,
     rank_tol: float = 1e-8,
     labels: Sequence[str] | None = None,
 ) -> FiveBarCalibration:
