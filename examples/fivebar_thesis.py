@@ -18,30 +18,34 @@ import math
 import sys
 from pathlib import Path
 
-from kincal.parallel.thesis import THESIS_TRUE, plot_thesis, run_thesis
+from kincal.parallel.reference_experiment import (
+    EXPERIMENT_TRUE_LENGTHS,
+    plot_reference_experiment,
+    run_reference_experiment,
+)
 
 
 def main(out: Path) -> None:
-    result, true = run_thesis(n=50, seed=0, method="gauss-newton", residual="ik")
+    result, true = run_reference_experiment(n=50, seed=0, method="gauss-newton", residual="ik")
     print(
         f"bases: B1 = ({true.base1_x}, {true.base1_y}) m, B2 = ({true.base2_x}, {true.base2_y}) m"
     )
-    print("iteration " + " ".join(f"{k:>16s}" for k in THESIS_TRUE) + "     max step")
+    print("iteration " + " ".join(f"{k:>16s}" for k in EXPERIMENT_TRUE_LENGTHS) + "     max step")
     for h in result.history:
-        values = " ".join(f"{h['params'][k]:16.12f}" for k in THESIS_TRUE)
+        values = " ".join(f"{h['params'][k]:16.12f}" for k in EXPERIMENT_TRUE_LENGTHS)
         print(f"{h['iteration']:9d} {values} {h['step']:12.3g}")
-    print("true      " + " ".join(f"{v:16.12f}" for v in THESIS_TRUE.values()))
-    for path in plot_thesis(result, true, out):
+    print("true      " + " ".join(f"{v:16.12f}" for v in EXPERIMENT_TRUE_LENGTHS.values()))
+    for path in plot_reference_experiment(result, true, out):
         print("wrote", path)
     print("wrote", result.to_json(out / "fivebar_thesis.json"))
 
-    fk_result, _ = run_thesis(residual="fk")
-    err = max(abs(fk_result.params[k] - v) for k, v in THESIS_TRUE.items())
+    fk_result, _ = run_reference_experiment(residual="fk")
+    err = max(abs(fk_result.params[k] - v) for k, v in EXPERIMENT_TRUE_LENGTHS.items())
     print(f"task-space residual: {fk_result.iterations} iterations, largest error {err:.2g} m")
 
-    noisy, _ = run_thesis(noise=math.radians(0.05), seed=1)
+    noisy, _ = run_reference_experiment(noise=math.radians(0.05), seed=1)
     print("with 0.05 deg reading noise: estimate +- standard error")
-    for k, v in THESIS_TRUE.items():
+    for k, v in EXPERIMENT_TRUE_LENGTHS.items():
         print(f"  {k}: {noisy.params[k]:.6f} +- {noisy.std_errors[k]:.6f} m (true {v})")
 
 

@@ -101,3 +101,28 @@ def test_mismatched_robots_and_shapes(robots):
         compensate(calibrated, np.eye(4), nominal=other)
     with pytest.raises(KincalError, match="position targets must have shape"):
         compensate(calibrated, np.zeros((3, 2)))
+
+
+def test_compensate_targets_library_workflow_and_its_document(robots):
+    from kincal.workflow.compensation import compensate_targets
+
+    nominal, calibrated, rng = robots
+    T = nominal.fk(_inside(nominal, rng, 5))
+    run = compensate_targets(calibrated, T, nominal=nominal, source="t.csv", output="q.csv")
+    direct = compensate(calibrated, T, nominal=nominal)
+    np.testing.assert_array_equal(run.compensation.q, direct.q)
+    assert run.predicted is None
+    doc = run.to_dict()
+    assert doc["robot"] == calibrated.name and doc["targets"] == "t.csv"
+    assert doc["output"] == "q.csv" and doc["mask"] == "pose"
+    assert doc["joint_names"] == list(calibrated.joint_names)
+    np.testing.assert_array_equal(doc["filtered"], direct.filtered)
+    assert "predicted" not in doc and "fallback_nominal" not in doc
+    with pytest.raises(KincalError, match="not none or nominal"):
+        compensate_targets(calibrated, T, fallback="always")  # type: ignore[arg-type]
+    with pytest.raises(KincalError, match="needs the nominal robot and the accuracy"):
+        compensate_targets(calibrated, T, nominal=nominal, fallback="nominal")
+    far = T.copy()
+    far[2, :3, 3] = [10.0, 0.0, 0.0]
+    with pytest.raises(UnreachableError, match="line 7"):
+        compensate_targets(calibrated, far, lines=np.arange(5, 10))

@@ -10,8 +10,13 @@ import pytest
 from kincal.errors import KincalError, UnreachableError
 from kincal.parallel import kinematics as kin
 from kincal.parallel import residuals as res
-from kincal.parallel.calibration import ROBOT_FREE, THESIS_FREE, calibrate
-from kincal.parallel.thesis import THESIS_TRUE, run_thesis, simulate, thesis_robots
+from kincal.parallel.calibration import LENGTHS_FREE, ROBOT_FREE, calibrate
+from kincal.parallel.reference_experiment import (
+    EXPERIMENT_TRUE_LENGTHS,
+    experiment_robots,
+    run_reference_experiment,
+    simulate,
+)
 
 # Central differences with step h have truncation error ~ h^2 |f'''| and rounding
 # ~ eps |f| / h: with h = 1e-6 and |f|, |f'''| of order 1-10 both stay below ~1e-8.
@@ -41,7 +46,7 @@ def central_difference(model, theta, q, x, branch) -> np.ndarray:
 @pytest.mark.parametrize("kind", ["ik", "fk"])
 def test_jacobians_equal_central_differences(kind: str) -> None:
     rng = np.random.default_rng(11)
-    nominal, _ = thesis_robots()
+    nominal, _ = experiment_robots()
     theta = np.r_[nominal.param_values, 0.1, -0.2, 0.05] + rng.normal(0.0, 0.02, 13)
     q = np.c_[rng.uniform(0.2, 1.3, 30), rng.uniform(1.8, 2.9, 30)]
     x = measured_points(theta, q, -1)
@@ -58,21 +63,21 @@ def test_jacobians_equal_central_differences(kind: str) -> None:
 @pytest.mark.parametrize("method", ["gauss-newton", "lm"])
 @pytest.mark.parametrize("residual", ["ik", "fk"])
 def test_thesis_experiment_converges_to_the_true_lengths(method: str, residual: str) -> None:
-    result, true = run_thesis(n=50, seed=0, method=method, residual=residual)
+    result, true = run_reference_experiment(n=50, seed=0, method=method, residual=residual)
     assert result.converged
     assert result.iterations <= 8  # measured: 5-6
-    for name, value in THESIS_TRUE.items():
+    for name, value in EXPERIMENT_TRUE_LENGTHS.items():
         assert abs(result.params[name] - value) < 1e-9
         traj = result.trajectory(name)
         assert traj[0] == {"l1": 2.0, "l2": 2.0, "l3": 3.0, "l4": 3.0}[name]
         # by the second step every length is within 0.5 % of its true value
         assert abs(traj[2] - value) < 5e-3 * value
     assert result.history[-1]["step"] < 1e-10
-    assert result.free == THESIS_FREE
+    assert result.free == LENGTHS_FREE
 
 
 def test_thesis_history_in_json(tmp_path) -> None:
-    result, _ = run_thesis()
+    result, _ = run_reference_experiment()
     path = result.to_json(tmp_path / "thesis.json")
     data = json.loads(path.read_text())
     assert [h["iteration"] for h in data["history"]] == list(range(result.iterations + 1))
@@ -82,7 +87,7 @@ def test_thesis_history_in_json(tmp_path) -> None:
 
 
 def monte_carlo(free, method: str, seeds: int, noise: float):
-    nominal, true = thesis_robots()
+    nominal, true = experiment_robots()
     idx = [true.param_names.index(n) for n in free]
     errors, stderrs = [], []
     for seed in range(seeds):
@@ -99,7 +104,7 @@ def test_joint_noise_errors_match_reported_standard_errors() -> None:
     # 200 seeds: the RMS of the errors is known to about 1/sqrt(400) = 5 %, so a
     # correct standard error gives a ratio within 1/1.2 .. 1.2 (4 sigma).  Measured:
     # 0.995, 1.026, 1.047, 1.077 for l1..l4.
-    ratio = monte_carlo(THESIS_FREE, "gauss-newton", 200, 1e-3)
+    ratio = monte_carlo(LENGTHS_FREE, "gauss-newton", 200, 1e-3)
     assert np.all((ratio > 1 / 1.2) & (ratio < 1.2)), ratio
 
 
@@ -110,7 +115,7 @@ def test_joint_noise_all_ten_parameters_within_standard_errors() -> None:
 
 
 def perturbed_truth():
-    nominal, true = thesis_robots()
+    nominal, true = experiment_robots()
     true = true.with_params(
         {"base1.x": 1.03, "base1.y": -0.02, "base2.x": -0.97, "base2.y": 0.015,
          "offset1": 0.01, "offset2": -0.015}
@@ -152,7 +157,7 @@ def test_free_measurement_frame_names_the_dependent_parameters() -> None:
 
 def test_translation_absorption_is_exact() -> None:
     # truth: base1.x off by +0.02 m and the measurement frame shifted; base1.x held
-    nominal, true = thesis_robots()
+    nominal, true = experiment_robots()
     true = true.with_params({"base1.x": 1.02})
     q, x_base = simulate(true, nominal, 40, np.random.default_rng(4))
     frame_true = np.array([0.05, -0.03, 0.0])
@@ -169,7 +174,7 @@ def test_translation_absorption_is_exact() -> None:
 
 
 def test_errors_name_the_problem() -> None:
-    nominal, true = thesis_robots()
+    nominal, true = experiment_robots()
     q, x = simulate(true, nominal, 20, np.random.default_rng(0))
     with pytest.raises(KincalError, match="unknown five-bar parameter 'l9'"):
         calibrate(nominal, q, x, free=["l9"])
@@ -182,7 +187,7 @@ def test_errors_name_the_problem() -> None:
 
 
 def test_report_and_repr() -> None:
-    result, _ = run_thesis(noise=1e-3)
+    result, _ = run_reference_experiment(noise=1e-3)
     text = result.report()
     assert "| l1 | 2 |" in text and "std error" in text
     assert "l1=" in repr(result)

@@ -19,7 +19,7 @@ SRC = Path(kincal.__file__).parent
 #: Tiers from the bottom.  A module may import its own package and anything in a lower
 #: tier; packages of the same tier do not import each other.
 LAYERS: list[tuple[str, ...]] = [
-    ("errors", "_version"),
+    ("errors", "_version", "defaults"),
     ("spatial", "io", "units"),
     ("robots",),
     ("motion",),
@@ -83,7 +83,7 @@ def test_every_module_has_a_layer() -> None:
 
 def test_the_package_root_holds_only_shared_modules() -> None:
     root = sorted(p.stem for p in SRC.glob("*.py") if p.stem != "__init__")
-    assert set(root) <= {"errors", "_version", "spatial", "io", "units"}, root
+    assert set(root) <= {"errors", "_version", "defaults", "spatial", "io", "units"}, root
 
 
 @pytest.mark.parametrize("module", sorted(m for m in GRAPH if m != "kincal"))

@@ -62,6 +62,7 @@ from kincal.cli.setupfile import (
     require_robot,
     uses_setup,
 )
+from kincal.defaults import STAGE_TOLERANCE_M, max_iter_for
 from kincal.errors import CheckFailedError, KincalError
 from kincal.identify.tolerances import describe_defaults
 from kincal.io import check_outputs
@@ -281,7 +282,7 @@ def calibrate_cmd(
         models = [parse_joint_model(joint_model)] if joint_model else None
         masses = available_masses(robot, base_link, tip_link)
     truth_vals = truth_values(truth) if truth else None
-    bar_total = max_iter or (20 if procedure == "patent" else 100)
+    bar_total = max_iter or max_iter_for(procedure)
     with Progress(bar_total, json_out != "-") as bar, fold_engine(scheduler, workers) as eng:
         flow = run_flow(r, blocks, holdouts, free=free, fix=fix, stages=parse_stages(stages),
                         method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
@@ -312,7 +313,7 @@ def calibrate_cmd(
                        "condition growth": "-" if condition_growth is None
                        else f"{condition_growth:g}",
                        "cycles": "until converged" if cycles is None else str(cycles),
-                       "tolerance": f"{(tolerance or 1e-7) * 1e3:g} mm"})
+                       "tolerance": f"{(tolerance or STAGE_TOLERANCE_M) * 1e3:g} mm"})
     written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
                             {"seconds": flow.seconds}, force=force)
     conv = "[green]converged[/green]" if res.converged else "[red]did not converge[/red]"

@@ -118,11 +118,11 @@ def compensate_cmd(
     the targets file (mm/deg targets give joint commands in deg) unless told."""
     import numpy as np
 
-    from kincal.compensation.compensate import compensate, require_all
     from kincal.io import atomic_write_text, write_json
     from kincal.measure.files import format_table, joint_columns
     from kincal.spatial import matrix_to_rpy
     from kincal.units import UNITS
+    from kincal.workflow.compensation import compensate_targets
 
     out = out_console(json_out)
     cu = use_si(si)
@@ -151,16 +151,10 @@ def compensate_cmd(
     T, seeds, table = read_targets(targets, cal, units, ignore)
     length_unit = length_unit or table.units.get("x", "m")
     angle_unit = angle_unit or table.units.get("rx", "rad" if length_unit == "m" else "deg")
-    comp = compensate(cal, T, nominal=nom, q0=seeds)
-    require_all(comp, targets, table.lines)
-    pred = None
-    if accuracy is not None:
-        from kincal.compensation.compensate import fall_back_to_nominal
-        from kincal.identify.accuracy import predict
-
-        pred = predict(accuracy, cal, comp.q, nominal=nom, point=np.zeros(3))
-        if fallback == "nominal" and nom is not None:
-            comp = fall_back_to_nominal(comp, cal, nom, T, pred.worse_than_nominal)
+    run = compensate_targets(cal, T, nominal=nom, seeds=seeds, accuracy=accuracy,
+                             fallback="nominal" if fallback == "nominal" else "none",
+                             source=targets, lines=table.lines, output=output)
+    comp, pred = run.compensation, run.predicted
     cols = [(name, comp.q[:, k] * f) for k, (name, f) in
             enumerate(joint_columns(cal, cal.n, angle_unit, length_unit))]
     jtext = format_table(cols, comments=[f"joint commands for {cal.name} from {targets}: "
@@ -198,19 +192,7 @@ def compensate_cmd(
     out.print(f"joint commands ({angle_unit} / {length_unit}) -> {escape(output)}"
               + (f"; filtered targets -> {escape(filtered)}" if ftext else ""))
     if json_out:
-        doc = {"robot": cal.name, "targets": targets, "mask": comp.mask,
-               "branch_changes": comp.branch_changes,
-               "q": comp.q, "position_error_m": comp.position_error,
-               "orientation_error_rad": comp.orientation_error,
-               "joint_names": list(cal.joint_names), "output": output}
-        if comp.filtered is not None:
-            doc["filtered"] = comp.filtered
-            doc["correction_m"] = comp.correction
-        if pred is not None:
-            doc["predicted"] = pred.to_dict()
-            doc["fallback_nominal"] = (comp.fallback if comp.fallback is not None
-                                       else np.zeros(len(comp), dtype=bool))
-        write_json(json_out, doc)
+        write_json(json_out, run.to_dict())
 
 
 def _print_prediction(out: Any, pred: Any, comp: Any, table: Any, cu: Any) -> None:

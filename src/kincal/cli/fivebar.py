@@ -285,16 +285,21 @@ def fivebar_demo(
     out_dir = out_old if out_old is not None else out_dir
     noise_rad = legacy_quantity(noise, "--noise", noise_deg, "--noise-deg", "angle", "deg",
                                 minimum=0.0) or 0.0
-    from kincal.parallel.thesis import THESIS_TRUE, plot_thesis, run_thesis
+    from kincal.parallel.reference_experiment import (
+        EXPERIMENT_TRUE_LENGTHS,
+        plot_reference_experiment,
+        run_reference_experiment,
+    )
 
     if n < 3:
         raise KincalError("option -n: at least 3 configurations are needed for 4 lengths")
     key = _METHODS.get(method.lower())
     if key is None:
         raise KincalError(f"option --method: one of {', '.join(_METHODS)}, not {method!r}")
-    result, true = run_thesis(n=n, seed=seed, method=key, residual=residual, noise=noise_rad)
+    result, true = run_reference_experiment(n=n, seed=seed, method=key, residual=residual,
+                                            noise=noise_rad)
     console = _console(json_out)
-    names = list(THESIS_TRUE)
+    names = list(EXPERIMENT_TRUE_LENGTHS)
     t = Table(title=f"five-bar calibration: {n} configurations, seed {seed}, {key}, "
               f"{residual} residual (B1 = (1, 0) m, B2 = (-1, 0) m)")
     for c in ["iteration", *[f"{k} [m]" for k in names], "max step", "rms residual"]:
@@ -302,17 +307,17 @@ def fivebar_demo(
     for h in result.history:
         t.add_row(str(h["iteration"]), *[f"{h['params'][k]:.10f}" for k in names],
                   f"{h['step']:.3g}", f"{h['rms']:.3g}")
-    t.add_row("true", *[f"{THESIS_TRUE[k]:.10f}" for k in names], "", "")
+    t.add_row("true", *[f"{EXPERIMENT_TRUE_LENGTHS[k]:.10f}" for k in names], "", "")
     console.print(t)
-    err = max(abs(result.params[k] - THESIS_TRUE[k]) for k in names)
+    err = max(abs(result.params[k] - EXPERIMENT_TRUE_LENGTHS[k]) for k in names)
     console.print(f"converged: {result.converged} after {result.iterations} iterations; "
                   f"largest length error {err:.3g} m")
     if out_dir:
-        paths = plot_thesis(result, true, out_dir)
+        paths = plot_reference_experiment(result, true, out_dir)
         console.print("plots: " + ", ".join(str(p) for p in paths))
     if json_out:
         data = result.to_dict()
-        data["experiment"] = {"true": THESIS_TRUE, "n": n, "seed": seed,
+        data["experiment"] = {"true": EXPERIMENT_TRUE_LENGTHS, "n": n, "seed": seed,
                               "noise_rad": noise_rad,
                               "bases_m": {"base1": [true.base1_x, true.base1_y],
                                           "base2": [true.base2_x, true.base2_y]}}
@@ -406,7 +411,7 @@ def fivebar_simulate(
     import numpy as np
 
     from kincal.parallel.data import write_fivebar_csv
-    from kincal.parallel.thesis import simulate
+    from kincal.parallel.reference_experiment import simulate
     from kincal.units import parse_quantities
 
     output = output or out_old

@@ -308,7 +308,6 @@ def plan(
 ) -> None:
     """Choose calibration poses by an observability index (O1-O5, kappa) and predict the
     accuracy after calibration before measuring anything."""
-    import numpy as np
 
     from kincal.identify.design import write_poses
     from kincal.io import atomic_write_text, write_json
@@ -413,17 +412,7 @@ def plan(
     out.print(f"wrote {d.poses} poses -> {escape(poses_csv)} (columns {cols})"
               + (f"; report -> {escape(report)}" if report else ""))
     if json_out:
-        write_json(json_out, {
-            "robot": r.name, "instrument": instrument, "criterion": crit,
-            "method": d.method, "poses": d.q.tolist(), "candidate_indices": d.selected.tolist(),
-            "joint_names": list(r.joint_names), "indices": d.indices.as_dict(),
-            "random_indices_median": {k: float(np.median([x[k] for x in p.random_indices]))
-                                      for k in d.indices.as_dict()},
-            "identifiable": list(p.problem.names),
-            "not_identifiable": p.problem.report.not_identifiable,
-            "prediction": pred.to_dict(),
-            "random_prediction_rms_position_m": float(p.random_prediction.rms),
-            "output": output, "report": report})
+        write_json(json_out, p.to_dict(output=output, report=report))
 
 
 def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str | None,

@@ -78,6 +78,24 @@ class Plan:
         """Joint values of the chosen poses, (poses, n) [rad / m]."""
         return np.asarray(self.design.q)
 
+    def to_dict(self, output: str | None = None, report: str | None = None) -> dict[str, Any]:
+        """The JSON document of ``kincal plan --json``: the chosen poses [rad / m], their
+        observability indices, the predicted accuracy (and the median random design's RMS
+        position error [m]); ``output`` and ``report`` are the written file names."""
+        d, robot = self.design, self.problem.robot
+        return {
+            "robot": robot.name, "instrument": self.inputs.get("instrument"),
+            "criterion": d.criterion, "method": d.method, "poses": d.q.tolist(),
+            "candidate_indices": d.selected.tolist(),
+            "joint_names": list(robot.joint_names), "indices": d.indices.as_dict(),
+            "random_indices_median": {k: float(np.median([x[k] for x in self.random_indices]))
+                                      for k in d.indices.as_dict()},
+            "identifiable": list(self.problem.problem.names),
+            "not_identifiable": self.problem.report.not_identifiable,
+            "prediction": self.prediction.to_dict(),
+            "random_prediction_rms_position_m": float(self.random_prediction.rms),
+            "output": output, "report": report}
+
     def __repr__(self) -> str:
         return (f"Plan({len(self.q)} poses of {self.problem.num_candidates} candidates, "
                 f"{self.inputs.get('criterion', '')}: predicted RMS position error "

@@ -7,7 +7,7 @@ the Gruebler-Kutzbach count, :mod:`~kincal.parallel.workspace` the reachable reg
 :mod:`~kincal.parallel.files` and :mod:`~kincal.parallel.data` its robot and
 measurement files, and :mod:`~kincal.parallel.calibration` (with
 :mod:`~kincal.parallel.residuals`, :mod:`~kincal.parallel.identifiability`) the
-inverse-kinematics-residual calibration; :mod:`~kincal.parallel.thesis` reproduces
+inverse-kinematics-residual calibration; :mod:`~kincal.parallel.reference_experiment` reproduces
 the reference study.
 
 Layer rule: imports :mod:`kincal.report`, :mod:`kincal.identify` and everything below

@@ -30,12 +30,13 @@ from typing import Any
 
 import numpy as np
 
+from kincal.defaults import FIVEBAR_MAX_ITER, FIVEBAR_TOL
 from kincal.errors import IdentifiabilityError, KincalError, UnreachableError
 from kincal.parallel import residuals as res
 from kincal.parallel.fivebar import FiveBar
 from kincal.parallel.identifiability import Identifiability, analyse
 
-THESIS_FREE: tuple[str, ...] = ("l1", "l2", "l3", "l4")
+LENGTHS_FREE: tuple[str, ...] = ("l1", "l2", "l3", "l4")
 ROBOT_FREE: tuple[str, ...] = res.ALL_NAMES[: res.N_ROBOT]
 
 
@@ -210,8 +211,8 @@ def calibrate(
     method: str = "gauss-newton",
     frame: Sequence[float] = (0.0, 0.0, 0.0),
     sigma: float | None = None,
-    tol: float = 1e-10,
-    max_iter: int = 100,
+    tol: float = FIVEBAR_TOL,
+    max_iter: int = FIVEBAR_MAX_ITER,
     rank_tol: float = 1e-8,
     labels: Sequence[str] | None = None,
 ) -> FiveBarCalibration:

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from kincal.defaults import STAGE_TOLERANCE_M
 from kincal.errors import KincalError
 from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
 from kincal.workflow.options import (
@@ -115,7 +116,7 @@ def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixe
         return calibrate_staged_selection(robot, blocks, free=free_names, fixed=fixed,
                                 condition_growth=options.get("condition_growth"),
                                 cycles=options.get("cycles"),
-                                tolerance=options.get("tolerance") or 1e-7,
+                                tolerance=options.get("tolerance") or STAGE_TOLERANCE_M,
                                 progress=progress, compare=True, **extra)
     from kincal.identify.solver import calibrate
 

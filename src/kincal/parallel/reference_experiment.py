@@ -21,21 +21,21 @@ import numpy as np
 
 from kincal.errors import KincalError
 from kincal.parallel import kinematics as kin
-from kincal.parallel.calibration import THESIS_FREE, FiveBarCalibration, calibrate
+from kincal.parallel.calibration import LENGTHS_FREE, FiveBarCalibration, calibrate
 from kincal.parallel.files import load_fivebar
 from kincal.parallel.fivebar import FiveBar
 
-THESIS_TRUE: dict[str, float] = {"l1": 1.86, "l2": 2.2, "l3": 2.8, "l4": 3.3}
-THESIS_RANGES: tuple[tuple[float, float], tuple[float, float]] = (
+EXPERIMENT_TRUE_LENGTHS: dict[str, float] = {"l1": 1.86, "l2": 2.2, "l3": 2.8, "l4": 3.3}
+EXPERIMENT_MOTOR_RANGES: tuple[tuple[float, float], tuple[float, float]] = (
     (0.0, np.pi / 2),
     (np.pi / 2, np.pi),
 )
 
 
-def thesis_robots() -> tuple[FiveBar, FiveBar]:
+def experiment_robots() -> tuple[FiveBar, FiveBar]:
     """(nominal, true) robots of the thesis experiment."""
     nominal = load_fivebar("fivebar_thesis")
-    return nominal, nominal.with_params(THESIS_TRUE)
+    return nominal, nominal.with_params(EXPERIMENT_TRUE_LENGTHS)
 
 
 def simulate(
@@ -43,7 +43,7 @@ def simulate(
     nominal: FiveBar,
     n: int,
     rng: np.random.Generator,
-    ranges: tuple[tuple[float, float], tuple[float, float]] = THESIS_RANGES,
+    ranges: tuple[tuple[float, float], tuple[float, float]] = EXPERIMENT_MOTOR_RANGES,
     noise: float = 0.0,
     min_measure: float = 0.2,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -78,7 +78,7 @@ def simulate(
     return q + noise * rng.standard_normal(q.shape), x
 
 
-def run_thesis(
+def run_reference_experiment(
     n: int = 50,
     seed: int = 0,
     method: str = "gauss-newton",
@@ -87,16 +87,18 @@ def run_thesis(
     tol: float = 1e-10,
 ) -> tuple[FiveBarCalibration, FiveBar]:
     """Run the experiment; returns (calibration result, true robot)."""
-    nominal, true = thesis_robots()
+    nominal, true = experiment_robots()
     q, x = simulate(true, nominal, n, np.random.default_rng(seed), noise=noise)
     sigma = noise if noise > 0 else None
     result = calibrate(
-        nominal, q, x, free=THESIS_FREE, residual=residual, method=method, tol=tol, sigma=sigma
+        nominal, q, x, free=LENGTHS_FREE, residual=residual, method=method, tol=tol, sigma=sigma
     )
     return result, true
 
 
-def plot_thesis(result: FiveBarCalibration, true: FiveBar, out_dir: str | Path) -> list[Path]:
+def plot_reference_experiment(
+    result: FiveBarCalibration, true: FiveBar, out_dir: str | Path
+) -> list[Path]:
     """One figure per length (like the thesis's figures 4.1-4.4): value vs iteration.
 
     Writes ``fivebar_demo_l1.png`` ... ``_l4.png`` in ``out_dir``; returns the paths.
@@ -110,7 +112,7 @@ def plot_thesis(result: FiveBarCalibration, true: FiveBar, out_dir: str | Path) 
     out.mkdir(parents=True, exist_ok=True)
     paths = []
     its = np.arange(len(result.history))
-    for name in THESIS_FREE:
+    for name in LENGTHS_FREE:
         fig, ax = plt.subplots(figsize=(5.0, 3.4))
         ax.plot(its, result.trajectory(name), "o-", label="estimate")
         ax.axhline(getattr(true, name), color="k", ls="--", lw=0.8, label="true value")
