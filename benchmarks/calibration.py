@@ -73,7 +73,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from kincal.identify.identifiability import analyze  # noqa: E402
 from kincal.identify.solver import calibrate  # noqa: E402
 from kincal.measure.base import stack  # noqa: E402
-from kincal.measure.models import PositionMeasurement  # noqa: E402
+from kincal.measure.instruments.position import PositionMeasurement  # noqa: E402
 from kincal.robots.dh import DHLink, from_dh  # noqa: E402
 
 # pybotics' UR10 MDH table: rows (alpha [rad], a [mm], theta [rad], d [mm])
@@ -201,7 +201,8 @@ INSTRUMENT = [0.8, -0.4, 0.2, math.radians(20), math.radians(5), math.radians(-3
 
 def peer_problem(name: str, n: int, holdout: int = 2000, seed: int = 0):
     """(nominal robot, training block, held-out q, true held-out positions (N, K, 3))."""
-    from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+    from kincal.measure.instruments.position import simulate_positions
+    from kincal.measure.simulate import perturb_robot, random_configurations
     from kincal.robots.files import load_robot
 
     robot = load_robot(name)
@@ -351,7 +352,8 @@ def pybotics_section(poses: int, holdout: int, rounds: int) -> None:
 def scaling_problem(n: int):
     """PUMA 560 measured at ``n`` configurations, simulated in pieces (O(piece) memory
     beyond the data): (nominal robot, block)."""
-    from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+    from kincal.measure.instruments.position import simulate_positions
+    from kincal.measure.simulate import perturb_robot, random_configurations
     from kincal.robots.files import load_robot
 
     robot = load_robot("puma560")

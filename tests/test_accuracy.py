@@ -25,7 +25,8 @@ from kincal.identify.accuracy import AccuracyModel, accuracy_model, predict
 from kincal.identify.solver import calibrate
 from kincal.identify.tolerances import resolve_tolerances
 from kincal.measure.base import stack
-from kincal.measure.simulate import random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot
 
 NOISE = 2e-5

@@ -19,7 +19,8 @@ from kincal.measure.artifacts import ArtifactGeometry, ArtifactMeasurement, Prob
 from kincal.measure.artifacts.coincidence import Contrasts, Sites
 from kincal.measure.artifacts.simulate import simulate_artifact
 from kincal.measure.base import stack
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.files import load_robot
 
 

@@ -187,11 +187,11 @@ def test_moved_instrument_is_flagged_and_reregistered(flow, capsys, tmp_path):
     tracker frame and marker on the file and is back at the noise level; the nominal
     robot ("before") gets the same refit."""
     from kincal.measure.registry import write_measurements
-    from kincal.measure.standard_instruments import _frame_T
+    from kincal.spatial import matrix_from_frame
 
     nominal = load_robot("puma560")
     (h,) = read_measurements(flow["hold"], nominal)
-    M = _frame_T(np.array([0.3, -0.1, 0.05, math.radians(25), math.radians(3), 0.0]))
+    M = matrix_from_frame(np.array([0.3, -0.1, 0.05, math.radians(25), math.radians(3), 0.0]))
     moved_block = type(h)(h.q, h.positions @ M[:3, :3].T + M[:3, 3], h.sigma, h.name)
     moved = tmp_path / "moved.csv"
     write_measurements("position", [moved_block], moved, None, nominal)

@@ -11,8 +11,9 @@ import pytest
 from cli_helpers import run, write_tracker
 from test_compliance import perturbed_puma
 
+from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.joints.hysteresis import approach_directions
-from kincal.measure.simulate import random_configurations, simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot
 
 NOISE = 20e-6                                                    # m per coordinate

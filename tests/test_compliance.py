@@ -10,13 +10,10 @@ from test_models import central_differences, stanford
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
 from kincal.measure.base import MeasurementModel, ParamSpec, stack
+from kincal.measure.instruments.pose import PoseMeasurement
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.joints.compliance import JointCompliance
-from kincal.measure.models import PoseMeasurement, PositionMeasurement
-from kincal.measure.simulate import (
-    perturb_robot,
-    random_configurations,
-    simulate_positions,
-)
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.chain import ChainBuilder
 from kincal.robots.files import load_robot
 from kincal.robots.gravity import PointMass, gravity_torques

@@ -42,8 +42,8 @@ from kincal.identify.prediction import predict_accuracy
 from kincal.identify.solver import calibrate
 from kincal.measure.base import stack
 from kincal.measure.files import read_table
-from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import perturb_robot, simulate_positions
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
+from kincal.measure.simulate import perturb_robot
 from kincal.robots.files import load_robot
 
 

@@ -438,7 +438,7 @@ def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
     from kincal.compensation.filter import tcp_accuracy
     from kincal.identify.accuracy import AccuracyModel, accuracy_model, predicted_position_std
     from kincal.identify.solver import calibrate
-    from kincal.measure.simulate import simulate_positions
+    from kincal.measure.instruments.position import simulate_positions
 
     nom = load_robot("ur5")
     truth = perturb_robot(nom, np.random.default_rng(3))
@@ -477,7 +477,7 @@ def test_filter_reads_the_older_accuracy_model(tmp_path):
     from kincal.compensation.filter import tcp_accuracy
     from kincal.identify.accuracy import AccuracyModel, predicted_position_std
     from kincal.identify.solver import calibrate
-    from kincal.measure.simulate import simulate_positions
+    from kincal.measure.instruments.position import simulate_positions
 
     nom = load_robot("ur5")
     truth = perturb_robot(nom, np.random.default_rng(3))

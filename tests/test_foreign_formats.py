@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from cli_helpers import run
 
-from kincal.measure.simulate import random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot
 from kincal.workflow.flow import run_flow
 

@@ -23,9 +23,10 @@ import pytest
 from cli_helpers import run, write_tracker
 from test_compliance import perturbed_puma
 
-from kincal.measure.simulate import random_configurations, simulate_positions
-from kincal.measure.standard_instruments import _frame_T
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot, write_robot_yaml
+from kincal.spatial import matrix_from_frame
 
 NOISE = 2e-5
 INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]
@@ -52,7 +53,7 @@ def files(tmp_path_factory):
     y1 = simulate_positions(true, q_val, rng, NOISE, INSTRUMENT, MARKERS[:1]).positions
     write_tracker(d / "one_marker.csv", nominal, q_val, y1.reshape(-1, 1, 3))
     # the tracker moved by 0.3 m and 25 deg
-    M = _frame_T(np.array([0.3, -0.1, 0.05, math.radians(25), math.radians(3), 0.0]))
+    M = matrix_from_frame(np.array([0.3, -0.1, 0.05, math.radians(25), math.radians(3), 0.0]))
     q_m = in_box(nominal, 25, rng)
     ym = simulate_positions(true, q_m, rng, NOISE, INSTRUMENT, MARKERS[:1]).positions
     ym = ym.reshape(-1, 1, 3) @ M[:3, :3].T + M[:3, 3]

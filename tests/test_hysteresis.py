@@ -18,10 +18,10 @@ from test_models import central_differences
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
 from kincal.measure.base import stack
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.joints.compliance import JointCompliance
 from kincal.measure.joints.hysteresis import JointHysteresis, approach_directions
-from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import random_configurations, simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot
 from kincal.robots.gravity import gravity_torques
 

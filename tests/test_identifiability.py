@@ -9,7 +9,9 @@ import pytest
 
 from kincal.identify.identifiability import analyze, default_priority
 from kincal.measure.base import stack
-from kincal.measure.simulate import random_configurations, simulate_poses, simulate_positions
+from kincal.measure.instruments.pose import simulate_poses
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.dh import dh_links, from_dh
 from kincal.robots.files import load_robot
 

@@ -14,18 +14,10 @@ from kincal.measure.base import (
     stack,
     svd_thin,
 )
-from kincal.measure.models import (
-    PoseMeasurement,
-    PositionMeasurement,
-    inverse_left_jacobian_so3,
-    kabsch,
-)
-from kincal.measure.simulate import (
-    perturb_robot,
-    random_configurations,
-    simulate_poses,
-    simulate_positions,
-)
+from kincal.measure.instruments.common import inverse_left_jacobian_so3, kabsch
+from kincal.measure.instruments.pose import PoseMeasurement, simulate_poses
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
 from kincal.robots.scratch import scratch
@@ -155,7 +147,7 @@ def test_initial_guess_of_many_configurations_uses_an_evenly_spaced_subset(monke
     calibration from it ends at the same estimate (within the solver's 1e-3 standard
     errors)."""
     from kincal.identify.solver import calibrate
-    from kincal.measure import models
+    from kincal.measure.instruments import position
 
     rng = np.random.default_rng(8)
     robot = puma()
@@ -173,13 +165,13 @@ def test_initial_guess_of_many_configurations_uses_an_evenly_spaced_subset(monke
     monkeypatch.setattr(type(true), "fk", counting)
     guess = exact.initial_guess(true)
     monkeypatch.undo()
-    assert sum(seen) == models.GUESS_CONFIGURATIONS
+    assert sum(seen) == position.GUESS_CONFIGURATIONS
     assert np.allclose(guess[:6], np.asarray(INSTRUMENT), atol=1e-9)
     assert np.allclose(guess[6:], marker, atol=1e-9)
     noisy = simulate_positions(true, q, rng, 1e-5, INSTRUMENT, marker)
     sub = noisy.initial_guess(robot)
     res = calibrate(robot, [noisy])
-    monkeypatch.setattr(models, "GUESS_CONFIGURATIONS", 10**9)
+    monkeypatch.setattr(position, "GUESS_CONFIGURATIONS", 10**9)
     full = noisy.initial_guess(robot)
     ref = calibrate(robot, [noisy])
     # both starts carry the nominal model's error (here the frame 8 mm off); the subset

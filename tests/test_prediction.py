@@ -26,8 +26,9 @@ from kincal.identify.observability import (
 )
 from kincal.identify.prediction import predict_accuracy, prediction_figure, workspace_grid
 from kincal.identify.solver import calibrate
-from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import perturb_robot, simulate_poses, simulate_positions
+from kincal.measure.instruments.pose import simulate_poses
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
+from kincal.measure.simulate import perturb_robot
 from kincal.robots.files import load_robot
 
 NOISE = 2e-5

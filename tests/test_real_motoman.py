@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from kincal.identify.validation import cross_validate
-from kincal.measure.models import PositionMeasurement
+from kincal.measure.instruments.position import PositionMeasurement
 from kincal.robots.dh import DHLink, from_dh
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "motoman_leica"

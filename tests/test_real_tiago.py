@@ -74,9 +74,9 @@ import pytest
 
 from kincal.identify.solver import calibrate
 from kincal.identify.validation import validate
+from kincal.measure.instruments.position import PositionMeasurement
 from kincal.measure.joints.compliance import JointCompliance
 from kincal.measure.joints.terms import with_joint_model
-from kincal.measure.models import PositionMeasurement
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "tiago_mocap"
 

@@ -115,7 +115,7 @@ def test_tiago_prior_with_and_without_a_sigma_column(tmp_path):
     stated 10 um instead (``noise_scale=1``, the old behaviour) the prior does not hold."""
     from kincal.identify.checks import judge
     from kincal.identify.solver import calibrate
-    from kincal.measure.models import PositionMeasurement
+    from kincal.measure.instruments.position import PositionMeasurement
     from kincal.workflow.flow import tolerances_of
 
     robot = load_urdf(DATA / "tiago_mocap" / "tiago_48_schunk.urdf",

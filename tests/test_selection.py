@@ -32,9 +32,9 @@ from kincal.identify.selection import (
 )
 from kincal.identify.tolerances import resolve_tolerances
 from kincal.measure.base import stack
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.joints.hysteresis import approach_directions
-from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import random_configurations, simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot
 
 CANDS = candidates(False, scales=(1.0, None))

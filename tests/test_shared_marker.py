@@ -17,7 +17,8 @@ import pytest
 from cli_helpers import run, write_tracker
 from test_compliance import perturbed_puma
 
-from kincal.measure.simulate import random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_robot
 
 NOISE = 2e-5
@@ -132,7 +133,7 @@ def test_tool_point_block_keeps_the_inner_fast_path():
     """The wrapped block's pieces (the position block's own system_pieces, in several
     pieces) give the triangle and residuals of its dense evaluation at marker 0."""
     from kincal.measure.base import stack
-    from kincal.measure.models import PositionMeasurement
+    from kincal.measure.instruments.position import PositionMeasurement
     from kincal.workflow.shared import ToolPointBlock
 
     robot = load_robot("puma560")

@@ -12,13 +12,9 @@ from kincal.errors import KincalError
 from kincal.identify.identifiability import analyze
 from kincal.identify.solver import Calibration, CalibrationResult, calibrate, match_names
 from kincal.measure.base import StackedProblem, stack
-from kincal.measure.models import PositionMeasurement
-from kincal.measure.simulate import (
-    perturb_robot,
-    random_configurations,
-    simulate_poses,
-    simulate_positions,
-)
+from kincal.measure.instruments.pose import simulate_poses
+from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import dh_links, from_dh
 from kincal.robots.files import load_robot
 

@@ -24,7 +24,8 @@ import pytest
 from kincal.errors import KincalError
 from kincal.identify.solver import calibrate
 from kincal.measure.base import MeasurementModel, ParamSpec
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.files import load_robot
 
 ROBOT = load_robot("puma560")
@@ -206,7 +207,8 @@ def test_a_prior_does_not_make_a_parameter_identifiable():
     assert np.allclose(block_part(res)[keep], want, rtol=1e-10, atol=1e-13)
     assert np.allclose(res.covariance, cov, rtol=1e-8, atol=1e-16)
     # the same on a robot: position data cannot separate d[3] from d[2] (parallel axes)
-    from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+    from kincal.measure.instruments.position import simulate_positions
+    from kincal.measure.simulate import perturb_robot, random_configurations
 
     rng = np.random.default_rng(6)
     q = random_configurations(ROBOT, 30, rng)

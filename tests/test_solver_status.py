@@ -14,7 +14,8 @@ from kincal.identify.stopping import (
     step_below,
     step_within_standard_errors,
 )
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.files import load_robot
 
 

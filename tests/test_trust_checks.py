@@ -24,8 +24,9 @@ from kincal.identify.tolerances import (
     parse_tolerance_entries,
     resolve_tolerances,
 )
+from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.registry import write_measurements
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.files import load_robot
 
 NOISE = 1e-5

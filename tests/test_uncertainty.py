@@ -20,11 +20,8 @@ from kincal.identify.uncertainty import (
 )
 from kincal.identify.validation import cross_validate, error_statistics, validate
 from kincal.measure.base import stack
-from kincal.measure.simulate import (
-    perturb_robot,
-    random_configurations,
-    simulate_positions,
-)
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import dh_links, from_dh
 from kincal.robots.files import load_robot
 

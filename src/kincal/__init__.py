@@ -57,12 +57,12 @@ _API: dict[str, tuple[str, str]] = {
     "FiveBar": ("kincal.parallel.fivebar", "FiveBar"),
     # measurements
     "read_measurements": ("kincal.measure.registry", "read_measurements"),
-    "PositionMeasurement": ("kincal.measure.models", "PositionMeasurement"),
-    "PoseMeasurement": ("kincal.measure.models", "PoseMeasurement"),
+    "PositionMeasurement": ("kincal.measure.instruments.position", "PositionMeasurement"),
+    "PoseMeasurement": ("kincal.measure.instruments.pose", "PoseMeasurement"),
     "perturb_robot": ("kincal.measure.simulate", "perturb_robot"),
     "random_configurations": ("kincal.measure.simulate", "random_configurations"),
-    "simulate_positions": ("kincal.measure.simulate", "simulate_positions"),
-    "simulate_poses": ("kincal.measure.simulate", "simulate_poses"),
+    "simulate_positions": ("kincal.measure.instruments.position", "simulate_positions"),
+    "simulate_poses": ("kincal.measure.instruments.pose", "simulate_poses"),
     # calibration
     "calibrate": ("kincal.identify.solver", "calibrate"),
     "Calibration": ("kincal.identify.solver", "Calibration"),

@@ -481,7 +481,7 @@ def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dic
     from kincal.cli.options import console_units
     from kincal.identify.iso9283 import block_figures, group_positions
     from kincal.identify.validation import validate
-    from kincal.measure.models import PositionMeasurement
+    from kincal.measure.instruments.position import PositionMeasurement
     from kincal.workflow.flow import block_values, reregister
 
     doc: dict[str, Any] = {}

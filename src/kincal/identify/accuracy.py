@@ -57,7 +57,8 @@ from kincal.errors import KincalError
 from kincal.identify.solver import CalibrationResult
 from kincal.identify.uncertainty import propagated_variance
 from kincal.measure.base import HasProbe
-from kincal.measure.models import PoseMeasurement, PositionMeasurement
+from kincal.measure.instruments.pose import PoseMeasurement
+from kincal.measure.instruments.position import PositionMeasurement
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]

@@ -37,7 +37,7 @@ from kincal.errors import KincalError
 from kincal.spatial import log_so3
 
 if TYPE_CHECKING:
-    from kincal.measure.models import PositionMeasurement
+    from kincal.measure.instruments.position import PositionMeasurement
     from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]

@@ -79,7 +79,8 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze
 from kincal.measure.base import MeasurementModel, StackedProblem, stack
-from kincal.measure.models import PoseMeasurement, PositionMeasurement
+from kincal.measure.instruments.pose import PoseMeasurement
+from kincal.measure.instruments.position import PositionMeasurement
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -438,7 +439,7 @@ def design_problem(robot: Robot, q: ArrayLike, instrument: str = "position",
                    tol: float | None = None) -> DesignProblem:
     """The design problem of a laser tracker (``position``) or 6-DOF tracker (``pose``).
 
-    Builds a :class:`~kincal.measure.models.PositionMeasurement` (or
+    Builds a :class:`~kincal.measure.instruments.position.PositionMeasurement` (or
     ``PoseMeasurement``) with the candidate configurations ``q`` and the nominal
     robot's predicted observations, so the design sees the instrument frame and the
     marker exactly as the calibration will estimate them.

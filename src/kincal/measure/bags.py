@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
-from kincal.measure.models import project_so3
+from kincal.measure.instruments.common import project_so3
 from kincal.spatial import log_so3, matrix_to_rpy, quat_to_matrix
 
 Array = NDArray[np.float64]

@@ -41,8 +41,13 @@ if TYPE_CHECKING:
 #: kincal's own modules that register instruments when imported.  An error in one of
 #: them is a bug and raises.
 INSTRUMENT_MODULES: tuple[str, ...] = (
-    "kincal.measure.standard_instruments",
-    "kincal.measure.instruments",
+    "kincal.measure.instruments.position",
+    "kincal.measure.instruments.pose",
+    "kincal.measure.instruments.range",
+    "kincal.measure.instruments.bearing",
+    "kincal.measure.instruments.camera",
+    "kincal.measure.instruments.plane",
+    "kincal.measure.instruments.fixture",
     "kincal.measure.artifacts",
 )
 

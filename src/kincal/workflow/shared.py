@@ -119,8 +119,8 @@ def _point_guess(block: Any, robot: Any) -> Array:
     """The tool point ``block`` sees, in the flange frame: its marker's closed-form guess,
     or its probe's given value."""
     from kincal.measure.artifacts.model import ArtifactMeasurement
+    from kincal.measure.instruments.position import PositionMeasurement
     from kincal.measure.joints.deflection import JointDeflection
-    from kincal.measure.models import PositionMeasurement
 
     if isinstance(block, JointDeflection):
         return _point_guess(block.inner, robot)

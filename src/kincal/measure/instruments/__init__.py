@@ -1,14 +1,23 @@
-"""Measurement technologies beyond position and pose: range, bearing, camera, plane, fixture.
+"""The instruments: one module each, holding its model, its file columns and its simulator.
 
-Each instrument is a :class:`~kincal.measure.base.MeasurementModel` (whitened residuals,
-analytic Jacobians for every robot parameter and for its own parameters, closed-form
-initial guess), a simulator, and a CSV format; importing this package registers them
-in :mod:`kincal.measure.registry` for ``kincal simulate --instrument NAME`` and
-``kincal calibrate --data file.csv``.
+Each instrument module holds a :class:`~kincal.measure.base.MeasurementModel` (whitened
+residuals, analytic Jacobians for every robot parameter and for its own parameters,
+closed-form initial guess), the writer and reader of its CSV columns, its simulator, and
+the :func:`~kincal.measure.registry.register` call of its
+:class:`~kincal.measure.registry.InstrumentPlugin`; importing the module registers it for
+``kincal simulate --instrument NAME`` and ``kincal calibrate --data file.csv``
+(:data:`kincal.measure.registry.INSTRUMENT_MODULES` lists them).  Shared pieces:
+:mod:`.common` (frame and marker parameters, rotations, shared checks), :mod:`.pointblock`
+(the base class of the point instruments), :mod:`.csvio` (instrument CSV tables) and
+:mod:`.placement` (the simulators' workspace placement and contact solver).
 
 ========  ==========================================  =====================================
 name      model (module)                              block parameters
 ========  ==========================================  =====================================
+position  :class:`PositionMeasurement` (``position``) ``{name}.x/.../rx``,
+                                                      ``{name}.marker[k].x/y/z``
+pose      :class:`PoseMeasurement` (``pose``)         ``{name}.x/.../rx``,
+                                                      ``{name}.target.x/.../rx``
 range     :class:`RangeMeasurement` (``range``)       ``{name}.{station}.x/y/z``,
                                                       ``{name}.{station}.L0[.{run}]``
 bearing   :class:`BearingMeasurement` (``bearing``)   ``{name}.{station}.x/y/z/rz/ry/rx``
@@ -48,87 +57,27 @@ What each instrument cannot see (reported by name by the identifiability analysi
 
 from __future__ import annotations
 
-from kincal.measure.instruments.bearing import BearingMeasurement
-from kincal.measure.instruments.camera import CameraMeasurement, HandCameraMeasurement
-from kincal.measure.instruments.files import (
-    read_bearing,
-    read_camera,
-    read_fixture,
-    read_plane,
-    read_range,
-    write_bearing,
-    write_camera,
-    write_fixture,
-    write_plane,
-    write_range,
-)
-from kincal.measure.instruments.fixture import FixtureMeasurement
-from kincal.measure.instruments.plane import PlaneMeasurement
-from kincal.measure.instruments.range import RangeMeasurement
-from kincal.measure.instruments.simulate import (
-    simulate_bearing,
-    simulate_camera,
-    simulate_range,
-)
-from kincal.measure.instruments.simulate_contact import simulate_fixture, simulate_plane
-from kincal.measure.registry import Instrument, register
+import importlib
+from typing import Any
 
-__all__ = ["RangeMeasurement", "BearingMeasurement", "CameraMeasurement",
-           "HandCameraMeasurement", "PlaneMeasurement", "FixtureMeasurement",
-           "simulate_range", "simulate_bearing", "simulate_camera", "simulate_plane",
-           "simulate_fixture"]
-
-_COMMON = {
-    "marker": ("own", "'own': the block's marker parameters; 'tool': the robot's tool "
-                      "origin (share one marker between instruments)"),
-    "margin": (0.05, "fraction of each joint range kept away from the limits"),
+#: Public names of the instrument modules, importable from this package (loaded on first use,
+#: so importing one instrument does not import them all).
+_EXPORTS = {
+    "PositionMeasurement": "position", "simulate_positions": "position",
+    "PoseMeasurement": "pose", "simulate_poses": "pose",
+    "RangeMeasurement": "range", "simulate_range": "range",
+    "BearingMeasurement": "bearing", "simulate_bearing": "bearing",
+    "CameraMeasurement": "camera", "HandCameraMeasurement": "camera",
+    "simulate_camera": "camera",
+    "PlaneMeasurement": "plane", "simulate_plane": "plane",
+    "FixtureMeasurement": "fixture", "simulate_fixture": "fixture",
 }
 
-register(Instrument(
-    name="range",
-    description="distances from stations to the tool point (ADM, time of flight, "
-                "interferometer)",
-    simulate=simulate_range, write=write_range, read=read_range,
-    options={"stations": (4, "number of range stations"),
-             "incremental": (False, "interferometer: distance change from an unknown start"),
-             "name": ("range", "block name (prefix of its parameters)"), **_COMMON},
-    noise_unit="m"))
+__all__ = sorted(_EXPORTS)
 
-register(Instrument(
-    name="bearing",
-    description="horizontal and vertical angles from theodolite stations",
-    simulate=simulate_bearing, write=write_bearing, read=read_bearing,
-    options={"stations": (2, "number of theodolites"),
-             "name": ("theodolite", "block name (prefix of its parameters)"), **_COMMON},
-    noise_unit="rad"))
 
-register(Instrument(
-    name="camera",
-    description="pixel coordinates from calibrated pinhole cameras (fixed, or on the hand)",
-    simulate=simulate_camera, write=write_camera, read=read_camera,
-    options={"mount": ("fixed", "'fixed': cameras watch a tool marker; 'hand': the camera "
-                                "is the tool frame and watches a fixed target"),
-             "cameras": (2, "number of fixed cameras"),
-             "focal_px": (2000.0, "focal length [px]"),
-             "width_px": (2048, "image width [px]"), "height_px": (1536, "image height [px]"),
-             "grid": (5, "hand-held: target points per side"),
-             "spacing_mm": (40.0, "hand-held: target pitch [mm]"),
-             "name": ("camera", "block name (prefix of its parameters)"), **_COMMON},
-    noise_unit="px"))
-
-register(Instrument(
-    name="plane",
-    description="contacts of the tool point with known or unknown planes",
-    simulate=simulate_plane, write=write_plane, read=read_plane,
-    options={"planes": (4, "number of planes"),
-             "known": (False, "planes known (True) or estimated (False)"),
-             "name": ("plane", "block name (prefix of its parameters)"), **_COMMON},
-    noise_unit="m", same_placement=False))
-
-register(Instrument(
-    name="fixture",
-    description="the tool point on pre-calibrated fixture points of the workspace",
-    simulate=simulate_fixture, write=write_fixture, read=read_fixture,
-    options={"points": (8, "number of fixture points"),
-             "name": ("fixture", "block name (prefix of its parameters)"), **_COMMON},
-    noise_unit="m"))
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)

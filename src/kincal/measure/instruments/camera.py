@@ -27,32 +27,65 @@ Two variants:
   and ``dx/d(robot) = R_e^T ((w - p_e) x omega - v)`` for the parameter twists ``[v; omega]``.
   The robot's base frame and the target pose are only seen together (six dependent
   directions): fix one of them.
+
+File columns: fixed ``station, u, v, fx, fy, cx, cy, sigma``; hand-held ``target_x/y/z``
+instead of ``station`` (tag ``mount=hand``).  Simulator: :func:`simulate_camera`.
+The module registers the ``camera`` instrument (:mod:`kincal.measure.registry`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.errors import KincalError
+from kincal.errors import KincalError, MeasurementFileError
 from kincal.measure.base import MeasurementModel, ParamSpec
+from kincal.measure.files import Field, read_header
 from kincal.measure.instruments.common import (
+    MARKER_MODES,
     as_q,
     as_sigma,
     check_shapes,
     concat_specs,
     frame_spec,
+    kabsch,
     rotation_to_rpy_frame,
     station_columns,
     station_poses_from_directions,
     to_local,
     to_world,
 )
+from kincal.measure.instruments.csvio import (
+    block_name,
+    block_tags,
+    build_block,
+    label_column,
+    one_block,
+    per_group,
+    read_block_table,
+    stack_columns,
+    write_block_table,
+)
+from kincal.measure.instruments.placement import (
+    POINT_OPTIONS,
+    labels_for,
+    look_at,
+    marker_truth,
+    stated_sigma,
+    stations_around,
+    tool_points,
+    truth_values,
+    workspace,
+)
 from kincal.measure.instruments.pointblock import PointBlock, refine_block
-from kincal.measure.models import kabsch
+from kincal.measure.registry import Instrument, register
+from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
+from kincal.spatial import matrix_from_frame
 
 Array = NDArray[np.float64]
 
@@ -218,3 +251,194 @@ class HandCameraMeasurement(MeasurementModel):
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         r = self.evaluate(robot, extra, jacobian=False)[0].reshape(-1, 2)
         return {"image_px": np.hypot(r[:, 0], r[:, 1]) * self.sigma}
+
+
+# ---------------------------------------------------------------------------- file columns
+INTRINSICS = ("fx", "fy", "cx", "cy")
+
+
+CAMERA_FIELDS = (Field("u", "pixel", "u (image column)"), Field("v", "pixel", "v (image row)"),
+                 *(Field(k, "pixel", f"{k} (intrinsics)") for k in INTRINSICS),
+                 Field("sigma", "pixel", "sigma (standard deviation of u and v)"))
+
+
+HAND_FIELDS = CAMERA_FIELDS + tuple(Field(f"target_{c}", "length", f"target_{c} (target "
+                                          "point in the target frame)") for c in "xyz")
+
+
+def write_camera(blocks: Sequence[Any], path: str | Path,
+                 units: Mapping[str, str] | None = None, robot: Any = None) -> None:
+    """Fixed: ``station, u, v, fx, fy, cx, cy, sigma``; hand-held: ``target_x/y/z`` instead
+    of ``station``."""
+    b = one_block(blocks, "camera")
+    K = np.asarray(b.K, dtype=float)
+    if isinstance(b, HandCameraMeasurement):
+        cols: list[tuple[str, Any, str]] = [(f"target_{c}", b.s[:, i], "length")
+                                            for i, c in enumerate("xyz")]
+        tags = block_tags("camera", b, mount="hand")
+    else:
+        cols = [("station", b.station_labels, "text")]
+        tags = block_tags("camera", b, mount="fixed", marker=b.marker)
+    cols += [("u", b.obs[:, 0], "pixel"), ("v", b.obs[:, 1], "pixel")]
+    cols += [(k, K[:, i], "pixel") for i, k in enumerate(INTRINSICS)]
+    cols.append(("sigma", b.sigma, "pixel"))
+    write_block_table(path, tags, b.q, cols, units, robot,
+                      ["u = fx x/z + cx, v = fy y/z + cy (undistorted pixels; camera z "
+                       "forward)"])
+
+
+def read_camera(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
+                ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    mount = read_header(path)[0].get("mount", "fixed")
+    hand = mount == "hand"
+    fields = HAND_FIELDS if hand else CAMERA_FIELDS
+    req = ("u", "v", *INTRINSICS, "sigma") + (("target_x", "target_y", "target_z")
+                                               if hand else ())
+    tab = read_block_table(path, robot, "camera", fields, req,
+                           {} if hand else {"station": None}, units, ignore)
+    tab.option("mount", "fixed", ("fixed", "hand"))
+    uv = stack_columns(tab.values, ("u", "v"))
+    K = stack_columns(tab.values, INTRINSICS)
+    if np.any(K[:, :2] <= 0):
+        r = int(np.argmax(np.any(K[:, :2] <= 0, axis=1)))
+        raise tab.error(r, "focal lengths fx, fy must be positive")
+    if hand:
+        Kc = per_group(tab, np.zeros(len(K), dtype=np.intp), K, "camera intrinsics")[0]
+        return [build_block(tab, lambda: HandCameraMeasurement(
+            block_name(tab, name, "camera"), tab.q,
+            stack_columns(tab.values, ("target_x", "target_y", "target_z")),
+            uv, tab.values["sigma"], Kc))]
+    stations, idx = label_column(tab, "station", "camera")
+    Kg = per_group(tab, idx, K, "camera intrinsics")
+    marker = tab.option("marker", "own", MARKER_MODES)
+    return [build_block(tab, lambda: CameraMeasurement(
+        block_name(tab, name, "camera"), tab.q, tab.text["station"], uv, tab.values["sigma"],
+        {s: tuple(Kg[g]) for g, s in enumerate(stations)}, marker))]
+
+
+# ---------------------------------------------------------------------------- simulation
+def _visible(x: Array, K: Array, size: tuple[float, float]) -> tuple[Array, NDArray[np.bool_]]:
+    uv = project(np.where(x[:, 2:3] > 1e-9, x, 1.0), K, False)[0]
+    ok = (x[:, 2] > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] <= size[0]) & (uv[:, 1] >= 0) \
+        & (uv[:, 1] <= size[1])
+    return uv, ok
+
+
+def simulate_camera(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
+                    mount: str = "fixed", cameras: int = 2, focal_px: float = 2000.0,
+                    width_px: int = 2048, height_px: int = 1536, grid: int = 5,
+                    spacing_mm: float = 40.0, marker: str = "own", name: str = "camera",
+                    margin: float = 0.05, truth: Mapping[str, float] | None = None
+                    ) -> tuple[list[Any], dict[str, float]]:
+    """Pixel coordinates [px] seen by fixed cameras or by a camera on the flange.
+
+    ``mount="fixed"``: ``cameras`` cameras 2-3 m from the workspace look at its centre;
+    every pose whose marker falls inside the image gives one row per camera.
+    ``mount="hand"``: the camera is the robot's tool frame; a ``grid x grid`` target of
+    ``spacing_mm`` pitch stands 1 m beside the workspace facing it; poses are kept when
+    at least 4 target points are seen, one row per visible point.
+    """
+    K = (float(focal_px), float(focal_px), float(width_px) / 2.0, float(height_px) / 2.0)
+    size = (float(width_px), float(height_px))
+    sigma = stated_sigma(noise, "px")
+    if mount == "hand":
+        return _simulate_hand(true_robot, rng, n_poses, noise, K, size, int(grid),
+                              float(spacing_mm) * 1e-3, name, margin, truth, sigma)
+    if mount != "fixed":
+        raise MeasurementFileError(f"option mount={mount!r}: use 'fixed' or 'hand'")
+    labels = labels_for(cameras, "c")
+    C = len(labels)
+    probe = CameraMeasurement(name, np.zeros((C, true_robot.n)), labels, np.zeros((C, 2)),
+                              sigma, {s: K for s in labels}, marker=marker)
+    names = probe.parameters().names
+    if truth is not None:
+        values = truth_values(truth, names)
+    else:
+        centre, _ = workspace(true_robot, rng, margin)
+        eyes = stations_around(rng, centre, C, (2.0, 3.0), (0.3, 1.0))
+        frames = [look_at(e, centre + rng.normal(0, 0.05, 3)) for e in eyes]
+        values = np.concatenate(frames + ([marker_truth(rng)] if marker == "own" else []))
+    m = values[-3:] if marker == "own" else None
+    q = random_configurations(true_robot, 3 * n_poses, rng, margin)
+    qq = np.repeat(q, C, axis=0)
+    idx = np.tile(np.arange(C), len(q))
+    x = to_local(values[: 6 * C].reshape(C, 6), idx, tool_points(true_robot, qq, m), False)[0]
+    uv, ok = _visible(x, np.broadcast_to(K, (len(qq), 4)), size)
+    pose_ok = np.all(ok.reshape(len(q), C), axis=1)
+    keep_pose = np.flatnonzero(pose_ok)[:n_poses]
+    rows = (keep_pose[:, None] * C + np.arange(C)).reshape(-1)
+    if len(keep_pose) < min(n_poses, 6):
+        raise KincalError("the simulated cameras see too few poses; enlarge the image")
+    uv = uv[rows] + (rng.normal(0.0, noise, (len(rows), 2)) if noise > 0 else 0.0)
+    block = CameraMeasurement(name, qq[rows], [labels[i] for i in idx[rows]], uv, sigma,
+                              {s: K for s in labels}, marker=marker)
+    return [block], dict(zip(names, values.tolist(), strict=True))
+
+
+def target_grid(grid: int, spacing: float) -> Array:
+    """``grid x grid`` points [m] on the target plane z = 0, centred."""
+    g = (np.arange(grid) - (grid - 1) / 2.0) * spacing
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    return np.column_stack([X.reshape(-1), Y.reshape(-1), np.zeros(grid * grid)])
+
+
+def _simulate_hand(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
+                   K: tuple[float, ...], size: tuple[float, float], grid: int, spacing: float,
+                   name: str, margin: float, truth: Mapping[str, float] | None, sigma: float
+                   ) -> tuple[list[Any], dict[str, float]]:
+    pts = target_grid(grid, spacing)
+    probe = HandCameraMeasurement(name, np.zeros((1, true_robot.n)), pts[:1], np.zeros((1, 2)),
+                                  sigma, K)
+    names = probe.parameters().names
+    if truth is not None:
+        values = truth_values(truth, names)
+    else:
+        centre, _ = workspace(true_robot, rng, margin)
+        where = stations_around(rng, centre, 1, (0.9, 1.1), (-0.2, 0.2))[0]
+        # target z axis towards the workspace (the camera looks at its front)
+        f = look_at(where, centre)
+        R = matrix_from_frame(f)[:3, :3] @ np.diag([1.0, -1.0, -1.0])     # flip z to face back
+        values = rotation_to_rpy_frame(R, where)
+    w = to_world(values, pts, False)[0]
+    normal = matrix_from_frame(values)[:3, 2]
+    qs, pose_rows = [], []
+    got = 0
+    for _ in range(200):                     # batches of candidate poses until enough
+        q = random_configurations(true_robot, 4000, rng, margin)
+        T = true_robot.fk(q)
+        x = np.einsum("nji,nkj->nki", T[:, :3, :3], w[None] - T[:, None, :3, 3])
+        N, P = x.shape[:2]
+        uv, ok = _visible(x.reshape(-1, 3), np.broadcast_to(K, (N * P, 4)), size)
+        front = (T[:, :3, 3] - w.mean(0)) @ normal < 0      # camera on the target's face
+        ok = ok.reshape(N, P) & front[:, None] & (x[:, :, 2] < 1.5)
+        good = np.flatnonzero(ok.sum(1) >= 4)[: n_poses - got]
+        rows, cols = np.nonzero(ok[good])                 # visible (pose, point) pairs
+        qs.append(q[good][rows])
+        pose_rows.append((uv.reshape(N, P, 2)[good][rows, cols], pts[cols]))
+        got += len(good)
+        if got >= n_poses:
+            break
+    if got < min(n_poses, 6):
+        raise KincalError("the simulated hand-held camera sees the target from too few poses")
+    qq = np.vstack(qs)
+    uv = np.vstack([u for u, _ in pose_rows])
+    s = np.vstack([p for _, p in pose_rows])
+    if noise > 0:
+        uv = uv + rng.normal(0.0, noise, uv.shape)
+    block = HandCameraMeasurement(name, qq, s, uv, sigma, K)
+    return [block], dict(zip(names, values.tolist(), strict=True))
+
+
+register(Instrument(
+    name="camera",
+    description="pixel coordinates from calibrated pinhole cameras (fixed, or on the hand)",
+    simulate=simulate_camera, write=write_camera, read=read_camera,
+    options={"mount": ("fixed", "'fixed': cameras watch a tool marker; 'hand': the camera "
+                                "is the tool frame and watches a fixed target"),
+             "cameras": (2, "number of fixed cameras"),
+             "focal_px": (2000.0, "focal length [px]"),
+             "width_px": (2048, "image width [px]"), "height_px": (1536, "image height [px]"),
+             "grid": (5, "hand-held: target points per side"),
+             "spacing_mm": (40.0, "hand-held: target pitch [mm]"),
+             "name": ("camera", "block name (prefix of its parameters)"), **POINT_OPTIONS},
+    noise_unit="px"))

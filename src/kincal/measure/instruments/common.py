@@ -32,9 +32,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.measure.base import ParamSpec, Triangle, configuration_slices
-from kincal.measure.models import project_so3
 from kincal.robots.chain import Robot
-from kincal.spatial import FRAME_FIELDS, frame_from_matrix, homogeneous, rotx, roty, rotz
+from kincal.spatial import FRAME_FIELDS, frame_from_matrix, homogeneous, rotx, roty, rotz, skew
 
 Array = NDArray[np.float64]
 
@@ -296,4 +295,72 @@ def rotation_to_rpy_frame(R: Array, t: Array) -> Array:
     """Frame parameters ``x y z rz ry rx`` of ``(R, t)``
     (:func:`~kincal.spatial.frame_from_matrix`)."""
     return frame_from_matrix(homogeneous(R, t))
+
+
+# ------------------------------------------------------------ rotations, shared checks
+def kabsch(source: Array, target: Array, weights: Array | None = None) -> tuple[Array, Array]:
+    """Rigid registration: ``R, t`` minimising ``sum w ||R source + t - target||^2``.
+
+    ``source``, ``target``: (M, 3) points [m].  SVD of the weighted cross-covariance,
+    with the sign of the last singular vector fixed so that ``det R = +1``.
+    """
+    w = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
+    w = w / w.sum()
+    cs, ct = w @ source, w @ target
+    H = ((source - cs) * w[:, None]).T @ (target - ct)
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+    R = Vt.T @ D @ U.T
+    return R, ct - R @ cs
+
+
+def project_so3(A: Array) -> Array:
+    """The rotation nearest to the 3x3 matrix ``A`` (Frobenius norm), ``det = +1``."""
+    U, _, Vt = np.linalg.svd(A)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    value: Array = U @ D @ Vt
+    return value
+
+
+def inverse_left_jacobian_so3(phi: Array) -> Array:
+    """``J_l^-1(phi) = I - [phi]x / 2 + (1/t^2 - (1 + cos t) / (2 t sin t)) [phi]x^2``.
+
+    ``log(exp(delta) exp(phi)) = phi + J_l^-1(phi) delta + O(delta^2)``; (..., 3) ->
+    (..., 3, 3), with the series ``1/12 + t^2/720`` for small ``t = |phi|``.
+    """
+    phi = np.asarray(phi, dtype=float)
+    t = np.linalg.norm(phi, axis=-1)
+    K = skew(phi)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        big = 1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts))
+    c = np.where(small, 1.0 / 12.0 + t**2 / 720.0, big)
+    return np.eye(3) - 0.5 * K + c[..., None, None] * (K @ K)
+
+
+def sigma_array(sigma: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
+    s = np.asarray(sigma, dtype=float)
+    if s.ndim == 0:                         # one value for all: a read-only view, no copy
+        if not (np.isfinite(s) and s > 0):
+            raise KincalError(f"{what} must be positive and finite")
+        return np.broadcast_to(s, shape)
+    try:
+        s = np.broadcast_to(s.reshape(s.shape + (1,) * (len(shape) - s.ndim)), shape).copy()
+    except ValueError:
+        raise KincalError(f"{what}: shape {np.shape(sigma)} does not fit the measurements "
+                          f"{shape}") from None
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise KincalError(f"{what} must be positive and finite")
+    return s
+
+
+def check_configurations(q: ArrayLike, name: str) -> Array:
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if q.ndim != 2:
+        raise KincalError(f"measurements {name!r}: joint readings must be (N, n)")
+    if not np.all(np.isfinite(q)):
+        row = int(np.argwhere(~np.isfinite(q))[0, 0])
+        raise KincalError(f"measurements {name!r}: joint reading in row {row} is not finite")
+    return q
 

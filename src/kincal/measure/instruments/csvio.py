@@ -36,8 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from kincal.errors import MeasurementFileError
+from kincal.errors import KincalError, MeasurementFileError
 from kincal.io import atomic_write_text
+from kincal.measure.base import Provenance
 from kincal.measure.files import (
     LOOKS_MEASURED,
     TAG_PREFIX,
@@ -48,6 +49,7 @@ from kincal.measure.files import (
     read_table,
     split_unit,
 )
+from kincal.measure.instruments.common import label_index, label_index_raw
 from kincal.units import UNITS
 
 Array = NDArray[np.float64]
@@ -281,3 +283,59 @@ def text_per_group(tab: BlockTable, idx: NDArray[np.intp], values: Sequence[str]
         raise tab.error(r, f"{what} {str(arr[r])!r} differs from {str(arr[f])!r} on line "
                            f"{int(tab.table.lines[f])} of the same group")
     return [str(arr[f]) for f in first]
+
+
+# ---------------------------------------------------------------------------- readers' helpers
+def label_column(tab: BlockTable, key: str, what: str) -> tuple[tuple[str, ...], NDArray[np.intp]]:
+    """Labels of a text column, with the line of the first bad one in the error."""
+    vals = tab.text[key]
+    try:
+        return label_index(vals, what, "file")
+    except KincalError:
+        distinct, idx = label_index_raw(vals)
+        bad = [g for g, s in enumerate(distinct) if not _valid_label(s, what)]
+        r = int(np.argmax(np.isin(idx, bad)))
+        raise tab.error(r, f"column {key}: {what} label {vals[r]!r} must be a word (letters, "
+                           "digits, _ - .) other than 'marker'") from None
+
+
+def _valid_label(s: str, what: str) -> bool:
+    try:
+        label_index([s], what, "file")
+    except KincalError:
+        return False
+    return True
+
+
+def choice_column(tab: BlockTable, key: str, choices: Sequence[str]) -> list[str]:
+    vals = tab.text[key]
+    bad = ~np.isin(np.array(vals, dtype=str), list(choices))
+    if np.any(bad):
+        r = int(np.argmax(bad))
+        raise tab.error(r, f"column {key}: {vals[r]!r} is not one of {', '.join(choices)}")
+    return list(vals)
+
+
+def build_block(tab: BlockTable, make: Any) -> Any:
+    try:
+        block = make()
+        block.provenance = Provenance(str(tab.table.path), tab.table)  # the CLI lists the
+        # bookkeeping columns it skipped
+        return block
+    except MeasurementFileError:
+        raise
+    except KincalError as exc:
+        raise MeasurementFileError(str(exc), source=tab.table.path) from None
+
+
+def block_name(tab: BlockTable, name: str | None, default: str) -> str:
+    return name or tab.tags.get("name") or default
+
+
+def block_tags(instrument: str, block: Any, **extra: str) -> dict[str, str]:
+    return {"instrument": instrument, "name": block.name, **extra}
+
+
+def stack_columns(values: Mapping[str, Array], keys: Sequence[str]) -> Array:
+    return np.column_stack([values[k] for k in keys])
+

@@ -31,22 +31,55 @@ scene shrinks every contact distance, the scale looks identifiable away from the
 solution: with unknown planes hold one robot length (``--fix 'd[4]'`` for a PUMA, or
 ``calibrate(..., fixed=[...])``) -- the identifiability of noise-free simulated data names
 it.
+
+File columns: ``plane, mode, n_az, n_el, d, sigma`` per contact.  Simulator:
+:func:`simulate_plane` (contacts solved on the true robot, noise in the contact).
+The module registers the ``plane`` instrument (:mod:`kincal.measure.registry`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.errors import KincalError
+from kincal.errors import KincalError, MeasurementFileError
 from kincal.measure.base import ParamSpec
+from kincal.measure.files import Field
 from kincal.measure.instruments.common import (
+    MARKER_MODES,
     label_index,
 )
+from kincal.measure.instruments.csvio import (
+    block_name,
+    block_tags,
+    build_block,
+    choice_column,
+    label_column,
+    one_block,
+    per_group,
+    read_block_table,
+    stack_columns,
+    text_per_group,
+    write_block_table,
+)
+from kincal.measure.instruments.placement import (
+    POINT_OPTIONS,
+    as_flag,
+    labels_for,
+    marker_truth,
+    solve_contacts,
+    stated_sigma,
+    workspace,
+)
 from kincal.measure.instruments.pointblock import PointBlock
+from kincal.measure.registry import Instrument, register
+from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
+from kincal.spatial import exp_so3
 
 Array = NDArray[np.float64]
 MODES = ("known", "unknown")
@@ -180,3 +213,100 @@ class PlaneMeasurement(PointBlock):
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         r = self.evaluate(robot, extra, jacobian=False)[0]
         return {"distance_m": r * self.sigma}
+
+
+# ---------------------------------------------------------------------------- file columns
+PLANE_FIELDS = (Field("n_az", "angle", "n_az (azimuth of the plane normal)"),
+                Field("n_el", "angle", "n_el (elevation of the plane normal)"),
+                Field("d", "length", "d (plane offset: n.p = d)"),
+                Field("sigma", "length", "sigma (standard deviation of the contact)"))
+
+
+def write_plane(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str] | None = None,
+                robot: Any = None) -> None:
+    """``plane, mode, n_az, n_el, d, sigma`` per contact (the plane, or its nominal)."""
+    b: PlaneMeasurement = one_block(blocks, "plane")
+    defs = [b.plane_defs[s] for s in b.planes]
+    ang = angles_from_normal(np.array([d[0] for d in defs]))[b.plane_index]
+    d = np.array([x[1] for x in defs])[b.plane_index]
+    mode = ["known" if defs[g][2] else "unknown" for g in b.plane_index]
+    cols = [("plane", b.plane_labels, "text"), ("mode", mode, "text"),
+            ("n_az", ang[:, 0], "angle"), ("n_el", ang[:, 1], "angle"), ("d", d, "length"),
+            ("sigma", b.sigma, "length")]
+    write_block_table(path, block_tags("plane", b, marker=b.marker), b.q, cols, units, robot,
+                      ["contact: n.p = d, n = (cos el cos az, cos el sin az, sin el); an "
+                       "unknown plane's n and d are nominal values"])
+
+
+def read_plane(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
+               ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    tab = read_block_table(path, robot, "plane", PLANE_FIELDS, ("n_az", "n_el", "d", "sigma"),
+                           {"plane": None, "mode": "unknown"}, units, ignore)
+    planes, idx = label_column(tab, "plane", "plane")
+    choice_column(tab, "mode", ("known", "unknown"))
+    g = per_group(tab, idx, stack_columns(tab.values, ("n_az", "n_el", "d")), "plane n_az, n_el, d")
+    modes = text_per_group(tab, idx, tab.text["mode"], "plane mode")
+    defs = {s: (normal_from_angles(g[k, 0], g[k, 1]), float(g[k, 2]), modes[k] == "known")
+            for k, s in enumerate(planes)}
+    marker = tab.option("marker", "own", MARKER_MODES)
+    return [build_block(tab, lambda: PlaneMeasurement(
+        block_name(tab, name, "plane"), tab.q, tab.text["plane"], tab.values["sigma"], defs,
+        marker))]
+
+
+# ---------------------------------------------------------------------------- simulation
+def simulate_plane(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
+                   planes: int = 4, known: bool = False, marker: str = "own",
+                   name: str = "plane", margin: float = 0.05) -> tuple[list[Any], dict[str, float]]:
+    """Contacts of the tool marker with ``planes`` planes, ``n_poses`` in all.
+
+    The planes cut the workspace with normals spread over directions; the contact
+    distance has noise N(0, noise^2) [m].  Unknown planes are written with a nominal
+    normal ~1 deg off the true one (the reference of their tilt parameters), so every
+    simulation has its own planes (no ``truth=`` re-measurement).
+    """
+    G = int(planes)
+    if G < 1:
+        raise MeasurementFileError("option planes must be >= 1")
+    known = as_flag(known, "known")
+    labels = labels_for(G, "p")
+    centre, radius = workspace(true_robot, rng, margin)
+    axes = exp_so3(rng.normal(0, 0.5, 3))
+    normals = np.vstack([axes.T, rng.normal(size=(max(G - 3, 0), 3))])[:G]
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    d = normals @ centre + rng.uniform(-0.3, 0.3, G) * radius
+    nominal = normals + rng.normal(0, 0.015, normals.shape)
+    nominal /= np.linalg.norm(nominal, axis=1, keepdims=True)
+    m = marker_truth(rng) if marker == "own" else None
+    defs = {s: (normals[g] if known else nominal[g], d[g], bool(known))
+            for g, s in enumerate(labels)}
+    probe = PlaneMeasurement(name, np.zeros((G, true_robot.n)), labels, 1.0, defs, marker)
+    own: list[float] = []
+    if not known:
+        for g in range(G):
+            nl = probe.bases[g].T @ normals[g]
+            own += [-np.arcsin(nl[1]), np.arctan2(nl[0], nl[2]), d[g]]
+    values = np.array(own + ([] if m is None else list(m)))
+    which = np.arange(4 * n_poses) % G
+    q0 = random_configurations(true_robot, len(which), rng, margin)
+    eps = rng.normal(0.0, noise, len(which)) if noise > 0 else np.zeros(len(which))
+    q, ok = solve_contacts(true_robot, q0, m, normals[which][:, None, :],
+                           (d[which] + eps)[:, None])
+    keep = np.concatenate([np.flatnonzero(ok & (which == g))[: (n_poses + g) // G]
+                           for g in range(G)])
+    keep.sort()
+    if len(keep) < n_poses:
+        raise KincalError(f"only {len(keep)} of {n_poses} plane contacts are reachable")
+    block = PlaneMeasurement(name, q[keep], [labels[g] for g in which[keep]],
+                             stated_sigma(noise, "m"), defs, marker)
+    return [block], dict(zip(probe.parameters().names, values.tolist(), strict=True))
+
+
+register(Instrument(
+    name="plane",
+    description="contacts of the tool point with known or unknown planes",
+    simulate=simulate_plane, write=write_plane, read=read_plane,
+    options={"planes": (4, "number of planes"),
+             "known": (False, "planes known (True) or estimated (False)"),
+             "name": ("plane", "block name (prefix of its parameters)"), **POINT_OPTIONS},
+    noise_unit="m", same_placement=False))

@@ -1,12 +1,10 @@
-"""Position and pose measurement models (laser tracker, motion capture, CMM).
+"""The ``position`` instrument (laser tracker, motion capture, CMM): model, file, simulator.
 
-Both models observe a frame or point fixed on the robot's tool from an instrument
-whose frame ``T_I = (R_I, t_I)`` is unknown.  ``T_I`` is the pose of the instrument
-frame in the robot's world (base) frame, parametrised like the robot's own base
-frame: ``{name}.x .y .z .rz .ry .rx`` with ``T_I = Trans(x, y, z) Rz(rz) Ry(ry) Rx(rx)``
-[m, rad].
-
-:class:`PositionMeasurement` - K points (markers, reflectors) on the tool:
+The model observes K points (markers, reflectors) fixed on the robot's tool from an
+instrument whose frame ``T_I = (R_I, t_I)`` is unknown.  ``T_I`` is the pose of the
+instrument frame in the robot's world (base) frame, parametrised like the robot's own
+base frame: ``{name}.x .y .z .rz .ry .rx`` with ``T_I = Trans(x, y, z) Rz(rz) Ry(ry)
+Rx(rx)`` [m, rad] (the 6-DOF variant is :mod:`.pose`).  :class:`PositionMeasurement`:
 
     y_pred[i, k] = R_I^T (p_e(q_i) + R_e(q_i) m_k - t_I)        [m]
     r = (y_pred - y_obs) / sigma                                  (whitened)
@@ -14,19 +12,10 @@ frame: ``{name}.x .y .z .rz .ry .rx`` with ``T_I = Trans(x, y, z) Rz(rz) Ry(ry) 
 with ``(R_e, p_e)`` the robot's tool frame and ``m_k`` the marker in the tool frame
 (``{name}.marker.x .y .z``; with K > 1 markers ``{name}.marker1.x`` ...).
 
-:class:`PoseMeasurement` - a target frame ``T_t`` on the tool (``{name}.target.x ...
-.rx``), measured as ``T_obs = T_I^-1 T_e(q) T_t``; residual per pose
-
-    r = [(p_pred - p_obs) / sigma_p ; log(R_pred R_obs^T) / sigma_o]
-
-(position [m] then rotation vector [rad], both in the instrument frame).
-
 Jacobians are analytic.  The robot part uses the chain's parameter Jacobian
 ``[dp_e; dphi_e]`` (base frame); a point ``a = R_e m`` on the tool moves by
 ``dp_e + dphi_e x a``.  Rotating the instrument frame by ``omega`` (``dR_I = [omega]x R_I``)
-moves the observation by ``R_I^T ((p - t_I) x omega)``.  For the orientation residual
-``e = log(R_pred R_obs^T)``, a left perturbation ``R_pred -> exp(delta) R_pred`` changes
-``e`` by ``J_l^-1(e) delta`` (the inverse left Jacobian of SO(3)).
+moves the observation by ``R_I^T ((p - t_I) x omega)``.
 
 Evaluation runs over pieces of about :data:`~kincal.measure.base.CHUNK_ROWS` residual
 rows (a thousand or so configurations): the chain's Jacobian of a piece is rotated
@@ -36,108 +25,73 @@ written out component by component on (P, n) planes, and nothing of size
 out one at a time, so :meth:`kincal.measure.base.StackedProblem.compressed` never
 holds the whole Jacobian.
 
-Closed-form initial guesses make the user's first guess unnecessary: the position
-model solves the linear problem ``A y + t - R_e m = p_e`` for a general matrix ``A``,
-projects ``A`` onto SO(3) and alternates Kabsch registration with a linear solve
-for ``t, m``; the pose model solves ``R_e R_t = R_I R_obs`` (AX = YB) by the null space
-of its Kronecker form, then the translations linearly.
+The closed-form initial guess makes the user's first guess unnecessary: it solves the
+linear problem ``A y + t - R_e m = p_e`` for a general matrix ``A``, projects ``A`` onto
+SO(3) and alternates Kabsch registration with a linear solve for ``t, m``.
+
+File columns (instrument ``position``): joints, ``x y z`` (one point) or
+``x1 y1 z1 ... xK yK zK``, optional per-row ``sigma`` (or ``sigma1 ... sigmaK``)
+[length]; without them the tag ``sigma_<unit>=`` or :data:`DEFAULT_SIGMA`.
+
+Simulation: :func:`simulate_positions` measures the configurations you give with a
+tracker placed where you say; :func:`simulate_position_experiment` (the plug-in behind
+``kincal simulate -i position``) draws the configurations uniformly inside the limits
+(shrunk by a margin), places the instrument 1.5-2.5 m from the robot base with a random
+heading and the markers within ~0.1 m of the tool origin, then calls it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import re
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.errors import KincalError
+from kincal.errors import KincalError, MeasurementFileError
 from kincal.measure.base import (
     CHUNK_ROWS,
     MeasurementModel,
     ParamSpec,
+    Provenance,
     Triangle,
     configuration_slices,
     frame_rotation_axes,
     qr_triangle,
 )
+from kincal.measure.files import (
+    Field,
+    MeasurementTable,
+    read_table,
+    tag_quantities,
+    tag_quantity,
+    write_table,
+)
+from kincal.measure.instruments.common import (
+    check_configurations,
+    project_so3,
+    sigma_array,
+)
+from kincal.measure.instruments.csvio import one_block
+from kincal.measure.instruments.placement import truth_values
+from kincal.measure.registry import Instrument, register
+from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
 from kincal.robots.scratch import scratch
-from kincal.spatial import frame_from_matrix, log_so3, matrix_from_frame, skew
+from kincal.spatial import frame_from_matrix, matrix_from_frame
 
 #: Configurations a position block's closed-form start uses at most (evenly spaced).
 GUESS_CONFIGURATIONS = 256
 
 Array = NDArray[np.float64]
 
-__all__ = ["PositionMeasurement", "PoseMeasurement", "kabsch", "inverse_left_jacobian_so3"]
+__all__ = ["PositionMeasurement", "simulate_positions", "simulate_position_experiment",
+           "read_position", "write_position"]
 
 
 # --------------------------------------------------------------------------- helpers
-def kabsch(source: Array, target: Array, weights: Array | None = None) -> tuple[Array, Array]:
-    """Rigid registration: ``R, t`` minimising ``sum w ||R source + t - target||^2``.
-
-    ``source``, ``target``: (M, 3) points [m].  SVD of the weighted cross-covariance,
-    with the sign of the last singular vector fixed so that ``det R = +1``.
-    """
-    w = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=float)
-    w = w / w.sum()
-    cs, ct = w @ source, w @ target
-    H = ((source - cs) * w[:, None]).T @ (target - ct)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
-    R = Vt.T @ D @ U.T
-    return R, ct - R @ cs
-
-
-def project_so3(A: Array) -> Array:
-    """The rotation nearest to the 3x3 matrix ``A`` (Frobenius norm), ``det = +1``."""
-    U, _, Vt = np.linalg.svd(A)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    value: Array = U @ D @ Vt
-    return value
-
-
-def inverse_left_jacobian_so3(phi: Array) -> Array:
-    """``J_l^-1(phi) = I - [phi]x / 2 + (1/t^2 - (1 + cos t) / (2 t sin t)) [phi]x^2``.
-
-    ``log(exp(delta) exp(phi)) = phi + J_l^-1(phi) delta + O(delta^2)``; (..., 3) ->
-    (..., 3, 3), with the series ``1/12 + t^2/720`` for small ``t = |phi|``.
-    """
-    phi = np.asarray(phi, dtype=float)
-    t = np.linalg.norm(phi, axis=-1)
-    K = skew(phi)
-    small = t < 1e-4
-    ts = np.where(small, 1.0, t)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        big = 1.0 / ts**2 - (1.0 + np.cos(ts)) / (2.0 * ts * np.sin(ts))
-    c = np.where(small, 1.0 / 12.0 + t**2 / 720.0, big)
-    return np.eye(3) - 0.5 * K + c[..., None, None] * (K @ K)
-
-
-def _sigma(sigma: ArrayLike, shape: tuple[int, ...], what: str) -> Array:
-    s = np.asarray(sigma, dtype=float)
-    if s.ndim == 0:                         # one value for all: a read-only view, no copy
-        if not (np.isfinite(s) and s > 0):
-            raise KincalError(f"{what} must be positive and finite")
-        return np.broadcast_to(s, shape)
-    try:
-        s = np.broadcast_to(s.reshape(s.shape + (1,) * (len(shape) - s.ndim)), shape).copy()
-    except ValueError:
-        raise KincalError(f"{what}: shape {np.shape(sigma)} does not fit the measurements "
-                          f"{shape}") from None
-    if not np.all(np.isfinite(s)) or np.any(s <= 0):
-        raise KincalError(f"{what} must be positive and finite")
-    return s
-
-
-def _check_q(q: ArrayLike, name: str) -> Array:
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    if q.ndim != 2:
-        raise KincalError(f"measurements {name!r}: joint readings must be (N, n)")
-    if not np.all(np.isfinite(q)):
-        row = int(np.argwhere(~np.isfinite(q))[0, 0])
-        raise KincalError(f"measurements {name!r}: joint reading in row {row} is not finite")
-    return q
 
 
 def _marker_order(L: int, K: int) -> NDArray[np.intp]:
@@ -200,7 +154,7 @@ class PositionMeasurement(MeasurementModel):
     def __init__(self, q: ArrayLike, positions: ArrayLike, sigma: ArrayLike = 1e-5,
                  name: str = "tracker", markers: int = 1) -> None:
         self.name = str(name)
-        self.q = _check_q(q, self.name)
+        self.q = check_configurations(q, self.name)
         y = np.asarray(positions, dtype=float)
         if y.ndim == 2:
             if markers != 1:
@@ -224,7 +178,7 @@ class PositionMeasurement(MeasurementModel):
         self.positions = y
         self._y = y3
         self.K = y3.shape[1]
-        self.sigma = _sigma(sigma, y3.shape[:2], f"measurements {self.name!r}: sigma")
+        self.sigma = sigma_array(sigma, y3.shape[:2], f"measurements {self.name!r}: sigma")
 
     # ------------------------------------------------------------------ contract
     @property
@@ -554,219 +508,245 @@ class PositionMeasurement(MeasurementModel):
 
 
 # --------------------------------------------------------------------------- pose
-class PoseMeasurement(MeasurementModel):
-    """Full poses of a target frame on the tool measured in an instrument frame.
+
+
+# --------------------------------------------------------------------------- file columns
+#: Name of the block of a position / pose file that names no instrument (``name=`` tag or
+#: a setup file's ``name:``): its parameters are ``instrument.x`` ... (it may be a laser
+#: tracker, a motion-capture system, a CMM: the file does not say).
+UNNAMED = "instrument"
+
+
+#: Default standard deviation when a file has no sigma column [m] / [rad].
+DEFAULT_SIGMA = 1e-5
+
+
+POSITION_FIELDS = (
+    Field(r"[xyz]", "length", "x, y, z (one point)"),
+    Field(r"[xyz]\d+", "length", "x1, y1, z1, x2, ... (several points)"),
+    Field(r"sigma\d*", "length", "sigma or sigma1.. (standard deviation per row)"),
+)
+
+
+#: Simulation options every tracker-like instrument takes.
+TRACKER_OPTIONS: dict[str, tuple[object, str]] = {
+    "name": ("tracker", "block name (prefix of the instrument's parameters)"),
+    "margin": (0.05, "fraction of each joint range kept away from the limits"),
+}
+
+
+def file_units(units: Mapping[str, str] | None) -> tuple[str, str]:
+    """The ``(length, angle)`` units asked of a writer (default ``("m", "rad")``)."""
+    u = dict(units or {})
+    return u.get("length", "m"), u.get("angle", "rad")
+
+
+def tag_sigma(t: MeasurementTable, key: str) -> float:
+    """The file's stated standard deviation for rows without a sigma column: tag
+    ``sigma_<unit>`` (``sigma_mm=0.5``; ``sigma_rot_<angle unit>`` for orientations),
+    else :data:`DEFAULT_SIGMA`."""
+    dim = "angle" if key == "sigma_rot" else "length"
+    value = tag_quantity(tag_quantities(t.tags, t.path), key, dim, t.path, DEFAULT_SIGMA)
+    if not value > 0:
+        raise t.error(f"tag {key}: a standard deviation must be positive", 1)
+    return value
+
+
+def scalar_sigma(s: Array | None, default: float) -> Array | float:
+    """A sigma column as one number when every row states the same; ``default`` without."""
+    if s is None:
+        return default
+    return float(s[0]) if np.all(s == s[0]) else s
+
+
+def check_positive(t: MeasurementTable, base: str) -> None:
+    """Raise naming the file line of the first non-positive value of column ``base``."""
+    v = t.values.get(base)
+    if v is not None and np.any(v <= 0):
+        i = int(np.argmax(v <= 0))
+        raise t.error(f"column {t.columns[base]}: a standard deviation must be positive",
+                      int(t.lines[i]))
+
+
+def marker_positions(t: MeasurementTable) -> tuple[Array, Array | None]:
+    """Positions (N, 3) or (N, K, 3) and sigma (N,) / (N, K) from a position table."""
+    numbered = sorted({int(m.group(1)) for b in t.values
+                       if (m := re.fullmatch(r"[xyz](\d+)", b))})
+    single = any(b in t.values for b in ("x", "y", "z"))
+    if single and numbered:
+        raise t.error("both x, y, z and numbered marker columns (x1, ...): use one scheme")
+    if not single and not numbered:
+        raise t.error("no position columns (x, y, z or x1, y1, z1, ...)")
+    if single:
+        for c in "xyz":
+            if c not in t.values:
+                raise t.error(f"missing column {c!r} (with its unit, e.g. {c}_mm)")
+        y = np.stack([t.values[c] for c in "xyz"], axis=1)
+    else:
+        if numbered != list(range(1, len(numbered) + 1)):
+            raise t.error(f"markers must be numbered 1..K; got {numbered}")
+        for k in numbered:
+            for c in "xyz":
+                if f"{c}{k}" not in t.values:
+                    raise t.error(f"marker {k} lacks column {c}{k!s}")
+        y = np.stack([np.stack([t.values[f"{c}{k}"] for c in "xyz"], axis=1)
+                      for k in numbered], axis=1)
+    K = 1 if single else len(numbered)
+    sig_cols = sorted(b for b in t.values if re.fullmatch(r"sigma\d+", b))
+    for b in sig_cols + ["sigma"]:
+        check_positive(t, b)
+    if sig_cols:
+        want = [f"sigma{k + 1}" for k in range(K)]
+        if sig_cols != sorted(want) or "sigma" in t.values:
+            raise t.error(f"per-marker sigma columns must be {', '.join(want)} (or one sigma)")
+        sigma: Array | None = np.stack([t.values[w] for w in want], axis=1)
+    else:
+        sigma = t.values.get("sigma")
+    return y, sigma
+
+
+def write_position(blocks: Sequence[Any], path: str | Path,
+                   units: Mapping[str, str] | None = None, robot: Any = None) -> None:
+    """Write one :class:`PositionMeasurement` as a ``position`` CSV (atomically).
+
+    ``units``: ``{"length": "m"|"mm"|..., "angle": "rad"|"deg"|...}`` (default SI).
+    """
+    b = one_block(blocks, "position")
+    length, angle = file_units(units)
+    y = np.asarray(b.positions, dtype=float)
+    y3 = y[:, None, :] if y.ndim == 2 else y
+    K = y3.shape[1]
+    sig = np.asarray(b.sigma, dtype=float).reshape(len(b.q), K)
+    obs: list[tuple[str, Array, str]] = []
+    for k in range(K):
+        tag = "" if K == 1 else str(k + 1)
+        obs += [(f"{c}{tag}", y3[:, k, i], "length") for i, c in enumerate("xyz")]
+    if K == 1 or np.allclose(sig, sig[:, :1], rtol=1e-12, atol=0):
+        obs.append(("sigma", sig[:, 0], "length"))
+    else:
+        obs += [(f"sigma{k + 1}", sig[:, k], "length") for k in range(K)]
+    write_table(path, b.q, obs, robot, {"instrument": "position", "name": b.name},
+                angle_unit=angle, length_unit=length,
+                comments=[f"{len(b.q)} measurements of {K} point(s); sigma = standard "
+                          "deviation of each coordinate"])
+
+
+def read_position(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
+                  ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    """Read a ``position`` CSV into one :class:`PositionMeasurement` (SI units)."""
+    t = read_table(path, robot, POSITION_FIELDS, units, ignore)
+    y, sigma = marker_positions(t)
+    K = 1 if y.ndim == 2 else y.shape[1]
+    block = PositionMeasurement(t.q, y, sigma=scalar_sigma(sigma, tag_sigma(t, "sigma")),
+                                name=name or t.tags.get("name") or UNNAMED, markers=K)
+    block.provenance = Provenance(str(path), t)
+    return [block]
+
+
+# --------------------------------------------------------------------------- simulation
+#: Configurations simulated per piece (a performance setting; results do not depend on it).
+_PIECE = 1 << 14
+
+
+def instrument_matrix(instrument: ArrayLike | None) -> Array:
+    """``T_I`` (4, 4) of frame values ``(x, y, z, rz, ry, rx)`` [m, rad]; None: identity."""
+    if instrument is None:
+        return np.eye(4)
+    return matrix_from_frame(np.asarray(instrument, dtype=float).reshape(6))
+
+
+def simulate_positions(true_robot: Robot, q: ArrayLike, rng: np.random.Generator | None,
+                       noise_std: float, instrument: ArrayLike | None = None,
+                       markers: ArrayLike | None = None, name: str = "tracker",
+                       sigma: float | None = None) -> PositionMeasurement:
+    """Points on the true robot's tool measured by a virtual tracker.
+
+    ``y = T_I^-1 T(q) m_k + noise``, noise ~ N(0, noise_std^2) per coordinate.
 
     Args:
-        q: (N, n) joint readings [rad / m].
-        poses: (N, 4, 4) measured target frames in the instrument frame [m].
-        sigma_position: standard deviation of each position coordinate [m], scalar or (N,).
-        sigma_orientation: standard deviation of each rotation-vector component [rad].
-        name: the block's name, prefix of its parameters.
-
-    Parameters: ``{name}.x .y .z .rz .ry .rx`` (instrument frame, role ``instrument``)
-    and ``{name}.target.x .y .z .rz .ry .rx`` (target frame in the tool frame, role
-    ``target``).  Residuals per pose: ``[dp / sigma_p; log(R_pred R_obs^T) / sigma_o]``.
+        true_robot: the robot that "really" moves.
+        q: (N, n) configurations (you give them; the ``position`` plug-in
+            :func:`simulate_position_experiment` draws its own).
+        rng: draws the noise; None for exact data (then ``noise_std`` must be 0 and no
+            random number is drawn).
+        noise_std: standard deviation of each coordinate [m] (0 for exact data).
+        instrument: tracker pose in the robot's world frame, ``(x, y, z, rz, ry, rx)``
+            [m, rad] (:data:`kincal.spatial.FRAME_FIELDS`, the order of the estimated
+            ``{name}.*`` block parameters); default identity.
+        markers: (3,) or (K, 3) points in the tool frame [m]; default the tool origin.
+        name: the block's name.
+        sigma: the standard deviation the block states; default ``noise_std`` (or
+            1e-5 m when ``noise_std`` is 0).
     """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if rng is None and noise_std != 0:
+        raise KincalError("simulate_positions: noise_std > 0 needs a random generator (rng)")
+    m = np.zeros((1, 3)) if markers is None else np.asarray(markers, dtype=float)
+    single = m.ndim == 1
+    m = m.reshape(-1, 3)
+    left = np.linalg.inv(instrument_matrix(instrument))
+    K = m.shape[0]
+    y = np.empty((len(q), K, 3))
+    # in pieces of configurations (memory independent of N); the noise is drawn piece
+    # by piece along the first axis, the same numbers as one draw of y's shape
+    for start in range(0, len(q), _PIECE):
+        cs = slice(start, min(len(q), start + _PIECE))
+        Y, _, _ = true_robot.point_jacobian(q[cs], m, left, ())
+        y[cs] = Y.transpose(2, 0, 1)
+        if rng is not None:
+            y[cs] += noise_std * rng.standard_normal((cs.stop - cs.start, K, 3))
+    s = sigma if sigma is not None else (noise_std if noise_std > 0 else 1e-5)
+    if single or m.shape[0] == 1:
+        return PositionMeasurement(q, y[:, 0], s, name)
+    return PositionMeasurement(q, y, s, name, markers=m.shape[0])
 
-    def __init__(self, q: ArrayLike, poses: ArrayLike, sigma_position: ArrayLike = 1e-5,
-                 sigma_orientation: ArrayLike = 1e-5, name: str = "tracker") -> None:
-        self.name = str(name)
-        self.q = _check_q(q, self.name)
-        P = np.asarray(poses, dtype=float)
-        if P.ndim != 3 or P.shape[1:] != (4, 4) or P.shape[0] != self.q.shape[0]:
-            raise KincalError(f"measurements {self.name!r}: poses must be (N, 4, 4) with "
-                              f"N = {self.q.shape[0]}, got {P.shape}")
-        if not np.all(np.isfinite(P)):
-            row = int(np.argwhere(~np.isfinite(P))[0, 0])
-            raise KincalError(f"measurements {self.name!r}: pose in row {row} is not finite")
-        self.poses = P
-        N = self.q.shape[0]
-        self.sigma_position = _sigma(sigma_position, (N,), f"{self.name}: sigma_position")
-        self.sigma_orientation = _sigma(sigma_orientation, (N,),
-                                        f"{self.name}: sigma_orientation")
 
-    @property
-    def N(self) -> int:
-        return int(self.q.shape[0])
+def random_tracker_frame(rng: np.random.Generator) -> Array:
+    """A plausible instrument frame ``(x, y, z, rz, ry, rx)``: 1.5-2.5 m away, any heading."""
+    az = rng.uniform(-np.pi, np.pi)
+    dist = rng.uniform(1.5, 2.5)
+    pos = [dist * np.cos(az), dist * np.sin(az), rng.uniform(-0.2, 0.6)]
+    ang = [rng.uniform(-np.pi, np.pi), rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3)]
+    return np.array(pos + ang)
 
-    def measurement_sigma(self) -> Array:
-        """Stated standard deviation of each position [m]: (N,) (orientations:
-        ``sigma_orientation`` [rad])."""
-        return self.sigma_position
 
-    def parameters(self) -> ParamSpec:
-        return ParamSpec.frame(self.name) + ParamSpec.frame(f"{self.name}.target", role="target")
+def simulate_position_experiment(true_robot: Robot, rng: np.random.Generator, n_poses: int,
+                                 noise: float, markers: int = 1, name: str = "tracker",
+                                 margin: float = 0.05, truth: Mapping[str, float] | None = None
+                                 ) -> tuple[list[MeasurementModel], dict[str, float]]:
+    """The ``position`` plug-in: draw the poses and the set-up, then measure them.
 
-    def residual_owner(self) -> NDArray[np.intp]:
-        return np.repeat(np.arange(self.N, dtype=np.intp), 6)
+    Draws ``n_poses`` configurations (:func:`random_configurations`), places the
+    instrument 1.5-2.5 m from the base with any heading (:func:`random_tracker_frame`) and
+    ``markers`` points within ~0.1 m of the tool origin, and measures them with
+    :func:`simulate_positions`: ``y_ik = R_I^T (p_e(q_i) + R_e(q_i) m_k - t_I) + noise``,
+    ``noise ~ N(0, noise^2)`` per coordinate [m] (none drawn when ``noise`` is 0).
+    ``truth`` reuses a previous placement (held-out data).
 
-    def subset(self, rows: ArrayLike) -> PoseMeasurement:
-        """A block with the same name holding only ``rows``."""
-        rows = np.asarray(rows)
-        return PoseMeasurement(self.q[rows], self.poses[rows], self.sigma_position[rows],
-                               self.sigma_orientation[rows], self.name)
+    Returns ``([PositionMeasurement], {parameter name: true value})``.
+    """
+    K = int(markers)
+    if K < 1:
+        raise MeasurementFileError("option markers must be >= 1")
+    q = random_configurations(true_robot, n_poses, rng, margin)
+    probe = PositionMeasurement(q[:1], np.zeros((1, K, 3)) if K > 1 else np.zeros((1, 3)),
+                                name=name, markers=K)
+    names = probe.parameters().names
+    if truth is not None:
+        values = truth_values(truth, names)
+    else:
+        values = np.concatenate([random_tracker_frame(rng),
+                                 rng.uniform(-0.08, 0.08, 3 * K) + np.tile([0, 0, 0.05], K)])
+    m = values[6:].reshape(K, 3)
+    block = simulate_positions(true_robot, q, rng if noise > 0 else None, noise,
+                               instrument=values[:6], markers=m if K > 1 else m[0], name=name)
+    return [block], dict(zip(names, values.tolist(), strict=True))
 
-    def predict(self, robot: Robot, extra: ArrayLike) -> Array:
-        """Predicted target poses in the instrument frame (N, 4, 4)."""
-        extra = np.asarray(extra, dtype=float)
-        TI = matrix_from_frame(extra[:6])
-        Tt = matrix_from_frame(extra[6:12])
-        return np.linalg.inv(TI) @ robot.fk(self.q) @ Tt
 
-    def num_residuals(self) -> int:
-        return 6 * self.N
-
-    @staticmethod
-    def _frames(extra: Array) -> tuple[Array, Array, Array, Array]:
-        """Constants of one evaluation: ``T_I``, ``T_t`` and their rotation axes ``E_I``,
-        ``E_t`` (:func:`frame_rotation_axes`)."""
-        return (matrix_from_frame(extra[:6]), matrix_from_frame(extra[6:12]),
-                frame_rotation_axes(extra[:6]), frame_rotation_axes(extra[6:12]))
-
-    def _raw(self, T: Array, frames: tuple[Array, Array, Array, Array], cs: slice
-             ) -> tuple[Array, Array, Array, Array]:
-        """For frames ``T`` of configurations ``cs``: position errors ``y - p_obs``
-        (n, 3) [m], rotation errors ``e = log(R_pred R_obs^T)`` (n, 3) [rad], the target
-        offset ``a = R_e t_t`` and the prediction ``y = R_I^T (p_e + a - t_I)`` (n, 3)."""
-        TI, Tt = frames[0], frames[1]
-        RI, tI = TI[:3, :3], TI[:3, 3]
-        Re = T[:, :3, :3]
-        a = Re @ Tt[:3, 3]                                         # target origin offset
-        y = (T[:, :3, 3] + a - tI) @ RI                            # R_I^T d
-        Rp = RI.T @ Re @ Tt[:3, :3]                                # R_pred (n, 3, 3)
-        e = log_so3(Rp @ np.swapaxes(self.poses[cs, :3, :3], 1, 2))
-        return y - self.poses[cs, :3, 3], e, a, y
-
-    def evaluate(self, robot: Robot, extra: Array, jacobian: bool = True
-                 ) -> tuple[Array, Array | None, Array | None]:
-        extra = np.asarray(extra, dtype=float)
-        if not jacobian:
-            dy, e, _, _ = self._raw(robot.fk(self.q), self._frames(extra), slice(None))
-            wp, wo = 1.0 / self.sigma_position, 1.0 / self.sigma_orientation
-            return np.concatenate([dy * wp[:, None], e * wo[:, None]], 1).reshape(-1), None, None
-        M, P = self.num_residuals(), robot.num_params
-        r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 12))
-        ws, frames = _Scratch(), self._frames(extra)
-        for cs in configuration_slices(self.N, 6, CHUNK_ROWS):
-            rs = slice(6 * cs.start, 6 * cs.stop)
-            self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
-        return r, Jr, Je
-
-    def evaluate_chunks(self, robot: Robot, extra: Array, rows: int = CHUNK_ROWS
-                        ) -> Iterator[tuple[slice, Array, Array, Array]]:
-        extra = np.asarray(extra, dtype=float)
-        P = robot.num_params
-        ws, frames = _Scratch(), self._frames(extra)
-        for cs in configuration_slices(self.N, 6, rows):
-            n = 6 * (cs.stop - cs.start)
-            r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, 12))
-            self._fill(robot, frames, cs, r, Jr, Je, ws)
-            yield slice(6 * cs.start, 6 * cs.stop), r, Jr, Je
-
-    def _fill(self, robot: Robot, frames: tuple[Array, Array, Array, Array], cs: slice,
-              r: Array, Jr: Array, Je: Array, ws: _Scratch) -> None:
-        """Residuals and Jacobians of configurations ``cs`` into ``r`` (6n,), ``Jr``
-        (6n, P), ``Je`` (6n, 12) (rows: position x y z, then rotation, per pose).
-
-        With ``Jv' = R_I^T Jv``, ``Jw' = R_I^T Jw``, ``a' = R_I^T R_e t_t``,
-        ``y = R_I^T (p_e + a - t_I)``, ``L = J_l^-1(e)`` (:func:`inverse_left_jacobian_so3`),
-        ``E'_c = R_I^T E_c`` (instrument rotation axes) and ``F_c`` the target's:
-
-        * robot: position ``Jv'_i + Jw'_j a'_k - Jw'_k a'_j`` ((i, j, k) cyclic),
-          rotation ``L Jw'`` (``R_pred`` turns by ``R_I^T dphi_e``);
-        * instrument: position ``[-R_I^T, y x E'_c]``, rotation ``[0, -L E'_c]``;
-        * target: position ``[R_I^T R_e, 0]``, rotation ``[0, L R_I^T R_e F_c]``;
-
-        position rows divided by ``sigma_position``, rotation rows by ``sigma_orientation``.
-        """
-        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True)
-        n, P = T.shape[0], robot.num_params
-        G = frames[0][:3, :3].T                                   # R_I^T
-        dy, e, a, y = self._raw(T, frames, cs)
-        wp, wo = 1.0 / self.sigma_position[cs], 1.0 / self.sigma_orientation[cs]
-        rr = r.reshape(n, 6)
-        np.multiply(dy, wp[:, None], out=rr[:, :3])
-        np.multiply(e, wo[:, None], out=rr[:, 3:])
-        L = inverse_left_jacobian_so3(e)                           # (n, 3, 3)
-        assert Jp is not None                                      # params=True
-        V, W = _rotate_twists(G, Jp, ws)                           # R_I^T Jv, R_I^T Jw
-        ar = np.ascontiguousarray((a @ G.T).T)                    # a' (3, n)
-        Lc = np.ascontiguousarray(L.transpose(1, 2, 0))           # (3, 3, n)
-        out = Jr.reshape(n, 6, P)
-        buf, tmp = ws.get("buf", (P, n)), ws.get("tmp", (P, n))
-        for i in range(3):
-            j, l = (i + 1) % 3, (i + 2) % 3
-            np.multiply(W[j], ar[l], out=buf)
-            np.multiply(W[l], ar[j], out=tmp)
-            buf -= tmp
-            buf += V[i]
-            buf *= wp
-            out[:, i, :] = buf.T
-            np.multiply(W[0], Lc[i, 0], out=buf)
-            for c in (1, 2):
-                np.multiply(W[c], Lc[i, c], out=tmp)
-                buf += tmp
-            buf *= wo
-            out[:, 3 + i, :] = buf.T
-        ex = Je.reshape(n, 6, 12)
-        ex[...] = 0.0
-        ex[:, :3, 0:3] = -G
-        Ep = G @ frames[2]                                        # E'_c as columns
-        for i in range(3):
-            j, l = (i + 1) % 3, (i + 2) % 3
-            ex[:, i, 3:6] = y[:, j, None] * Ep[l] - y[:, l, None] * Ep[j]
-        ex[:, 3:, 3:6] = L @ -Ep
-        RiRe = G @ T[:, :3, :3]
-        ex[:, :3, 6:9] = RiRe
-        ex[:, 3:, 9:12] = L @ (RiRe @ frames[3])
-        ex[:, :3] *= wp[:, None, None]
-        ex[:, 3:] *= wo[:, None, None]
-
-    def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
-        frames = self._frames(np.asarray(extra, dtype=float))
-        dy, e, _, _ = self._raw(robot.fk(self.q), frames, slice(None))
-        return {"position_m": np.linalg.norm(dy, axis=1),
-                "orientation_rad": np.linalg.norm(e, axis=1)}
-
-    def initial_guess(self, robot: Robot) -> Array:
-        """Instrument and target frames in closed form (AX = YB).
-
-        Rotations: ``R_e,i R_t - R_I R_obs,i = 0`` is linear in ``(vec R_t, vec R_I)``:
-        ``[(I kron R_e,i), -(R_obs,i^T kron I)] [vec R_t; vec R_I] = 0``; the right
-        singular vector of the smallest singular value, scaled to ``det R_t = 1`` and
-        projected onto SO(3).  Translations: ``R_e,i t_t - t_I = R_I p_obs,i - p_e,i``
-        by linear least squares.  Both systems are reduced to their QR triangles in one
-        pass over the configurations, in pieces (the translations' right-hand side is
-        linear in ``R_I``: its ten columns ``-p_e``, ``p_obs,b e_a`` are carried along).
-        """
-        eye = np.eye(3)
-        rot, tra = Triangle(18), Triangle(6 + 10)
-        for cs in configuration_slices(self.N, 6, CHUNK_ROWS):
-            T = robot.fk(self.q[cs])
-            Re, pe = T[:, :3, :3], T[:, :3, 3]
-            Ro, po = self.poses[cs, :3, :3], self.poses[cs, :3, 3]
-            rot.add(np.concatenate([np.kron(eye[None], Re),
-                                    -np.kron(np.swapaxes(Ro, 1, 2), eye[None])],
-                                   axis=2).reshape(-1, 18))
-            # R_e t_t - t_I = R_I p_obs - p_e: right-hand sides -p_e and p_obs,b e_a
-            B = np.zeros((len(Re), 3, 16))
-            B[:, :, :3] = Re
-            B[:, :, 3:6] = -eye
-            B[:, :, 6] = -pe
-            for a in range(3):
-                B[:, a, 7 + 3 * a: 10 + 3 * a] = po
-            tra.add(B.reshape(-1, 16))
-        _, _, Vt = np.linalg.svd(rot.R)
-        v = Vt[-1]
-        X = v[:9].reshape(3, 3, order="F")
-        Y = v[9:].reshape(3, 3, order="F")
-        det = np.linalg.det(X)
-        c = np.sign(det) * abs(det) ** (-1.0 / 3.0) if abs(det) > 1e-300 else 1.0
-        Rt, RI = project_so3(c * X), project_so3(c * Y)
-        Z = tra.solve(6)                                            # (6, 10)
-        sol = Z[:, 0] + Z[:, 1:] @ RI.reshape(9)
-        TI, Tt = np.eye(4), np.eye(4)
-        TI[:3, :3], TI[:3, 3] = RI, sol[3:]
-        Tt[:3, :3], Tt[:3, 3] = Rt, sol[:3]
-        return np.concatenate([frame_from_matrix(TI), frame_from_matrix(Tt)])
+POSITION = register(Instrument(
+    name="position",
+    description="points on the tool in an instrument frame (laser tracker, motion capture)",
+    simulate=simulate_position_experiment, write=write_position, read=read_position,
+    options={"markers": (1, "number of points measured on the tool per pose"),
+             **TRACKER_OPTIONS},
+    noise_unit="m"))

@@ -28,22 +28,53 @@ surveyed stations (their parameters held), one station leaves the three rotation
 robot about it free, two stations the rotation about their common line; three fix the
 base frame.  Even a single unknown station identifies the kinematic chain itself given
 enough well-spread poses.
+
+File columns: ``station[, mode, run], range, sigma`` (``mode``/``run`` only with incremental
+rows).  Simulator: :func:`simulate_range` (stations 1.5-2.5 m around the workspace).
+The module registers the ``range`` instrument (:mod:`kincal.measure.registry`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from kincal.errors import KincalError
+from kincal.errors import KincalError, MeasurementFileError
 from kincal.measure.base import ParamSpec, Triangle, configuration_slices
+from kincal.measure.files import Field
 from kincal.measure.instruments.common import (
+    MARKER_MODES,
     concat_specs,
     label_index_raw,
 )
+from kincal.measure.instruments.csvio import (
+    block_name,
+    block_tags,
+    build_block,
+    choice_column,
+    label_column,
+    one_block,
+    read_block_table,
+    write_block_table,
+)
+from kincal.measure.instruments.placement import (
+    POINT_OPTIONS,
+    as_flag,
+    labels_for,
+    marker_truth,
+    stated_sigma,
+    stations_around,
+    tool_points,
+    truth_values,
+    workspace,
+)
 from kincal.measure.instruments.pointblock import PointBlock
+from kincal.measure.registry import Instrument, register
+from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
@@ -164,3 +195,84 @@ class RangeMeasurement(PointBlock):
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         r = self.evaluate(robot, extra, jacobian=False)[0]
         return {"range_m": r * self.sigma}
+
+
+# ---------------------------------------------------------------------------- file columns
+RANGE_FIELDS = (Field("range", "length", "range (distance, or change of distance)"),
+                Field("sigma", "length", "sigma (standard deviation of the range)"))
+
+
+def write_range(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str] | None = None,
+                robot: Any = None) -> None:
+    """``station[, mode, run], range, sigma`` per row (mode/run only with incremental rows)."""
+    b: RangeMeasurement = one_block(blocks, "range")
+    cols: list[tuple[str, Any, str]] = [("station", b.station_labels, "text")]
+    if any(m == "incremental" for m in b.mode):
+        cols += [("mode", b.mode, "text"), ("run", b.run, "text")]
+    cols += [("range", b.obs[:, 0], "length"), ("sigma", b.sigma, "length")]
+    write_block_table(path, block_tags("range", b, marker=b.marker), b.q, cols, units, robot,
+                      ["range = |p - station| (absolute) or |p - station| - L0 (incremental, "
+                       "L0 per station and run)"])
+
+
+def read_range(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
+               ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    tab = read_block_table(path, robot, "range", RANGE_FIELDS, ("range", "sigma"),
+                           {"station": None, "mode": "absolute", "run": "0"}, units, ignore)
+    label_column(tab, "station", "station")
+    mode = choice_column(tab, "mode", MODES)
+    marker = tab.option("marker", "own", MARKER_MODES)
+    return [build_block(tab, lambda: RangeMeasurement(
+        block_name(tab, name, "range"), tab.q, tab.text["station"], tab.values["range"],
+        tab.values["sigma"], mode, tab.text["run"], marker))]
+
+
+# ---------------------------------------------------------------------------- simulation
+def simulate_range(true_robot: Robot, rng: np.random.Generator, n_poses: int, noise: float,
+                   stations: int = 4, incremental: bool = False, marker: str = "own",
+                   name: str = "range", margin: float = 0.05,
+                   truth: Mapping[str, float] | None = None) -> tuple[list[Any], dict[str, float]]:
+    """Distances from ``stations`` stations to the tool marker at every pose.
+
+    ``rho = |p - s_k| (- L0_k)`` + N(0, noise^2) [m]; incremental stations were zeroed at
+    a random home configuration (``L0_k`` its distance).
+    """
+    if int(stations) < 1:
+        raise MeasurementFileError("option stations must be >= 1")
+    incremental = as_flag(incremental, "incremental")
+    labels = labels_for(stations, "s")
+    K = len(labels)
+    q = random_configurations(true_robot, n_poses, rng, margin)
+    mode = "incremental" if incremental else "absolute"
+    st = np.repeat(np.array(labels)[None], len(q), 0).reshape(-1).tolist()
+    qq = np.repeat(q, K, axis=0)
+    sigma = stated_sigma(noise, "m")
+    probe = RangeMeasurement(name, qq, st, np.zeros(len(qq)), sigma, [mode] * len(qq),
+                             marker=marker)
+    names = probe.parameters().names
+    if truth is not None:
+        values = truth_values(truth, names)
+    else:
+        centre, radius = workspace(true_robot, rng, margin)
+        S = stations_around(rng, centre, K, (1.5, 2.5), (-0.4, 0.8))
+        L0 = np.zeros(0)
+        if incremental:
+            home = random_configurations(true_robot, 1, rng, margin)
+            L0 = np.linalg.norm(tool_points(true_robot, home, None)[0] - S, axis=1)
+        values = np.concatenate([S.reshape(-1), L0] + ([marker_truth(rng)]
+                                                      if marker == "own" else []))
+    probe_e = probe.evaluate(true_robot, values, jacobian=False)[0] * sigma   # pred - 0
+    rho = probe_e + (rng.normal(0.0, noise, len(qq)) if noise > 0 else 0.0)
+    block = RangeMeasurement(name, qq, st, rho, sigma, [mode] * len(qq), marker=marker)
+    return [block], dict(zip(names, values.tolist(), strict=True))
+
+
+register(Instrument(
+    name="range",
+    description="distances from stations to the tool point (ADM, time of flight, "
+                "interferometer)",
+    simulate=simulate_range, write=write_range, read=read_range,
+    options={"stations": (4, "number of range stations"),
+             "incremental": (False, "interferometer: distance change from an unknown start"),
+             "name": ("range", "block name (prefix of its parameters)"), **POINT_OPTIONS},
+    noise_unit="m"))
