@@ -50,7 +50,7 @@ import csv
 import math
 import os
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass, field
@@ -309,6 +309,33 @@ def read_header(path: str | os.PathLike[str]) -> tuple[dict[str, str], list[str]
 
 
 # --------------------------------------------------------------------------- reading
+#: ``fail(message, line=header line)``: the one-line error of the file being read.
+Fail = Callable[..., MeasurementFileError]
+
+#: A column read: ``(column index, base name, unit, role)``, role ``joint``, ``held`` or ``obs``.
+UsedColumn = tuple[int, str, str, str]
+
+
+@dataclass(frozen=True)
+class _JointColumns:
+    """What a table's joint columns must be: the robot's joints and held joints."""
+
+    names: list[str]                    # the robot's joint names (empty: no joint columns)
+    kind: dict[str, str]                # joint or held joint -> revolute / prismatic
+    held: dict[str, float]              # held joint -> its value [SI]
+    units: dict[str, str]               # the robot file's joint units
+    lower: dict[str, str]               # lower-case name -> name (for suggestions)
+
+    @classmethod
+    def of(cls, robot: Any, joints: bool) -> _JointColumns:
+        jnames = [j.name for j in robot.joints] if joints and robot is not None else []
+        jkind = {j.name: j.kind for j in robot.joints} if jnames else {}
+        held = held_joints(robot) if jnames else {}
+        jkind.update(dict(robot.meta.get("held_joint_kinds") or {}) if held else {})
+        robot_units = _robot_joint_units(robot) if jnames else {}
+        return cls(jnames, jkind, held, robot_units, {n.lower(): n for n in jnames})
+
+
 def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field],
                units: Mapping[str, str] | None = None, ignore: Sequence[str] = (),
                joints: bool = True) -> MeasurementTable:
@@ -340,6 +367,36 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
     def fail(msg: str, line: int = header_line) -> MeasurementFileError:
         return MeasurementFileError(f"line {line}: {msg}", source=src)
 
+    ignore_rx, unit_rx = _check_header(names, ignore, units, fail)
+    jc = _JointColumns.of(robot, joints)
+    used, ignored, bases = _sort_columns(names, fields, ignore_rx, unit_rx, jc, fail)
+    if jc.names:
+        missing = [j for j in jc.names if j not in bases]
+        if missing:
+            have = [b for _, b, _, r in used if r == "joint"]
+            raise fail(f"no column for joint {missing[0]!r}: robot {robot.name!r} has "
+                       f"{len(jc.names)} joints ({', '.join(jc.names)}), the file has "
+                       f"{len(have)} joint columns ({', '.join(have) or 'none'})")
+
+    data_rows = body[1:]
+    if not data_rows:
+        raise fail("no data rows after the header", line=header_line)
+    arr, cells, linenos = _read_numbers(data_rows, names, used, fail)
+    pos = {b: k for k, (_, b, _, _) in enumerate(used)}
+    q = (np.stack([arr[:, pos[j]] for j in jc.names], axis=1) if jc.names
+         else np.zeros((len(data_rows), 0)))
+    values = {b: arr[:, k] for k, (_, b, _, r) in enumerate(used) if r == "obs"}
+    col_names = {b: names[c] for c, b, _, r in used if r == "obs"}
+    _check_held(arr, cells, linenos, names, used, jc.held, ignored, fail)
+    return MeasurementTable(src, tags, q, values, {b: u for _, b, u, r in used if r != "held"},
+                            linenos, ignored, col_names, header_line)
+
+
+def _check_header(names: Sequence[str], ignore: Sequence[str], units: Mapping[str, str],
+                  fail: Fail) -> tuple[list[tuple[str, re.Pattern[str]]],
+                                       list[tuple[str, str, re.Pattern[str]]]]:
+    """Column names unique and non-empty; every ``--ignore`` pattern and ``--units`` key
+    matches a column (a typo must not pass unnoticed).  Returns the compiled patterns."""
     seen: dict[str, int] = {}
     for c, name in enumerate(names, start=1):
         if not name:
@@ -347,29 +404,30 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         if name in seen:
             raise fail(f"column {c} ({name}) repeats column {seen[name]}")
         seen[name] = c
-
-    # --ignore: every pattern must match something (a typo must not pass unnoticed)
     ignore_rx = [(p, glob_regex(p)) for p in ignore]
     for p, rx in ignore_rx:
         if not any(rx.match(n) for n in names):
             raise fail(f"--ignore {p!r} matches no column (columns: {', '.join(names)})")
-    # --units: every key must match a column
     unit_rx = [(k, v, glob_regex(k)) for k, v in units.items()]
     for k, _, rx in unit_rx:
         if not any(rx.match(n) for n in names):
             raise fail(f"--units {k!r} matches no column (columns: {', '.join(names)})")
+    return ignore_rx, unit_rx
 
-    jnames = [j.name for j in robot.joints] if joints and robot is not None else []
-    jkind = {j.name: j.kind for j in robot.joints} if jnames else {}
-    held = held_joints(robot) if jnames else {}
-    jkind.update(dict(robot.meta.get("held_joint_kinds") or {}) if held else {})
-    robot_units = _robot_joint_units(robot) if jnames else {}
-    lower_j = {n.lower(): n for n in jnames}
 
-    used: list[tuple[int, str, str, str]] = []   # (col index, base, unit, role)
+def _sort_columns(names: Sequence[str], fields: Sequence[Field],
+                  ignore_rx: Sequence[tuple[str, re.Pattern[str]]],
+                  unit_rx: Sequence[tuple[str, str, re.Pattern[str]]], jc: _JointColumns,
+                  fail: Fail) -> tuple[list[UsedColumn], list[str], dict[str, int]]:
+    """Each column a joint, a held joint, an observation (with its unit) or ignored.
+
+    Returns the columns read, the names ignored and ``{base name: column number}``.
+    """
+    used: list[UsedColumn] = []
     no_unit: list[tuple[int, str, str, str]] = []   # (column, name, base, dimension)
     ignored: list[str] = []
     bases: dict[str, int] = {}
+    jnames, held = jc.names, jc.held
     for c, name in enumerate(names):
         col = c + 1
         if any(rx.match(name) for _, rx in ignore_rx):
@@ -382,7 +440,7 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
             base, unit = name, None
         if base in jnames or base in held:
             role = "joint" if base in jnames else "held"
-            want = "angle" if jkind[base] == "revolute" else "length"
+            want = "angle" if jc.kind[base] == "revolute" else "length"
         else:
             fld = next((f for f in fields if f.matches(base)), None)
             if fld is None:
@@ -392,7 +450,7 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
                         raise fail(f"column {col} ({name}): unknown unit {suf!r} "
                                    f"(known: {', '.join(UNITS)})")
                 if _looks_measured(base, jnames):
-                    raise fail(f"column {col} ({name}) " + _unexpected(base, jnames, lower_j,
+                    raise fail(f"column {col} ({name}) " + _unexpected(base, jnames, jc.lower,
                                                                       fields))
                 ignored.append(name)
                 continue
@@ -407,7 +465,7 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
             given = next((v for _, v, rx in unit_rx if rx.match(name)), None)
         unit = unit or given
         if unit is None and role in ("joint", "held"):
-            unit = robot_units.get(base)
+            unit = jc.units.get(base)
         if unit is None:
             no_unit.append((col, name, base, want))
             continue
@@ -415,20 +473,16 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
             raise fail(f"column {col} ({name}): unit {unit} is {_a(UNITS[unit][0])}, "
                        f"expected {_a(want)}")
         used.append((c, base, unit, role))
-
     if no_unit:
         raise fail(_no_unit_message(no_unit))
-    if jnames:
-        missing = [j for j in jnames if j not in bases]
-        if missing:
-            have = [b for _, b, _, r in used if r == "joint"]
-            raise fail(f"no column for joint {missing[0]!r}: robot {robot.name!r} has "
-                       f"{len(jnames)} joints ({', '.join(jnames)}), the file has "
-                       f"{len(have)} joint columns ({', '.join(have) or 'none'})")
+    return used, ignored, bases
 
-    data_rows = body[1:]
-    if not data_rows:
-        raise fail("no data rows after the header", line=header_line)
+
+def _read_numbers(data_rows: Sequence[tuple[int, str]], names: Sequence[str],
+                  used: Sequence[UsedColumn], fail: Fail
+                  ) -> tuple[Array, list[list[str]], NDArray[np.intp]]:
+    """The used columns of the data rows as SI numbers (rows, columns), the cells as
+    written, and the file line of each row; every cell finite and within :data:`MAX_SI`."""
     rows = list(csv.reader([ln for _, ln in data_rows]))
     linenos = np.array([ln for ln, _ in data_rows], dtype=np.intp)
     width = len(names)
@@ -466,11 +520,14 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
         raise fail(f"column {c + 1} ({names[c]}): {cells[i][k].strip()} is out of any "
                    f"robot's range (more than {MAX_SI:g} {DIMENSIONS[UNITS[used[k][2]][0]]})",
                    line=int(linenos[i]))
-    pos = {b: k for k, (_, b, _, _) in enumerate(used)}
-    q = (np.stack([arr[:, pos[j]] for j in jnames], axis=1) if jnames
-         else np.zeros((len(rows), 0)))
-    values = {b: arr[:, k] for k, (_, b, _, r) in enumerate(used) if r == "obs"}
-    col_names = {b: names[c] for c, b, _, r in used if r == "obs"}
+    return arr, cells, linenos
+
+
+def _check_held(arr: Array, cells: Sequence[Sequence[str]], linenos: NDArray[np.intp],
+                names: Sequence[str], used: Sequence[UsedColumn], held: Mapping[str, float],
+                ignored: list[str], fail: Fail) -> None:
+    """A held joint's column must read its held value (within :data:`HELD_TOLERANCE`) on
+    every row; its column is then listed in ``ignored``."""
     for col, (c, b, u, role) in enumerate(used):
         if role != "held":
             continue
@@ -482,8 +539,6 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
                        f"{cells[i][col].strip()} {u}: it moved (remove it from hold)",
                        line=int(linenos[i]))
         ignored.append(f"{names[c]} (held joint)")
-    return MeasurementTable(src, tags, q, values, {b: u for _, b, u, r in used if r != "held"},
-                            linenos, ignored, col_names, header_line)
 
 
 def _no_unit_message(cols: Sequence[tuple[int, str, str, str]]) -> str:
