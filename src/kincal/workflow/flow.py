@@ -204,29 +204,12 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     A same-session block whose errors are more than 5x those after re-registering the
     frame raises a warning (the instrument probably moved).
     """
-    from kincal.measure.base import stack
-    from kincal.report.metrics import ErrorComparison, merge_errors
-
     check_flow_options(procedure=procedure, method=method, loss=loss, stages=stages,
                        validation_frames=validation_frames, condition_growth=condition_growth,
                        cycles=cycles, tolerance=tolerance, prior=prior)
-    if cross_validate is not None:
-        if procedure != "lm":
-            raise KincalError("--cross-validate works with --procedure lm")
-        if cross_validate < 2:
-            raise KincalError(f"option --cross-validate: needs at least 2 folds (got "
-                              f"{cross_validate})")
-    if select not in (None, "none", "auto"):
-        raise KincalError(f"option --select: {select!r} is not auto or none")
-    notes: list[str] = []
-    if shared_marker:
-        from kincal.workflow.shared import share_tool_point
-
-        robot, blocks, holdouts, note = share_tool_point(robot, blocks, list(holdouts))
-        notes.append(note)
-    prob, _ = stack(robot, blocks)
-    free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
-    tols = tolerances_of(robot, prob, prior)
+    _check_validation_options(procedure, cross_validate, select)
+    robot, blocks, holdouts, notes = _share_marker(robot, blocks, holdouts, shared_marker)
+    free_names, fixed, tols = _selection_and_tolerances(robot, blocks, free, fix, prior)
     prefer = [f"tool.{c}" for c in "xyz"] if shared_marker else []
     solver_options = {"free": free_names, "fixed": fixed, "method": method, "stages": stages,
                       "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100,
@@ -246,34 +229,9 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     t0 = time.perf_counter()
     res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
     seconds = time.perf_counter() - t0
-    cv = None
-    if selection is not None and selection.chosen is not None:
-        i = selection.chosen
-        from kincal.identify.selection import split_kind
-
-        cv = {"folds": selection.folds, "seed": selection.seed, "split": split_kind(blocks),
-              "model": selection.candidates[i].label,
-              **{f"rms_{k}": v for k, v in selection.rms_all[i].items()}}
-    elif cross_validate is not None:
-        from kincal.identify.selection import Candidate, fold_units, gather_folds, split_kind
-
-        parts, _ = fold_units(blocks, cross_validate, 0)
-        if all(p is None for p in parts):
-            raise KincalError(f"--cross-validate {cross_validate}: no training file has "
-                              f"{cross_validate} rows or placements to hold out")
-        got = gather_folds(robot, [blocks], [Candidate()], parts, tols.sigma,
-                           {**solver_options, "prior": prior_s or None}, mapper)
-        cv = {"folds": cross_validate, "seed": 0, "split": split_kind(blocks),
-              **{f"rms_{k}": v for k, v in got[0].items()}}
-    train = list(res.problem.blocks)    # thinned copies keep their provenance
-    before = {b.name: reregister(robot, b, None, None) for b in train}
-    after = {b.name: res.theta[res.problem.block_slice(b.name)] for b in train}
-    comps = [ErrorComparison(
-        "train", "train" + _files(train),
-        merge_errors([errors_with(robot, b, before[b.name]) for b in train]),
-        merge_errors([errors_with(res.robot, b, after[b.name]) for b in train]),
-        "before: nominal robot, instrument frames and markers fitted to it; after: "
-        "calibrated robot and frames")]
+    cv = _cross_validation_summary(robot, blocks, selection, cross_validate, tols.sigma,
+                                   {**solver_options, "prior": prior_s or None}, mapper)
+    train, before, after, comps = _training_comparison(robot, res)
     accuracy = _accuracy(res, cv, before) if procedure == "lm" else None
     heldout: list[Any] = []
     if holdouts:
@@ -289,6 +247,88 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                       tolerances=tols, verdict=verdict,
                       weak=weak_parameters(res), selection=selection, accuracy=accuracy,
                       heldout=heldout, notes=notes)
+
+
+def _share_marker(robot: Any, blocks: list[Any], holdouts: Sequence[Any], shared: bool
+                  ) -> tuple[Any, list[Any], list[Any], list[str]]:
+    """With ``shared``, the blocks' markers become the robot's tool origin
+    (:func:`~kincal.workflow.shared.share_tool_point`); returns the notes to report."""
+    if not shared:
+        return robot, blocks, list(holdouts), []
+    from kincal.workflow.shared import share_tool_point
+
+    robot, blocks, kept, note = share_tool_point(robot, blocks, list(holdouts))
+    return robot, blocks, kept, [note]
+
+
+def _selection_and_tolerances(robot: Any, blocks: Sequence[Any], free: str | None,
+                              fix: str | None, prior: str | None
+                              ) -> tuple[list[str] | None, list[str], Any]:
+    """The free and fixed parameter names of ``--free``/``--fix`` and the tolerances
+    (``--prior``) of the stacked problem."""
+    from kincal.measure.base import stack
+
+    prob, _ = stack(robot, blocks)
+    free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
+    return free_names, fixed, tolerances_of(robot, prob, prior)
+
+
+def _check_validation_options(procedure: str, cross_validate: int | None,
+                              select: str | None) -> None:
+    """``--cross-validate`` (lm only, at least 2 folds) and ``--select`` (auto or none)."""
+    if cross_validate is not None:
+        if procedure != "lm":
+            raise KincalError("--cross-validate works with --procedure lm")
+        if cross_validate < 2:
+            raise KincalError(f"option --cross-validate: needs at least 2 folds (got "
+                              f"{cross_validate})")
+    if select not in (None, "none", "auto"):
+        raise KincalError(f"option --select: {select!r} is not auto or none")
+
+
+def _cross_validation_summary(robot: Any, blocks: Sequence[Any], selection: Any,
+                              cross_validate: int | None, sigma: Any,
+                              solver_options: Mapping[str, Any],
+                              mapper: Callable[..., Any]) -> dict[str, Any] | None:
+    """The cross-validated RMS errors of the fitted model: those of the selection's
+    winner, or a ``cross_validate``-fold run of the same calibration (folds drawn with
+    seed 0), or None when neither was asked."""
+    if selection is not None and selection.chosen is not None:
+        i = selection.chosen
+        from kincal.identify.selection import split_kind
+
+        return {"folds": selection.folds, "seed": selection.seed, "split": split_kind(blocks),
+                "model": selection.candidates[i].label,
+                **{f"rms_{k}": v for k, v in selection.rms_all[i].items()}}
+    if cross_validate is None:
+        return None
+    from kincal.identify.selection import Candidate, fold_units, gather_folds, split_kind
+
+    parts, _ = fold_units(blocks, cross_validate, 0)
+    if all(p is None for p in parts):
+        raise KincalError(f"--cross-validate {cross_validate}: no training file has "
+                          f"{cross_validate} rows or placements to hold out")
+    got = gather_folds(robot, [blocks], [Candidate()], parts, sigma, solver_options, mapper)
+    return {"folds": cross_validate, "seed": 0, "split": split_kind(blocks),
+            **{f"rms_{k}": v for k, v in got[0].items()}}
+
+
+def _training_comparison(robot: Any, res: Any) -> tuple[list[Any], dict[str, Array],
+                                                        dict[str, Array], list[Any]]:
+    """The blocks the solver used, their own parameters before (fitted to the nominal
+    robot) and after (estimated with the calibrated robot), and the training errors."""
+    from kincal.report.metrics import ErrorComparison, merge_errors
+
+    train = list(res.problem.blocks)    # thinned copies keep their provenance
+    before = {b.name: reregister(robot, b, None, None) for b in train}
+    after = {b.name: res.theta[res.problem.block_slice(b.name)] for b in train}
+    comps = [ErrorComparison(
+        "train", "train" + _files(train),
+        merge_errors([errors_with(robot, b, before[b.name]) for b in train]),
+        merge_errors([errors_with(res.robot, b, after[b.name]) for b in train]),
+        "before: nominal robot, instrument frames and markers fitted to it; after: "
+        "calibrated robot and frames")]
+    return train, before, after, comps
 
 
 def _accuracy(res: Any, cv: Mapping[str, Any] | None,
