@@ -73,7 +73,8 @@ class ToolPointBlock(BlockWrapper):
                          tuple(r for r, ok in zip(s.roles, k, strict=True) if ok))
 
     def initial_guess(self, robot: Any) -> Array:
-        return np.asarray(self.inner.initial_guess(robot), dtype=float)[self._keep]
+        guess: Array = np.asarray(self.inner.initial_guess(robot), dtype=float)[self._keep]
+        return guess
 
     def evaluate(self, robot: Any, extra: Array, jacobian: bool = True
                  ) -> tuple[Array, Array | None, Array | None]:
@@ -98,13 +99,15 @@ class ToolPointBlock(BlockWrapper):
         self.inner.residuals_into(robot, self._full(extra), out)
 
     def residual_owner(self) -> NDArray[np.intp]:
-        return self.inner.residual_owner()
+        owner: NDArray[np.intp] = self.inner.residual_owner()
+        return owner
 
     def num_residuals(self) -> int:
         return int(self.inner.num_residuals())
 
     def errors(self, robot: Any, extra: Array) -> dict[str, Array]:
-        return self.inner.errors(robot, self._full(extra))
+        errors: dict[str, Array] = self.inner.errors(robot, self._full(extra))
+        return errors
 
     def subset(self, rows: ArrayLike) -> ToolPointBlock:
         return ToolPointBlock(self.inner.subset(rows))
