@@ -1,10 +1,12 @@
-"""The page docs/adding-an-instrument.md, run as written: its Python blocks in order, in
-one namespace, in a scratch folder; the calibration with the new instrument must find
-the simulated truth within its standard errors."""
+"""The page docs/adding-an-instrument.md, run as written: its first three Python blocks
+are one module, written to ``laser_distance.py`` in a scratch folder and imported (which
+registers the instrument); the last block calibrates with it and must find the simulated
+truth within its standard errors."""
 
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,17 +24,29 @@ def page_code() -> list[str]:
 @pytest.fixture
 def page(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    *module, calibration = page_code()
+    (tmp_path / "laser_distance.py").write_text("\n\n".join(module))
     ns: dict[str, object] = {"__name__": "adding_an_instrument"}
     try:
-        for code in page_code():
-            exec(compile(code, str(PAGE), "exec"), ns)
+        exec(compile(calibration, str(PAGE), "exec"), ns)
         yield ns
     finally:
         registry._REGISTRY.pop("laser-distance", None)
+        sys.modules.pop("laser_distance", None)
 
 
-def test_the_page_has_its_three_steps() -> None:
-    assert len(page_code()) == 3
+def test_the_page_has_its_four_steps() -> None:
+    assert len(page_code()) == 4
+
+
+def test_the_instrument_is_one_module(page) -> None:
+    """Model, file columns, simulator and registration all come from laser_distance.py."""
+    module = sys.modules["laser_distance"]
+    plugin = registry.get_instrument("laser-distance")
+    for piece in (plugin.simulate, plugin.write, plugin.read):
+        assert piece.__module__ == "laser_distance"
+    assert module.LaserDistance.__module__ == "laser_distance"
 
 
 def test_the_new_instrument_calibrates_a_simulated_robot(page) -> None:
@@ -51,3 +65,15 @@ def test_the_new_instrument_calibrates_a_simulated_robot(page) -> None:
     assert "laser.csv" in repr(block)
     assert registry.detect_instrument("laser.csv") == "laser-distance"
     np.testing.assert_allclose(block.measurement_sigma(), 1e-5, rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["position", "pose", "range", "bearing", "camera", "plane",
+                                  "fixture"])
+def test_kincal_instruments_follow_the_same_layout(name) -> None:
+    """Each of kincal's own instruments is one module of measure/instruments/, listed in
+    INSTRUMENT_MODULES: its simulator, writer and reader are defined there."""
+    module = f"kincal.measure.instruments.{name}"
+    assert module in registry.INSTRUMENT_MODULES
+    plugin = registry.get_instrument(name)
+    assert {plugin.simulate.__module__, plugin.write.__module__, plugin.read.__module__} \
+        == {module}
