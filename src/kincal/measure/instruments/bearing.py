@@ -171,6 +171,8 @@ def write_bearing(blocks: Sequence[Any], path: str | Path,
 
 def read_bearing(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
                  ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    """Read a ``bearing`` CSV into one block (SI units); a bad file raises one line
+    naming the file and the line (:class:`~kincal.errors.MeasurementFileError`)."""
     tab = read_block_table(path, robot, "bearing", BEARING_FIELDS, ("az", "el", "sigma"),
                            {"station": None}, units, ignore)
     label_column(tab, "station", "station")

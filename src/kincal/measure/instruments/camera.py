@@ -289,6 +289,8 @@ def write_camera(blocks: Sequence[Any], path: str | Path,
 
 def read_camera(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
                 ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    """Read a ``camera`` CSV into one block (SI units); a bad file raises one line
+    naming the file and the line (:class:`~kincal.errors.MeasurementFileError`)."""
     mount = read_header(path)[0].get("mount", "fixed")
     hand = mount == "hand"
     fields = HAND_FIELDS if hand else CAMERA_FIELDS

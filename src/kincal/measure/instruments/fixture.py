@@ -105,6 +105,8 @@ def write_fixture(blocks: Sequence[Any], path: str | Path,
 
 def read_fixture(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
                  ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    """Read a ``fixture`` CSV into one block (SI units); a bad file raises one line
+    naming the file and the line (:class:`~kincal.errors.MeasurementFileError`)."""
     tab = read_block_table(path, robot, "fixture", FIXTURE_FIELDS, ("x", "y", "z", "sigma"),
                            {}, units, ignore)
     marker = tab.option("marker", "own", MARKER_MODES)

@@ -69,10 +69,12 @@ def marker_truth(rng: np.random.Generator) -> Array:
 
 
 def stated_sigma(noise: float, unit: str) -> float:
+    """The sigma a simulated block states: ``noise``, or :data:`EXACT_SIGMA` when 0."""
     return float(noise) if noise > 0 else EXACT_SIGMA[unit]
 
 
 def truth_values(truth: Mapping[str, float], names: Sequence[str]) -> Array:
+    """The values of ``names`` in a previous simulation's ``truth`` (same placement)."""
     missing = [n for n in names if n not in truth]
     if missing:
         raise MeasurementFileError(f"instrument truth lacks {missing[0]!r}")
@@ -100,6 +102,7 @@ def as_flag(value: Any, option: str) -> bool:
 
 
 def labels_for(k: int, prefix: str) -> list[str]:
+    """``k`` station labels ``prefix1 ... prefixk``."""
     return [f"{prefix}{i + 1}" for i in range(int(k))]
 
 

@@ -240,6 +240,8 @@ def write_plane(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str
 
 def read_plane(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
                ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    """Read a ``plane`` CSV into one block (SI units); a bad file raises one line
+    naming the file and the line (:class:`~kincal.errors.MeasurementFileError`)."""
     tab = read_block_table(path, robot, "plane", PLANE_FIELDS, ("n_az", "n_el", "d", "sigma"),
                            {"plane": None, "mode": "unknown"}, units, ignore)
     planes, idx = label_column(tab, "plane", "plane")

@@ -217,6 +217,8 @@ def write_range(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str
 
 def read_range(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
                ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
+    """Read a ``range`` CSV into one block (SI units); a bad file raises one line
+    naming the file and the line (:class:`~kincal.errors.MeasurementFileError`)."""
     tab = read_block_table(path, robot, "range", RANGE_FIELDS, ("range", "sigma"),
                            {"station": None, "mode": "absolute", "run": "0"}, units, ignore)
     label_column(tab, "station", "station")
