@@ -50,7 +50,8 @@ from kincal.measure.instruments.common import (
 from kincal.measure.instruments.csvio import one_block
 from kincal.measure.instruments.placement import truth_values
 
-# the piece workspace of the tracker models is shared with the position model
+# _Scratch and _rotate_twists: the per-evaluation working arrays and the twist rotation
+# both tracker models use (kept beside the position model, whose kernel owns them)
 from kincal.measure.instruments.position import (
     DEFAULT_SIGMA,
     TRACKER_OPTIONS,
