@@ -244,15 +244,9 @@ def calibrate_cmd(
         raise KincalError("`kincal calibrate` needs --data FILE (or data: in the setup file)")
     r = held_robot(ctx, load(robot, base_link, tip_link), hold)
     if is_fivebar(r):
-        from kincal.cli.fivebar import calibrate_fivebar_file
+        from kincal.cli.fivebar import calibrate_fivebar_command
 
-        if len(data) != 1 or not isinstance(data[0], str):
-            raise KincalError("five-bar calibration takes one --data file")
-        if procedure != "lm":
-            raise KincalError("--procedure patent works on serial robots")
-        if prior or joint_model:
-            raise KincalError("--prior and --joint-model work on serial robots")
-        calibrate_fivebar_file(r, data[0], output, json_out, report, method)
+        calibrate_fivebar_command(ctx, r)
         return
     tolerance = length_option(tolerance_text, "--tolerance")
     check_flow_options(procedure=procedure, method=method, loss=loss,

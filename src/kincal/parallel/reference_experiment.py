@@ -15,17 +15,25 @@ threshold 1e-10.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from kincal.errors import KincalError
+from kincal.identify.checks import Verdict
 from kincal.parallel import kinematics as kin
 from kincal.parallel.calibration import LENGTHS_FREE, FiveBarCalibration, calibrate
 from kincal.parallel.files import load_fivebar
 from kincal.parallel.fivebar import FiveBar
+from kincal.parallel.trust import fivebar_tolerances, judge_fivebar
 
 EXPERIMENT_TRUE_LENGTHS: dict[str, float] = {"l1": 1.86, "l2": 2.2, "l3": 2.8, "l4": 3.3}
+#: Tolerances [m] of the experiment's lengths for the verdict: its nominal lengths are a
+#: drawing up to 0.3 m from the true ones, so a length is implausible beyond 10 x 0.05 m.
+EXPERIMENT_TOLERANCES: dict[str, float] = dict.fromkeys(LENGTHS_FREE, 0.05)
 EXPERIMENT_MOTOR_RANGES: tuple[tuple[float, float], tuple[float, float]] = (
     (0.0, np.pi / 2),
     (np.pi / 2, np.pi),
@@ -43,7 +51,7 @@ def simulate(
     nominal: FiveBar,
     n: int,
     rng: np.random.Generator,
-    ranges: tuple[tuple[float, float], tuple[float, float]] = EXPERIMENT_MOTOR_RANGES,
+    ranges: Sequence[tuple[float, float]] = EXPERIMENT_MOTOR_RANGES,
     noise: float = 0.0,
     min_measure: float = 0.2,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -94,6 +102,53 @@ def run_reference_experiment(
         nominal, q, x, free=LENGTHS_FREE, residual=residual, method=method, tol=tol, sigma=sigma
     )
     return result, true
+
+
+@dataclass(frozen=True)
+class ReferenceExperiment:
+    """One run of the reference experiment, judged.
+
+    Attributes:
+        calibration: the estimate of the four lengths; ``true``: the true robot.
+        n, seed: configurations and random seed; ``noise``: reading noise [rad].
+        verdict: converged, lengths within 10 x :data:`EXPERIMENT_TOLERANCES`, standard
+            errors below 1 m (:func:`kincal.parallel.trust.judge_fivebar`).
+    """
+
+    calibration: FiveBarCalibration
+    true: FiveBar
+    n: int
+    seed: int
+    noise: float
+    verdict: Verdict
+
+    @property
+    def largest_length_error(self) -> float:
+        """max_k |l_k estimated - l_k true| [m]."""
+        return max(abs(self.calibration.params[k] - v)
+                   for k, v in EXPERIMENT_TRUE_LENGTHS.items())
+
+    def to_dict(self) -> dict[str, Any]:
+        """The calibration's ``to_dict()`` plus ``experiment`` (truth, bases, n, seed,
+        noise [rad]) and ``trust`` (the verdict); SI units."""
+        t = self.true
+        return {**self.calibration.to_dict(),
+                "experiment": {"true": EXPERIMENT_TRUE_LENGTHS, "n": self.n, "seed": self.seed,
+                               "noise_rad": self.noise,
+                               "bases_m": {"base1": [t.base1_x, t.base1_y],
+                                           "base2": [t.base2_x, t.base2_y]}},
+                "trust": self.verdict.to_dict()}
+
+
+def reference_experiment(n: int = 50, seed: int = 0, method: str = "gauss-newton",
+                         residual: str = "ik", noise: float = 0.0, tol: float = 1e-10
+                         ) -> ReferenceExperiment:
+    """:func:`run_reference_experiment` with its verdict (arguments alike; ``noise`` [rad])."""
+    if n < 3:
+        raise KincalError("at least 3 configurations are needed for 4 lengths")
+    result, true = run_reference_experiment(n, seed, method, residual, noise, tol)
+    verdict = judge_fivebar(result, fivebar_tolerances(EXPERIMENT_TOLERANCES))
+    return ReferenceExperiment(result, true, n, seed, noise, verdict)
 
 
 def plot_reference_experiment(
