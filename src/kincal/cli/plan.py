@@ -419,58 +419,27 @@ def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str |
               cycles: int, program: str | None, dwell: str, angle_unit: str, length_unit: str,
               base_link: str | None, tip_link: str | None, json_out: str | None,
               cu: Any) -> None:
-    """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles (the
-    console in ``cu``'s units: mm and deg, m and rad with --si)."""
-    import numpy as np
+    """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles
+    (:func:`kincal.identify.iso9283_plan.plan_iso9283_cube`; the console in ``cu``'s
+    units: mm and deg, m and rad with --si)."""
     from rich.table import Table as _Table
 
     from kincal.identify.design import write_poses
-    from kincal.identify.iso9283 import CYCLE, cube_positions
+    from kincal.identify.iso9283 import CYCLE
+    from kincal.identify.iso9283_plan import plan_iso9283_cube
     from kincal.io import atomic_write_bytes, write_json
-    from kincal.motion.ik import reach_bound, solve_ik
-    from kincal.motion.joint_limits import default_q0
     from kincal.units import parse_quantities, parse_quantity
 
     r = robot_arg(robot, base_link, tip_link)
     out = err_console if json_out == "-" else console
-    # the centre posture: well conditioned (far from singularities) and central among such
-    rng = np.random.default_rng(0)
-    lo, hi = r.joint_limits[:, 0], r.joint_limits[:, 1]
-    lo, hi = np.where(np.isfinite(lo), lo, -np.pi), np.where(np.isfinite(hi), hi, np.pi)
-    cand = lo + (hi - lo) * rng.uniform(0.2, 0.8, (2000, r.n))
-    cond = np.linalg.cond(r.jacobian(cand))
-    good = cand[cond < np.percentile(cond, 20)]
-    pos = r.fk(good)[:, :3, 3]
-    q0 = good[np.argmin(np.linalg.norm(pos - np.median(pos, axis=0), axis=1))] if len(good) \
-        else default_q0(r)
-    T0 = r.fk(q0)
-    center = (np.array(parse_quantities(cube_center, "length", "--cube-center", count=3))
-              if cube_center else T0[:3, 3])
-    size = (parse_quantity(cube_size, "length", "--cube-size", positive=True) if cube_size
-            else 0.25 * reach_bound(r)[1])
-    for _ in range(1 if cube_size else 6):   # default size: halve until every position fits
-        P = cube_positions(center, size)
-        names = list(P)
-        T = np.tile(T0, (5, 1, 1))
-        T[:, :3, 3] = [P[n] for n in names]
-        sol = solve_ik(r, T, q0=q0)
-        if sol.success.all():
-            break
-        size /= 2
-    bad = [n for n, ok in zip(names, sol.success, strict=True) if not ok]
-    if bad:
-        k = names.index(bad[0])
-        raise KincalError(f"ISO 9283 position {bad[0]} at {np.round(P[bad[0]] * 1e3, 1).tolist()} "
-                          f"mm is not reachable with the tool orientation at the centre "
-                          f"({sol.reason[k]}); give a smaller --cube-size or another "
-                          "--cube-center")
-    qpos = dict(zip(names, sol.q, strict=True))
-    rows = np.array([qpos[n] for _ in range(cycles) for n in CYCLE])
-    comments = [f"kincal plan --iso9283: robot={r.name}; cube edge {size * 1e3:.1f} mm, centre "
-                f"{', '.join(f'{v * 1e3:.1f}' for v in center)} mm; {cycles} cycles of "
-                f"{' '.join(CYCLE)} (rows in that order)"]
-    comments += [f"{n}: {', '.join(f'{v * 1e3:.3f}' for v in P[n])} mm" for n in names]
+    center = parse_quantities(cube_center, "length", "--cube-center", count=3) \
+        if cube_center else None
+    size = parse_quantity(cube_size, "length", "--cube-size", positive=True) \
+        if cube_size else None
+    iso = plan_iso9283_cube(r, center, size, cycles)
+    rows = iso.rows
     poses_csv = output
+    text = None
     if program:
         from kincal.compensation.programs.writers import joint_program
 
@@ -478,27 +447,25 @@ def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str |
                              dwell=_seconds(dwell, "--dwell"))
         poses_csv = str(Path(output).with_suffix(".csv"))
     write_poses(poses_csv, r, rows, angle_unit=angle_unit, length_unit=length_unit,
-                comments=comments)
-    if program:
+                comments=iso.comments())
+    if text is not None:
         atomic_write_bytes(output, text.encode("latin-1"))
     lf, L = cu.scale("m")
     digits = 4 if cu.si else 1
     t = _Table(title=f"ISO 9283 test cube for {escape(r.name)}: edge "
-                     f"{size * lf:.{digits}f} {L}")
+                     f"{iso.size * lf:.{digits}f} {L}")
     jf = [cu.scale("rad" if j.kind == "revolute" else "m") for j in r.joints]
     for c in ("position", f"x [{L}]", f"y [{L}]", f"z [{L}]") + tuple(
             f"{j.name} [{u}]" for j, (_, u) in zip(r.joints, jf, strict=True)):
         t.add_column(escape(c), justify="left" if c == "position" else "right")
-    for n in names:
-        t.add_row(n, *(f"{v * lf:.{digits}f}" for v in P[n]),
-                  *(f"{v * f:.{digits + 1}f}" for v, (f, _) in zip(qpos[n], jf, strict=True)))
+    for n in iso.names:
+        t.add_row(n, *(f"{v * lf:.{digits}f}" for v in iso.positions[n]),
+                  *(f"{v * f:.{digits + 1}f}" for v, (f, _) in zip(iso.joints[n], jf,
+                                                                   strict=True)))
     out.print(t)
     out.print(f"cycle: {' -> '.join(CYCLE)} -> P1, {cycles} times ({len(rows)} moves)")
     if program:
         out.print(f"wrote the {program} program -> {escape(output)}")
     out.print(f"wrote {len(rows)} poses -> {escape(poses_csv)}")
     if json_out:
-        write_json(json_out, {"robot": r.name, "cube_edge_m": size, "center_m": center,
-                              "positions_m": {n: P[n] for n in names},
-                              "joints": {n: qpos[n] for n in names}, "cycle": list(CYCLE),
-                              "cycles": cycles, "output": output})
+        write_json(json_out, iso.to_dict(output))
