@@ -6,7 +6,6 @@ commands call when the robot is a :class:`~kincal.parallel.fivebar.FiveBar`.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer

@@ -28,11 +28,10 @@ from kincal.cli.common import (
     RobotArg,
     console,
     err_console,
-    parse_vector,
     point_vector,
     robot_arg,
 )
-from kincal.cli.options import SeedOpt, SiOpt, legacy_quantity, use_si
+from kincal.cli.options import SeedOpt, SiOpt, quantity, use_si
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
@@ -299,58 +298,22 @@ def plan(
     tip_link: Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link.")
                         ] = None,
     si: SiOpt = False,
-    noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
-    orientation_noise_deg: Annotated[float | None, typer.Option("--orientation-noise-deg",
-                                                                hidden=True)] = None,
-    marker_mm: Annotated[str | None, typer.Option("--marker-mm", hidden=True)] = None,
-    min_distance_deg: Annotated[float | None, typer.Option("--min-distance-deg", hidden=True)
-                                ] = None,
 ) -> None:
-    """Choose calibration poses by an observability index (O1-O5, kappa) and predict the
+    """Choose calibration poses by an observability criterion (O1-O5, kappa) and predict the
     accuracy after calibration before measuring anything."""
-
-    from kincal.identify.design import write_poses
-    from kincal.io import atomic_write_text, write_json
-    from kincal.units import UNITS
-
     if iso9283:
         _iso_plan(robot, output, cube_center, cube_size, cycles, program, dwell, angle_unit,
                   length_unit, base_link, tip_link, json_out, use_si(si))
         return
     crit = _criterion(criterion)
-    for u, dim, opt in ((angle_unit, "angle", "--angle-unit"),
-                        (length_unit, "length", "--length-unit")):
-        if u not in UNITS or UNITS[u][0] != dim:
-            raise KincalError(f"option {opt}: {u!r} is not {'an' if dim == 'angle' else 'a'} "
-                              f"{dim} unit")
+    _check_units(angle_unit, length_unit)
     use_si(si)
-    sd = legacy_quantity(noise if noise_mm is None else None, "--noise", noise_mm,
-                         "--noise-mm", "length", "mm", positive=True)
-    sd_rot = legacy_quantity(orientation_noise if orientation_noise_deg is None else None,
-                             "--orientation-noise", orientation_noise_deg,
-                             "--orientation-noise-deg", "angle", "deg",
-                             positive=instrument == "pose", minimum=0.0)
-    min_dist = legacy_quantity(min_distance if min_distance_deg is None else None,
-                               "--min-distance", min_distance_deg, "--min-distance-deg",
-                               "angle", "deg", minimum=0.0)
-    if candidates_file and reachable:
-        raise KincalError("use either --candidates-file or --reachable, not both")
-    from kincal.measure.registry import get_instrument
-
-    get_instrument(instrument)                       # unknown names: one line listing them
-    if instrument not in ("position", "pose") and not reachable:
-        raise KincalError(f"instrument {instrument!r}: its poses cannot be placed at arbitrary "
-                          "configurations; add --reachable to take the candidates from its "
-                          "simulator")
-    r = robot_arg(robot, base_link, tip_link)
-    if not hasattr(r, "param_jacobian"):
-        raise KincalError(f"robot {getattr(r, 'name', robot)!r}: `kincal plan` works on serial "
-                          "robots")
-    if marker is not None and marker_mm is not None:
-        raise KincalError("give --marker (with its unit) or --marker-mm, not both")
-    marker_m = (point_vector(marker, "--marker", ["length"] * 3) if marker is not None else
-                parse_vector(marker_mm, "--marker-mm", 3) * 1e-3 if marker_mm is not None
-                else None)
+    sd = quantity(noise, "length", "--noise", positive=True)
+    sd_rot = quantity(orientation_noise, "angle", "--orientation-noise",
+                      positive=instrument == "pose", minimum=0.0)
+    min_dist = quantity(min_distance, "angle", "--min-distance", minimum=0.0)
+    r = _plan_robot(robot, instrument, reachable, candidates_file, base_link, tip_link)
+    marker_m = point_vector(marker, "--marker", ["length"] * 3) if marker is not None else None
     out = err_console if json_out == "-" else console
     with _Bar() as bar:
         cands: Any = candidates
@@ -371,10 +334,57 @@ def plan(
                        min_distance=min_dist, margin=margin, grid=grid,
                        exchange=not no_exchange, seed=seed, progress=bar,
                        source=src, dropped=dropped)
+    poses_csv = _write_plan_files(p, r, output, program, dwell, angle_unit, length_unit, report,
+                                  f"{crit} ({p.design.method})", instrument, seed, sd)
+    _print_plan(out, p, r, crit, program, output, poses_csv, angle_unit, length_unit, report)
+    if json_out:
+        from kincal.io import write_json
+
+        write_json(json_out, p.to_dict(output=output, report=report))
+
+
+def _check_units(angle_unit: str, length_unit: str) -> None:
+    """``--angle-unit`` an angle unit, ``--length-unit`` a length unit (one-line error)."""
+    from kincal.units import UNITS
+
+    for u, dim, opt in ((angle_unit, "angle", "--angle-unit"),
+                        (length_unit, "length", "--length-unit")):
+        if u not in UNITS or UNITS[u][0] != dim:
+            raise KincalError(f"option {opt}: {u!r} is not {'an' if dim == 'angle' else 'a'} "
+                              f"{dim} unit")
+
+
+def _plan_robot(robot: str, instrument: str, reachable: bool, candidates_file: str | None,
+                base_link: str | None, tip_link: str | None) -> Any:
+    """The serial robot to plan for, after the instrument and candidate options agree."""
+    if candidates_file and reachable:
+        raise KincalError("use either --candidates-file or --reachable, not both")
+    from kincal.measure.registry import get_instrument
+
+    get_instrument(instrument)                       # unknown names: one line listing them
+    if instrument not in ("position", "pose") and not reachable:
+        raise KincalError(f"instrument {instrument!r}: its poses cannot be placed at arbitrary "
+                          "configurations; add --reachable to take the candidates from its "
+                          "simulator")
+    r = robot_arg(robot, base_link, tip_link)
+    if not hasattr(r, "param_jacobian"):
+        raise KincalError(f"robot {getattr(r, 'name', robot)!r}: `kincal plan` works on serial "
+                          "robots")
+    return r
+
+
+def _write_plan_files(p: Plan, r: Any, output: str, program: str | None, dwell: str,
+                      angle_unit: str, length_unit: str, report: str | None, how: str,
+                      instrument: str, seed: int, sd: float) -> str:
+    """Write the pose CSV (beside ``output`` when ``output`` is a program), the program and
+    the report; returns the pose CSV's path.  Everything is computed before writing."""
+    from kincal.identify.design import write_poses
+    from kincal.io import atomic_write_bytes, atomic_write_text
+
     d, pred = p.design, p.prediction
     html_text = render_plan_html(p) if report else None
-    comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={crit} "
-                f"({d.method}); poses={d.poses}; seed={seed}",
+    comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={how}; "
+                f"poses={d.poses}; seed={seed}",
                 f"predicted RMS position error after calibration: {pred.rms * 1e3:.4g} mm "
                 f"(noise {sd * 1e3:g} mm); O1={d.indices.O1:.4g} kappa={d.indices.kappa:.4g}"]
     poses_csv = output
@@ -391,11 +401,16 @@ def plan(
     write_poses(poses_csv, r, d.q, angle_unit=angle_unit, length_unit=length_unit,
                 comments=comments)
     if prog_text is not None:
-        from kincal.io import atomic_write_bytes
-
         atomic_write_bytes(output, prog_text.encode("latin-1"))
-    if html_text is not None:
+    if html_text is not None and report is not None:
         atomic_write_text(report, html_text)
+    return poses_csv
+
+
+def _print_plan(out: Any, p: Plan, r: Any, crit: str, program: str | None, output: str,
+                poses_csv: str, angle_unit: str, length_unit: str, report: str | None) -> None:
+    """The plan's summary lines and its three tables."""
+    d = p.design
     n_all = len(p.problem.problem.names)
     out.print(f"{escape(r.name)}: {p.problem.num_params} of {n_all} parameters identifiable "
               f"from {escape(p.inputs['candidates'])}"
@@ -407,12 +422,10 @@ def plan(
     out.print(_param_table(p))
     cols = ", ".join(f"{j.name}_{angle_unit if j.kind == 'revolute' else length_unit}"
                      for j in r.joints)
-    if prog_text is not None:
+    if program:
         out.print(f"wrote the {program} program -> {escape(output)}")
     out.print(f"wrote {d.poses} poses -> {escape(poses_csv)} (columns {cols})"
               + (f"; report -> {escape(report)}" if report else ""))
-    if json_out:
-        write_json(json_out, p.to_dict(output=output, report=report))
 
 
 def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str | None,
