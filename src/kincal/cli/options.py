@@ -13,8 +13,6 @@ from typing import Annotated, overload
 
 import typer
 
-from kincal.errors import KincalError
-
 OutputOpt = Annotated[str | None, typer.Option("-o", "--output", help="The command's output "
                                                "file.")]
 SiOpt = Annotated[bool, typer.Option("--si", help="Print lengths in m and angles in rad "
