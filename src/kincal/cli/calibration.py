@@ -249,10 +249,13 @@ def calibrate_cmd(
         calibrate_fivebar_command(ctx, r)
         return
     tolerance = length_option(tolerance_text, "--tolerance")
+    from kincal.workflow.options import parse_prior_text
+
+    prior_value = parse_prior_text(prior)            # the typed prior of the library
     check_flow_options(procedure=procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
-                       prior=prior)
+                       prior=prior_value)
     train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
                                      instrument=instrument, options=option)
     if urdf is None and output and r.meta.get("convention") == "urdf":
@@ -282,7 +285,8 @@ def calibrate_cmd(
                         method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
                         validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
-                        tolerance=tolerance, prior=prior, cross_validate=cross_validate,
+                        tolerance=tolerance, prior=prior_value,
+                        cross_validate=cross_validate,
                         progress=bar, select=select, folds=folds, masses=masses,
                         joint_models=models, mapper=bar.mapper_on(eng),
                         shared_marker=shared_marker)
