@@ -165,10 +165,10 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             ``"tolerances"``, ``"none"`` for plain least squares, a mapping ``{role, name or
             pattern: sigma [m / rad]}`` or a ``TolSpec`` whose entries override the
             parameters' manufacturing tolerances (role defaults, then the robot file's
-            ``tolerances:``) and may scale them.  By default (``procedure="lm"``) the calibration is the maximum
-            a-posteriori estimate with Gaussian priors of these standard deviations
-            centred on the nominal values, the noise scale estimated first.  The
-            tolerances also bound what is plausible (``FlowResult.verdict``).
+            ``tolerances:``) and may scale them.  By default (``procedure="lm"``) the
+            calibration is the maximum a-posteriori estimate with Gaussian priors of
+            these standard deviations centred on the nominal values, the noise scale
+            estimated first.  The tolerances also bound what is plausible (``FlowResult.verdict``).
         cross_validate: K-fold cross-validation of the same calibration on the training
             data (the fold tasks of :mod:`~kincal.identify.validation`, folds drawn with
             seed 0; one training block, ``procedure="lm"``): how well the chosen model
