@@ -251,3 +251,24 @@ def test_the_serial_calibrate_refuses_a_fivebar_in_one_line() -> None:
 
     with pytest.raises(KincalError, match="calibrate takes a serial Robot, not a FiveBar"):
         kincal.calibrate(kincal.load_robot("fivebar"), [])
+
+
+def test_simulate_and_workspace_json_are_the_library_results(tmp_path) -> None:
+    from kincal.parallel.data import read_fivebar_csv
+    from kincal.parallel.reference_experiment import simulate_fivebar
+
+    res = runner.invoke(app, ["fivebar-simulate", "fivebar", "-o", str(tmp_path / "s.csv"),
+                              "-n", "12", "--seed", "4", "--set", "l1=150.8mm",
+                              "--json", str(tmp_path / "s.json")])
+    assert res.exit_code == 0, res.output
+    robot = load_fivebar("fivebar")
+    sim = simulate_fivebar(robot, {"l1": 150.8 * 1e-3}, 12, seed=4)   # as --set parses it
+    assert json.loads((tmp_path / "s.json").read_text()) == json.loads(
+        json.dumps(sim.to_dict(str(tmp_path / "s.csv"))))
+    data = read_fivebar_csv(tmp_path / "s.csv")
+    assert np.allclose(data.q, sim.q, atol=1e-12) and np.allclose(data.x, sim.x, atol=1e-12)
+    res = runner.invoke(app, ["fivebar-workspace", "fivebar", "-o", str(tmp_path / "w.png"),
+                              "--resolution", "30", "--json", str(tmp_path / "w.json")])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((tmp_path / "w.json").read_text())
+    assert set(doc) == {"robot", "working_mode", "area_m2", "output"} and doc["area_m2"] > 0

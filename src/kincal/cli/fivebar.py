@@ -352,8 +352,7 @@ def fivebar_workspace(
         Console().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} "
                         f"m² -> {path}")
     if json_out:
-        _write_json(json_out, {"robot": r.name, "working_mode": ws.mode, "area_m2": ws.area,
-                               "output": str(path)})
+        _write_json(json_out, ws.to_dict(r.name, str(path)))
 
 
 @app.command("fivebar-mobility")
@@ -395,10 +394,8 @@ def fivebar_simulate(
                         ] = None,
 ) -> None:
     """Simulate a five-bar measurement file (readings in deg, points in mm) from a true robot."""
-    import numpy as np
-
     from kincal.parallel.data import write_fivebar_csv
-    from kincal.parallel.reference_experiment import simulate
+    from kincal.parallel.reference_experiment import simulate_fivebar
     from kincal.units import parse_quantities
 
     if output is None:
@@ -412,7 +409,7 @@ def fivebar_simulate(
             raise KincalError(f"option --set: {item!r} is not NAME=VALUE (e.g. l1=1.86m)")
         changes[name.strip()] = float(quantity(value, ("length", "angle"), "--set") or 0.0) \
             if any(c.isalpha() for c in value) else _bare_si(value, "--set")
-    true = nominal.with_params(changes)
+    nominal.with_params(changes)                    # unknown names: one line, before drawing
     ranges = []
     for k, text in enumerate((q1_range, q2_range)):
         if text is not None:
@@ -422,19 +419,12 @@ def fivebar_simulate(
         else:
             lo, hi = -math.pi, math.pi
         ranges.append((lo, hi))
-    q, x = simulate(true, nominal, n, np.random.default_rng(seed), tuple(ranges),
-                    noise=noise_rad)
-    comment = (f"simulated by kincal fivebar-simulate from {nominal.name}, seed {seed}, "
-               f"noise {math.degrees(noise_rad):g} deg\ntrue parameters (SI): "
-               + ", ".join(f"{k}={v:.12g}" for k, v, _ in true.parameter_table()))
-    write_fivebar_csv(output, q, x, comment=comment)
+    sim = simulate_fivebar(nominal, changes, n, seed, ranges, noise_rad)
+    write_fivebar_csv(output, sim.q, sim.x, comment=sim.comment())
     if json_out != "-":
-        Console().print(f"{q.shape[0]} measurements -> {output}")
+        Console().print(f"{sim.q.shape[0]} measurements -> {output}")
     if json_out:
-        _write_json(json_out, {"robot": nominal.name, "measurements": int(q.shape[0]),
-                               "output": output, "seed": seed, "noise_rad": noise_rad,
-                               "true_parameters": {k: v for k, v, _ in
-                                                   true.parameter_table()}})
+        _write_json(json_out, sim.to_dict(output))
 
 
 def _bare_si(text: str, option: str) -> float:

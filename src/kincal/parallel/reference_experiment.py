@@ -15,6 +15,7 @@ threshold 1e-10.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -102,6 +103,46 @@ def run_reference_experiment(
         nominal, q, x, free=LENGTHS_FREE, residual=residual, method=method, tol=tol, sigma=sigma
     )
     return result, true
+
+
+@dataclass(frozen=True)
+class FiveBarSimulation:
+    """Simulated measurements of a five-bar: readings ``q`` (N,2) [rad] and end points
+    ``x`` (N,2) [m] of the ``true`` robot, drawn with ``seed`` and reading noise
+    ``noise`` [rad] around the ``nominal`` one's well-conditioned configurations."""
+
+    nominal: FiveBar
+    true: FiveBar
+    q: np.ndarray
+    x: np.ndarray
+    seed: int
+    noise: float
+
+    def comment(self, program: str = "kincal fivebar-simulate") -> str:
+        """The measurement file's header: where it comes from, the true parameters (SI)."""
+        return (f"simulated by {program} from {self.nominal.name}, seed {self.seed}, "
+                f"noise {math.degrees(self.noise):g} deg\ntrue parameters (SI): "
+                + ", ".join(f"{k}={v:.12g}" for k, v, _ in self.true.parameter_table()))
+
+    def to_dict(self, output: str | None = None) -> dict[str, Any]:
+        """Plain mapping for JSON (SI); ``output``: the file written."""
+        return {"robot": self.nominal.name, "measurements": int(self.q.shape[0]),
+                "output": output, "seed": self.seed, "noise_rad": self.noise,
+                "true_parameters": {k: v for k, v, _ in self.true.parameter_table()}}
+
+
+def simulate_fivebar(nominal: FiveBar, true_values: dict[str, float], n: int, seed: int = 0,
+                     ranges: Sequence[tuple[float, float]] | None = None, noise: float = 0.0
+                     ) -> FiveBarSimulation:
+    """Measurements of ``nominal`` with the parameters ``true_values`` [m / rad] changed
+    (:func:`simulate`); ``ranges``: motor-angle ranges [rad] (default: the robot's
+    reading limits, else the full turn)."""
+    true = nominal.with_params(true_values)
+    if ranges is None:
+        ranges = nominal.limits if nominal.limits is not None else \
+            ((-np.pi, np.pi), (-np.pi, np.pi))
+    q, x = simulate(true, nominal, n, np.random.default_rng(seed), tuple(ranges), noise=noise)
+    return FiveBarSimulation(nominal, true, q, x, seed, noise)
 
 
 @dataclass(frozen=True)
