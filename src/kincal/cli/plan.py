@@ -315,16 +315,9 @@ def plan(
     r = _plan_robot(robot, instrument, reachable, candidates_file, base_link, tip_link)
     marker_m = point_vector(marker, "--marker", ["length"] * 3) if marker is not None else None
     out = err_console if json_out == "-" else console
+    cands, src, dropped = _candidates(r, candidates, None if reachable else candidates_file,
+                                      units, ignore)
     with _Bar() as bar:
-        cands: Any = candidates
-        src, dropped = None, 0
-        if candidates_file and not reachable:
-            from kincal.identify.design import read_configurations
-            from kincal.measure.files import parse_list_option, parse_units_option
-
-            cands, dropped = read_configurations(candidates_file, r, parse_units_option(units),
-                                                 parse_list_option(ignore))
-            src = f"{len(cands)} configurations from {candidates_file}"
         from kincal.identify.plan import plan_poses
 
         p = plan_poses(r, instrument=instrument, poses=poses, criterion=crit,
@@ -352,6 +345,20 @@ def _check_units(angle_unit: str, length_unit: str) -> None:
         if u not in UNITS or UNITS[u][0] != dim:
             raise KincalError(f"option {opt}: {u!r} is not {'an' if dim == 'angle' else 'a'} "
                               f"{dim} unit")
+
+
+def _candidates(r: Any, count: int, path: str | None, units: str | None,
+                ignore: list[str] | None) -> tuple[Any, str | None, int]:
+    """The candidates: ``count`` random ones, or the configurations of the file ``path``
+    (with what is said about them and the rows outside the joint limits dropped)."""
+    if not path:
+        return count, None, 0
+    from kincal.identify.design import read_configurations
+    from kincal.measure.files import parse_list_option, parse_units_option
+
+    cands, dropped = read_configurations(path, r, parse_units_option(units),
+                                         parse_list_option(ignore))
+    return cands, f"{len(cands)} configurations from {path}", dropped
 
 
 def _plan_robot(robot: str, instrument: str, reachable: bool, candidates_file: str | None,
