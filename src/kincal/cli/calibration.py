@@ -244,21 +244,18 @@ def calibrate_cmd(
         raise KincalError("`kincal calibrate` needs --data FILE (or data: in the setup file)")
     r = held_robot(ctx, load(robot, base_link, tip_link), hold)
     if is_fivebar(r):
-        from kincal.cli.fivebar import calibrate_fivebar_file
+        from kincal.cli.fivebar import calibrate_fivebar_command
 
-        if len(data) != 1 or not isinstance(data[0], str):
-            raise KincalError("five-bar calibration takes one --data file")
-        if procedure != "lm":
-            raise KincalError("--procedure patent works on serial robots")
-        if prior or joint_model:
-            raise KincalError("--prior and --joint-model work on serial robots")
-        calibrate_fivebar_file(r, data[0], output, json_out, report, method)
+        calibrate_fivebar_command(ctx, r)
         return
     tolerance = length_option(tolerance_text, "--tolerance")
+    from kincal.workflow.options import parse_prior_text
+
+    prior_value = parse_prior_text(prior)            # the typed prior of the library
     check_flow_options(procedure=procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
-                       prior=prior)
+                       prior=prior_value)
     train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
                                      instrument=instrument, options=option)
     if urdf is None and output and r.meta.get("convention") == "urdf":
@@ -288,7 +285,8 @@ def calibrate_cmd(
                         method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
                         validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
-                        tolerance=tolerance, prior=prior, cross_validate=cross_validate,
+                        tolerance=tolerance, prior=prior_value,
+                        cross_validate=cross_validate,
                         progress=bar, select=select, folds=folds, masses=masses,
                         joint_models=models, mapper=bar.mapper_on(eng),
                         shared_marker=shared_marker)

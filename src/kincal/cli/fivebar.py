@@ -6,7 +6,6 @@ commands call when the robot is a :class:`~kincal.parallel.fivebar.FiveBar`.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -15,7 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.options import OutputOpt, SeedOpt, Units, legacy_quantity, quantity
+from kincal.cli.options import OutputOpt, SeedOpt, Units, quantity
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
@@ -23,17 +22,6 @@ if TYPE_CHECKING:
 
     from kincal.parallel.calibration import FiveBarCalibration
     from kincal.parallel.fivebar import FiveBar
-
-_METHODS = {
-    "gauss-newton": "gauss-newton",
-    "gn": "gauss-newton",
-    "ils": "gauss-newton",
-    "iterative": "gauss-newton",
-    "thesis": "gauss-newton",
-    "lm": "lm",
-    "levenberg-marquardt": "lm",
-}
-
 
 def _console(json_path: str | None) -> Console:
     """Tables go to stdout unless JSON does (``--json -``), then to stderr."""
@@ -164,67 +152,81 @@ def ik_fivebar(
         _write_json(json_path, results if mode == "all" else results[modes[0]])
 
 
-def calibrate_fivebar_file(
-    robot: FiveBar,
-    data_path: str | Path,
-    out_path: str | Path | None,
-    json_path: str | None,
-    report_path: str | Path | None,
-    method: str = "gauss-newton",
-    free: list[str] | None = None,
-    residual: str = "ik",
-    frame_free: bool = False,
-    console: Console | None = None,
-) -> FiveBarCalibration:
-    """Calibrate a five-bar from a measurement CSV (joint readings + measured J3).
-
-    Writes the calibrated robot YAML (``out_path``), the result with its
-    iteration history as JSON (``json_path``, ``-`` for stdout) and an
-    HTML report like every serial robot's (``report_path``); each is optional.  ``free``
-    defaults to all ten robot parameters (plus the measurement frame when ``frame_free``).
-    """
-    from kincal.parallel.calibration import ROBOT_FREE, calibrate
-    from kincal.parallel.data import read_fivebar_csv
-    from kincal.parallel.residuals import FRAME_NAMES
-
-    key = method.lower()
-    if key not in _METHODS:
-        raise KincalError(f"method must be one of {', '.join(_METHODS)}, not {method!r}")
-    data = read_fivebar_csv(data_path)
-    names = list(free) if free else list(ROBOT_FREE)
-    if frame_free:
-        names += [n for n in FRAME_NAMES if n not in names]
-    labels = [f"{Path(data_path).name} line {n}" for n in data.lines]
-    result = calibrate(robot, data.q, data.x, free=names, residual=residual,
-                       method=_METHODS[key], labels=labels)
-    from kincal.parallel.report import fivebar_comparison
-
-    console = console or _console(json_path)
-    comparison = fivebar_comparison(result, data.q, data.x, f"train ({Path(data_path).name})")
-    _print_result(console, result, comparison)
-    if out_path:
-        from dataclasses import replace
-
-        from kincal.parallel.files import write_fivebar
-
-        write_fivebar(replace(result.robot, name=f"{robot.name}_calibrated",
-                source=f"kincal calibration of {robot.name} from {Path(data_path).name}"
-                ), out_path)
-    if json_path:
-        _write_json(json_path, result.to_dict())
-    if report_path:
-        from kincal.io import atomic_write_text
-        from kincal.parallel.report import fivebar_report
-
-        atomic_write_text(report_path, fivebar_report(
-            result, data.q, data.x, Path(data_path).name,
-            inputs={"robot": robot.name, "data": str(data_path), "method": result.method,
-                    "residual": result.residual, "free": ", ".join(result.free)}))
-    return result
+#: Options of ``kincal calibrate`` a five-bar calibration takes (the rest are refused).
+FIVEBAR_CALIBRATE_OPTIONS = ("robot", "data", "output", "validate_files", "report", "json_out",
+                             "method", "free", "fix", "max_iter", "all_parameters", "force",
+                             "truth", "si")
 
 
-def _print_result(console: Console, result: FiveBarCalibration, comparison: Any = None
-                  ) -> None:
+def _flag(ctx: typer.Context, name: str) -> str:
+    """The long spelling of parameter ``name`` of the running command (``--validate``)."""
+    for p in ctx.command.params:
+        if p.name == name:
+            longs = [o for o in p.opts if o.startswith("--")]
+            return (longs or list(p.opts) or [name])[0]
+    return name
+
+
+def refuse_unused_options(ctx: typer.Context, used: tuple[str, ...], what: str) -> None:
+    """One-line error (exit 2) naming the first option given that ``what`` cannot use."""
+    for p in ctx.command.params:
+        if p.name is None or p.name in used:
+            continue
+        source = getattr(ctx.get_parameter_source(p.name), "name", "DEFAULT")
+        if source not in ("DEFAULT", "DEFAULT_MAP"):  # typer's click or click: by name
+            usable = ", ".join(_flag(ctx, n) for n in used if n != "robot")
+            raise KincalError(f"option {_flag(ctx, p.name)} does not apply to {what} "
+                              f"(it takes {usable})")
+
+
+def _names(text: str | None) -> list[str] | None:
+    return [t.strip() for t in text.split(",") if t.strip()] if text else None
+
+
+def calibrate_fivebar_command(ctx: typer.Context, robot: FiveBar) -> None:
+    """``kincal calibrate FIVEBAR``: refuse the options a five-bar cannot use, calibrate
+    (:func:`kincal.parallel.file_calibration.calibrate_fivebar_file`), print the tables,
+    write the outputs; exit status 1 when the result cannot be trusted."""
+    from kincal.defaults import FIVEBAR_MAX_ITER
+    from kincal.errors import CheckFailedError
+    from kincal.io import check_outputs
+    from kincal.parallel.file_calibration import (
+        calibrate_fivebar_file,
+        fivebar_method,
+        select_fivebar_parameters,
+        write_fivebar_outputs,
+    )
+
+    refuse_unused_options(ctx, FIVEBAR_CALIBRATE_OPTIONS, "a five-bar")
+    opt = ctx.params
+    data = list(opt.get("data") or [])
+    if len(data) != 1:
+        raise KincalError("five-bar calibration takes one --data file")
+    held = list(opt.get("validate_files") or [])
+    output, json_out, report = opt.get("output"), opt.get("json_out"), opt.get("report")
+    truth = _load(opt["truth"]) if opt.get("truth") else None
+    check_outputs({"-o": output, "--json": json_out, "--report": report},
+                  {"--data": data, "--validate": held})
+    free = select_fivebar_parameters(_names(opt.get("free")), _names(opt.get("fix")),
+                                     where=("option --free", "option --fix"))
+    result = calibrate_fivebar_file(
+        robot, data[0], validate=held, free=free,
+        method=fivebar_method(opt["method"], "option --method"),
+        max_iter=opt.get("max_iter") or FIVEBAR_MAX_ITER)
+    console = _console(json_out)
+    _print_result(console, result.calibration, list(result.comparisons),
+                  bool(opt.get("all_parameters")))
+    force = bool(opt.get("force"))
+    written = write_fivebar_outputs(result, output, json_out, report, force, truth)
+    if not result.trusted:
+        tail = ("; written anyway (--force)" if force and output else
+                f"; no calibrated robot written ({output}; --force writes it)"
+                if output and "calibrated robot" not in written else "")
+        raise CheckFailedError(result.verdict.line() + tail)
+
+
+def _print_result(console: Console, result: FiveBarCalibration,
+                  comparisons: list[Any] | None = None, all_parameters: bool = False) -> None:
     """Like every serial robot: parameters in mm / deg with standard errors, the
     before/after table of the end-point error, what is not identifiable."""
     from kincal.cli.calibration_common import print_errors, scaled
@@ -240,13 +242,13 @@ def _print_result(console: Console, result: FiveBarCalibration, comparison: Any 
     for c in ("parameter", "nominal", "estimate", "change", "std (1σ)"):
         t.add_column(c, justify="left" if c == "parameter" else "right")
     start = dict(zip(result.names, result.start.tolist(), strict=True))
-    for n in result.free:
+    for n in result.names if all_parameters else result.free:
         f, _ = CONSOLE.scale(units[n])
         t.add_row(escape(n), scaled(start[n], f), scaled(result.params[n], f),
-                  scaled(result.params[n] - start[n], f), scaled(result.std_errors[n], f))
+                  scaled(result.params[n] - start[n], f), scaled(result.std_errors.get(n), f))
     console.print(t)
-    if comparison is not None:
-        print_errors(console, [comparison])
+    if comparisons:
+        print_errors(console, comparisons)
     for line in result.identifiability.describe():
         console.print(f"[yellow]{escape(line)}[/yellow]")
 
@@ -267,9 +269,6 @@ def fivebar_demo(
     out_dir: Annotated[str | None, typer.Option(
         "--out-dir", help="Folder for the four plots of the lengths against the iteration "
         "(fivebar_demo_l1..l4.png).")] = "fivebar-demo",
-    noise_deg: Annotated[float | None, typer.Option("--noise-deg", hidden=True)] = None,
-    n_old: Annotated[int | None, typer.Option("--n", hidden=True)] = None,
-    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
     json_out: Annotated[str | None, typer.Option(
         "--json", help="Write the result with its iteration history as JSON ('-': stdout).")
     ] = None,
@@ -279,52 +278,45 @@ def fivebar_demo(
 
     Bases B1 = (1, 0) m, B2 = (-1, 0) m; the end point from the direct kinematics with
     beta1 in (0, pi/2), beta2 in (pi/2, pi); well-conditioned configurations only; stop
-    at 1e-10 m.  (The experiment of Pittr's dual SCARA thesis.)
+    at 1e-10 m.  (The experiment of Pittr's dual SCARA thesis.)  Exit status 1 when the
+    result cannot be trusted (a length more than 0.5 m from nominal, a standard error
+    above 1 m, no convergence).
     """
-    n = n_old if n_old is not None else n
-    out_dir = out_old if out_old is not None else out_dir
-    noise_rad = legacy_quantity(noise, "--noise", noise_deg, "--noise-deg", "angle", "deg",
-                                minimum=0.0) or 0.0
+    from kincal.errors import CheckFailedError
+    from kincal.parallel.file_calibration import fivebar_method
     from kincal.parallel.reference_experiment import (
         EXPERIMENT_TRUE_LENGTHS,
         plot_reference_experiment,
-        run_reference_experiment,
+        reference_experiment,
     )
 
+    noise_rad = quantity(noise, "angle", "--noise", minimum=0.0) or 0.0
     if n < 3:
         raise KincalError("option -n: at least 3 configurations are needed for 4 lengths")
-    key = _METHODS.get(method.lower())
-    if key is None:
-        raise KincalError(f"option --method: one of {', '.join(_METHODS)}, not {method!r}")
-    result, true = run_reference_experiment(n=n, seed=seed, method=key, residual=residual,
-                                            noise=noise_rad)
+    key = fivebar_method(method, "option --method")
+    run = reference_experiment(n=n, seed=seed, method=key, residual=residual, noise=noise_rad)
+    result = run.calibration
     console = _console(json_out)
     names = list(EXPERIMENT_TRUE_LENGTHS)
     t = Table(title=f"five-bar calibration: {n} configurations, seed {seed}, {key}, "
-              f"{residual} residual (B1 = (1, 0) m, B2 = (-1, 0) m)")
-    for c in ["iteration", *[f"{k} [m]" for k in names], "max step", "rms residual"]:
+              f"{residual} residual (B1 = (1, 0) m, B2 = (-1, 0) m; lengths in mm, step and "
+              "residual in SI)")
+    for c in ["iteration", *names, "max step", "rms residual"]:
         t.add_column(c, justify="right")
     for h in result.history:
-        t.add_row(str(h["iteration"]), *[f"{h['params'][k]:.10f}" for k in names],
+        t.add_row(str(h["iteration"]), *[f"{h['params'][k] * 1e3:.3f}" for k in names],
                   f"{h['step']:.3g}", f"{h['rms']:.3g}")
-    t.add_row("true", *[f"{EXPERIMENT_TRUE_LENGTHS[k]:.10f}" for k in names], "", "")
+    t.add_row("true", *[f"{EXPERIMENT_TRUE_LENGTHS[k] * 1e3:.3f}" for k in names], "", "")
     console.print(t)
-    err = max(abs(result.params[k] - EXPERIMENT_TRUE_LENGTHS[k]) for k in names)
     console.print(f"converged: {result.converged} after {result.iterations} iterations; "
-                  f"largest length error {err:.3g} m")
+                  f"largest length error {run.largest_length_error * 1e3:.3g} mm")
     if out_dir:
-        paths = plot_reference_experiment(result, true, out_dir)
+        paths = plot_reference_experiment(result, run.true, out_dir)
         console.print("plots: " + ", ".join(str(p) for p in paths))
     if json_out:
-        data = result.to_dict()
-        data["experiment"] = {"true": EXPERIMENT_TRUE_LENGTHS, "n": n, "seed": seed,
-                              "noise_rad": noise_rad,
-                              "bases_m": {"base1": [true.base1_x, true.base1_y],
-                                          "base2": [true.base2_x, true.base2_y]}}
-        _write_json(json_out, data)
-
-
-app.command("fivebar-thesis", hidden=True)(fivebar_demo)      # the old name
+        _write_json(json_out, run.to_dict())
+    if not run.verdict.trusted:
+        raise CheckFailedError(run.verdict.line())
 
 
 @app.command("fivebar-workspace")
@@ -339,14 +331,12 @@ def fivebar_workspace(
     margin: Annotated[float, typer.Option(help="Keep only points whose singularity measures "
                                           "are at least this (0..1).")] = 0.0,
     resolution: Annotated[int, typer.Option(help="Grid points per axis.")] = 250,
-    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
     json_out: Annotated[str | None, typer.Option("--json", help="Also write the area and the "
                                                  "mode as JSON ('-' for stdout).")] = None,
 ) -> None:
     """Plot the reachable region of a working mode, with the Type-2 singular curves."""
     from kincal.parallel.workspace import plot_workspace, workspace
 
-    output = output or out_old
     if output is None:
         raise KincalError("`kincal fivebar-workspace` needs -o FILE.png")
     r = _load(robot)
@@ -362,8 +352,7 @@ def fivebar_workspace(
         Console().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} "
                         f"m² -> {path}")
     if json_out:
-        _write_json(json_out, {"robot": r.name, "working_mode": ws.mode, "area_m2": ws.area,
-                               "output": str(path)})
+        _write_json(json_out, ws.to_dict(r.name, str(path)))
 
 
 @app.command("fivebar-mobility")
@@ -400,26 +389,18 @@ def fivebar_simulate(
                                                  "full turn).")] = None,
     q2_range: Annotated[str | None, typer.Option(help="min,max of beta2, e.g. 90,180deg.")
                         ] = None,
-    out_old: Annotated[str | None, typer.Option("--out", hidden=True)] = None,
-    n_old: Annotated[int | None, typer.Option("--n", hidden=True)] = None,
-    noise_deg: Annotated[float | None, typer.Option("--noise-deg", hidden=True)] = None,
     json_out: Annotated[str | None, typer.Option("--json", help="Also write what was "
                                                  "simulated as JSON ('-' for stdout).")
                         ] = None,
 ) -> None:
     """Simulate a five-bar measurement file (readings in deg, points in mm) from a true robot."""
-    import numpy as np
-
     from kincal.parallel.data import write_fivebar_csv
-    from kincal.parallel.reference_experiment import simulate
+    from kincal.parallel.reference_experiment import simulate_fivebar
     from kincal.units import parse_quantities
 
-    output = output or out_old
     if output is None:
         raise KincalError("`kincal fivebar-simulate` needs -o FILE.csv")
-    n = n_old if n_old is not None else n
-    noise_rad = legacy_quantity(noise, "--noise", noise_deg, "--noise-deg", "angle", "deg",
-                                minimum=0.0) or 0.0
+    noise_rad = quantity(noise, "angle", "--noise", minimum=0.0) or 0.0
     nominal = _load(robot)
     changes = {}
     for item in set_ or []:
@@ -428,7 +409,7 @@ def fivebar_simulate(
             raise KincalError(f"option --set: {item!r} is not NAME=VALUE (e.g. l1=1.86m)")
         changes[name.strip()] = float(quantity(value, ("length", "angle"), "--set") or 0.0) \
             if any(c.isalpha() for c in value) else _bare_si(value, "--set")
-    true = nominal.with_params(changes)
+    nominal.with_params(changes)                    # unknown names: one line, before drawing
     ranges = []
     for k, text in enumerate((q1_range, q2_range)):
         if text is not None:
@@ -438,19 +419,12 @@ def fivebar_simulate(
         else:
             lo, hi = -math.pi, math.pi
         ranges.append((lo, hi))
-    q, x = simulate(true, nominal, n, np.random.default_rng(seed), tuple(ranges),
-                    noise=noise_rad)
-    comment = (f"simulated by kincal fivebar-simulate from {nominal.name}, seed {seed}, "
-               f"noise {math.degrees(noise_rad):g} deg\ntrue parameters (SI): "
-               + ", ".join(f"{k}={v:.12g}" for k, v, _ in true.parameter_table()))
-    write_fivebar_csv(output, q, x, comment=comment)
+    sim = simulate_fivebar(nominal, changes, n, seed, ranges, noise_rad)
+    write_fivebar_csv(output, sim.q, sim.x, comment=sim.comment())
     if json_out != "-":
-        Console().print(f"{q.shape[0]} measurements -> {output}")
+        Console().print(f"{sim.q.shape[0]} measurements -> {output}")
     if json_out:
-        _write_json(json_out, {"robot": nominal.name, "measurements": int(q.shape[0]),
-                               "output": output, "seed": seed, "noise_rad": noise_rad,
-                               "true_parameters": {k: v for k, v, _ in
-                                                   true.parameter_table()}})
+        _write_json(json_out, sim.to_dict(output))
 
 
 def _bare_si(text: str, option: str) -> float:

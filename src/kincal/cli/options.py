@@ -1,9 +1,7 @@
 """Options every command shares, spelled one way (docs/conventions.md).
 
 Quantities carry their unit in the value (``--noise 0.01mm``, ``--tolerance 0.1um``,
-``--dt 2ms``): :func:`quantity` parses one, :func:`length_option` a length;
-:func:`legacy_quantity` also accepts an old unit-in-the-flag spelling, for the hidden
-aliases that ``kincal plan`` and the five-bar commands still carry.  The annotated
+``--dt 2ms``): :func:`quantity` parses one, :func:`length_option` a length.  The annotated
 types below are the options' one spelling: ``-o/--output``, ``--out-dir``, ``--json``,
 ``--deg``, ``--si``, ``--seed``.
 """
@@ -14,8 +12,6 @@ import math
 from typing import Annotated, overload
 
 import typer
-
-from kincal.errors import KincalError
 
 OutputOpt = Annotated[str | None, typer.Option("-o", "--output", help="The command's output "
                                                "file.")]
@@ -42,19 +38,6 @@ def quantity(text: str | None, dimension: str | tuple[str, ...], option: str, *,
     if text is None:
         return None
     return parse_quantity(text, dimension, option, positive=positive, minimum=minimum)
-
-
-def legacy_quantity(text: str | None, option: str, old: float | None, old_option: str,
-                    dimension: str, old_unit: str, *, positive: bool = False,
-                    minimum: float | None = None) -> float | None:
-    """The SI value of ``option`` (a quantity with its unit) or of its hidden old
-    spelling ``old_option`` (a bare number in ``old_unit``); both at once is an error."""
-    if text is not None and old is not None:
-        raise KincalError(f"give {option} (with its unit) or {old_option}, not both")
-    if old is not None:
-        text = f"{old!r}{old_unit}"
-        option = old_option
-    return quantity(text, dimension, option, positive=positive, minimum=minimum)
 
 
 def length_option(text: str | None, option: str) -> float | None:

@@ -28,11 +28,10 @@ from kincal.cli.common import (
     RobotArg,
     console,
     err_console,
-    parse_vector,
     point_vector,
     robot_arg,
 )
-from kincal.cli.options import SeedOpt, SiOpt, legacy_quantity, use_si
+from kincal.cli.options import SeedOpt, SiOpt, quantity, use_si
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
@@ -299,40 +298,72 @@ def plan(
     tip_link: Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link.")
                         ] = None,
     si: SiOpt = False,
-    noise_mm: Annotated[float | None, typer.Option("--noise-mm", hidden=True)] = None,
-    orientation_noise_deg: Annotated[float | None, typer.Option("--orientation-noise-deg",
-                                                                hidden=True)] = None,
-    marker_mm: Annotated[str | None, typer.Option("--marker-mm", hidden=True)] = None,
-    min_distance_deg: Annotated[float | None, typer.Option("--min-distance-deg", hidden=True)
-                                ] = None,
 ) -> None:
-    """Choose calibration poses by an observability index (O1-O5, kappa) and predict the
+    """Choose calibration poses by an observability criterion (O1-O5, kappa) and predict the
     accuracy after calibration before measuring anything."""
-
-    from kincal.identify.design import write_poses
-    from kincal.io import atomic_write_text, write_json
-    from kincal.units import UNITS
-
     if iso9283:
         _iso_plan(robot, output, cube_center, cube_size, cycles, program, dwell, angle_unit,
                   length_unit, base_link, tip_link, json_out, use_si(si))
         return
     crit = _criterion(criterion)
+    _check_units(angle_unit, length_unit)
+    use_si(si)
+    sd = quantity(noise, "length", "--noise", positive=True)
+    sd_rot = quantity(orientation_noise, "angle", "--orientation-noise",
+                      positive=instrument == "pose", minimum=0.0)
+    min_dist = quantity(min_distance, "angle", "--min-distance", minimum=0.0)
+    r = _plan_robot(robot, instrument, reachable, candidates_file, base_link, tip_link)
+    marker_m = point_vector(marker, "--marker", ["length"] * 3) if marker is not None else None
+    out = err_console if json_out == "-" else console
+    cands, src, dropped = _candidates(r, candidates, None if reachable else candidates_file,
+                                      units, ignore)
+    with _Bar() as bar:
+        from kincal.identify.plan import plan_poses
+
+        p = plan_poses(r, instrument=instrument, poses=poses, criterion=crit,
+                       candidates=cands, reachable=reachable, noise=sd,
+                       orientation_noise=sd_rot or 1e-5,
+                       marker=marker_m, scaling=scaling,
+                       min_distance=min_dist, margin=margin, grid=grid,
+                       exchange=not no_exchange, seed=seed, progress=bar,
+                       source=src, dropped=dropped)
+    poses_csv = _write_plan_files(p, r, output, program, dwell, angle_unit, length_unit, report,
+                                  f"{crit} ({p.design.method})", instrument, seed, sd)
+    _print_plan(out, p, r, crit, program, output, poses_csv, angle_unit, length_unit, report)
+    if json_out:
+        from kincal.io import write_json
+
+        write_json(json_out, p.to_dict(output=output, report=report))
+
+
+def _check_units(angle_unit: str, length_unit: str) -> None:
+    """``--angle-unit`` an angle unit, ``--length-unit`` a length unit (one-line error)."""
+    from kincal.units import UNITS
+
     for u, dim, opt in ((angle_unit, "angle", "--angle-unit"),
                         (length_unit, "length", "--length-unit")):
         if u not in UNITS or UNITS[u][0] != dim:
             raise KincalError(f"option {opt}: {u!r} is not {'an' if dim == 'angle' else 'a'} "
                               f"{dim} unit")
-    use_si(si)
-    sd = legacy_quantity(noise if noise_mm is None else None, "--noise", noise_mm,
-                         "--noise-mm", "length", "mm", positive=True)
-    sd_rot = legacy_quantity(orientation_noise if orientation_noise_deg is None else None,
-                             "--orientation-noise", orientation_noise_deg,
-                             "--orientation-noise-deg", "angle", "deg",
-                             positive=instrument == "pose", minimum=0.0)
-    min_dist = legacy_quantity(min_distance if min_distance_deg is None else None,
-                               "--min-distance", min_distance_deg, "--min-distance-deg",
-                               "angle", "deg", minimum=0.0)
+
+
+def _candidates(r: Any, count: int, path: str | None, units: str | None,
+                ignore: list[str] | None) -> tuple[Any, str | None, int]:
+    """The candidates: ``count`` random ones, or the configurations of the file ``path``
+    (with what is said about them and the rows outside the joint limits dropped)."""
+    if not path:
+        return count, None, 0
+    from kincal.identify.design import read_configurations
+    from kincal.measure.files import parse_list_option, parse_units_option
+
+    cands, dropped = read_configurations(path, r, parse_units_option(units),
+                                         parse_list_option(ignore))
+    return cands, f"{len(cands)} configurations from {path}", dropped
+
+
+def _plan_robot(robot: str, instrument: str, reachable: bool, candidates_file: str | None,
+                base_link: str | None, tip_link: str | None) -> Any:
+    """The serial robot to plan for, after the instrument and candidate options agree."""
     if candidates_file and reachable:
         raise KincalError("use either --candidates-file or --reachable, not both")
     from kincal.measure.registry import get_instrument
@@ -346,35 +377,21 @@ def plan(
     if not hasattr(r, "param_jacobian"):
         raise KincalError(f"robot {getattr(r, 'name', robot)!r}: `kincal plan` works on serial "
                           "robots")
-    if marker is not None and marker_mm is not None:
-        raise KincalError("give --marker (with its unit) or --marker-mm, not both")
-    marker_m = (point_vector(marker, "--marker", ["length"] * 3) if marker is not None else
-                parse_vector(marker_mm, "--marker-mm", 3) * 1e-3 if marker_mm is not None
-                else None)
-    out = err_console if json_out == "-" else console
-    with _Bar() as bar:
-        cands: Any = candidates
-        src, dropped = None, 0
-        if candidates_file and not reachable:
-            from kincal.identify.design import read_configurations
-            from kincal.measure.files import parse_list_option, parse_units_option
+    return r
 
-            cands, dropped = read_configurations(candidates_file, r, parse_units_option(units),
-                                                 parse_list_option(ignore))
-            src = f"{len(cands)} configurations from {candidates_file}"
-        from kincal.identify.plan import plan_poses
 
-        p = plan_poses(r, instrument=instrument, poses=poses, criterion=crit,
-                       candidates=cands, reachable=reachable, noise=sd,
-                       orientation_noise=sd_rot or 1e-5,
-                       marker=marker_m, scaling=scaling,
-                       min_distance=min_dist, margin=margin, grid=grid,
-                       exchange=not no_exchange, seed=seed, progress=bar,
-                       source=src, dropped=dropped)
+def _write_plan_files(p: Plan, r: Any, output: str, program: str | None, dwell: str,
+                      angle_unit: str, length_unit: str, report: str | None, how: str,
+                      instrument: str, seed: int, sd: float) -> str:
+    """Write the pose CSV (beside ``output`` when ``output`` is a program), the program and
+    the report; returns the pose CSV's path.  Everything is computed before writing."""
+    from kincal.identify.design import write_poses
+    from kincal.io import atomic_write_bytes, atomic_write_text
+
     d, pred = p.design, p.prediction
     html_text = render_plan_html(p) if report else None
-    comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={crit} "
-                f"({d.method}); poses={d.poses}; seed={seed}",
+    comments = [f"kincal plan: robot={r.name}; instrument={instrument}; criterion={how}; "
+                f"poses={d.poses}; seed={seed}",
                 f"predicted RMS position error after calibration: {pred.rms * 1e3:.4g} mm "
                 f"(noise {sd * 1e3:g} mm); O1={d.indices.O1:.4g} kappa={d.indices.kappa:.4g}"]
     poses_csv = output
@@ -391,11 +408,16 @@ def plan(
     write_poses(poses_csv, r, d.q, angle_unit=angle_unit, length_unit=length_unit,
                 comments=comments)
     if prog_text is not None:
-        from kincal.io import atomic_write_bytes
-
         atomic_write_bytes(output, prog_text.encode("latin-1"))
-    if html_text is not None:
+    if html_text is not None and report is not None:
         atomic_write_text(report, html_text)
+    return poses_csv
+
+
+def _print_plan(out: Any, p: Plan, r: Any, crit: str, program: str | None, output: str,
+                poses_csv: str, angle_unit: str, length_unit: str, report: str | None) -> None:
+    """The plan's summary lines and its three tables."""
+    d = p.design
     n_all = len(p.problem.problem.names)
     out.print(f"{escape(r.name)}: {p.problem.num_params} of {n_all} parameters identifiable "
               f"from {escape(p.inputs['candidates'])}"
@@ -407,70 +429,37 @@ def plan(
     out.print(_param_table(p))
     cols = ", ".join(f"{j.name}_{angle_unit if j.kind == 'revolute' else length_unit}"
                      for j in r.joints)
-    if prog_text is not None:
+    if program:
         out.print(f"wrote the {program} program -> {escape(output)}")
     out.print(f"wrote {d.poses} poses -> {escape(poses_csv)} (columns {cols})"
               + (f"; report -> {escape(report)}" if report else ""))
-    if json_out:
-        write_json(json_out, p.to_dict(output=output, report=report))
 
 
 def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str | None,
               cycles: int, program: str | None, dwell: str, angle_unit: str, length_unit: str,
               base_link: str | None, tip_link: str | None, json_out: str | None,
               cu: Any) -> None:
-    """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles (the
-    console in ``cu``'s units: mm and deg, m and rad with --si)."""
-    import numpy as np
+    """``kincal plan ROBOT --iso9283``: the test cube, its positions and the cycles
+    (:func:`kincal.identify.iso9283_plan.plan_iso9283_cube`; the console in ``cu``'s
+    units: mm and deg, m and rad with --si)."""
     from rich.table import Table as _Table
 
     from kincal.identify.design import write_poses
-    from kincal.identify.iso9283 import CYCLE, cube_positions
+    from kincal.identify.iso9283 import CYCLE
+    from kincal.identify.iso9283_plan import plan_iso9283_cube
     from kincal.io import atomic_write_bytes, write_json
-    from kincal.motion.ik import reach_bound, solve_ik
-    from kincal.motion.joint_limits import default_q0
     from kincal.units import parse_quantities, parse_quantity
 
     r = robot_arg(robot, base_link, tip_link)
     out = err_console if json_out == "-" else console
-    # the centre posture: well conditioned (far from singularities) and central among such
-    rng = np.random.default_rng(0)
-    lo, hi = r.joint_limits[:, 0], r.joint_limits[:, 1]
-    lo, hi = np.where(np.isfinite(lo), lo, -np.pi), np.where(np.isfinite(hi), hi, np.pi)
-    cand = lo + (hi - lo) * rng.uniform(0.2, 0.8, (2000, r.n))
-    cond = np.linalg.cond(r.jacobian(cand))
-    good = cand[cond < np.percentile(cond, 20)]
-    pos = r.fk(good)[:, :3, 3]
-    q0 = good[np.argmin(np.linalg.norm(pos - np.median(pos, axis=0), axis=1))] if len(good) \
-        else default_q0(r)
-    T0 = r.fk(q0)
-    center = (np.array(parse_quantities(cube_center, "length", "--cube-center", count=3))
-              if cube_center else T0[:3, 3])
-    size = (parse_quantity(cube_size, "length", "--cube-size", positive=True) if cube_size
-            else 0.25 * reach_bound(r)[1])
-    for _ in range(1 if cube_size else 6):   # default size: halve until every position fits
-        P = cube_positions(center, size)
-        names = list(P)
-        T = np.tile(T0, (5, 1, 1))
-        T[:, :3, 3] = [P[n] for n in names]
-        sol = solve_ik(r, T, q0=q0)
-        if sol.success.all():
-            break
-        size /= 2
-    bad = [n for n, ok in zip(names, sol.success, strict=True) if not ok]
-    if bad:
-        k = names.index(bad[0])
-        raise KincalError(f"ISO 9283 position {bad[0]} at {np.round(P[bad[0]] * 1e3, 1).tolist()} "
-                          f"mm is not reachable with the tool orientation at the centre "
-                          f"({sol.reason[k]}); give a smaller --cube-size or another "
-                          "--cube-center")
-    qpos = dict(zip(names, sol.q, strict=True))
-    rows = np.array([qpos[n] for _ in range(cycles) for n in CYCLE])
-    comments = [f"kincal plan --iso9283: robot={r.name}; cube edge {size * 1e3:.1f} mm, centre "
-                f"{', '.join(f'{v * 1e3:.1f}' for v in center)} mm; {cycles} cycles of "
-                f"{' '.join(CYCLE)} (rows in that order)"]
-    comments += [f"{n}: {', '.join(f'{v * 1e3:.3f}' for v in P[n])} mm" for n in names]
+    center = parse_quantities(cube_center, "length", "--cube-center", count=3) \
+        if cube_center else None
+    size = parse_quantity(cube_size, "length", "--cube-size", positive=True) \
+        if cube_size else None
+    iso = plan_iso9283_cube(r, center, size, cycles)
+    rows = iso.rows
     poses_csv = output
+    text = None
     if program:
         from kincal.compensation.programs.writers import joint_program
 
@@ -478,27 +467,25 @@ def _iso_plan(robot: str, output: str, cube_center: str | None, cube_size: str |
                              dwell=_seconds(dwell, "--dwell"))
         poses_csv = str(Path(output).with_suffix(".csv"))
     write_poses(poses_csv, r, rows, angle_unit=angle_unit, length_unit=length_unit,
-                comments=comments)
-    if program:
+                comments=iso.comments())
+    if text is not None:
         atomic_write_bytes(output, text.encode("latin-1"))
     lf, L = cu.scale("m")
     digits = 4 if cu.si else 1
     t = _Table(title=f"ISO 9283 test cube for {escape(r.name)}: edge "
-                     f"{size * lf:.{digits}f} {L}")
+                     f"{iso.size * lf:.{digits}f} {L}")
     jf = [cu.scale("rad" if j.kind == "revolute" else "m") for j in r.joints]
     for c in ("position", f"x [{L}]", f"y [{L}]", f"z [{L}]") + tuple(
             f"{j.name} [{u}]" for j, (_, u) in zip(r.joints, jf, strict=True)):
         t.add_column(escape(c), justify="left" if c == "position" else "right")
-    for n in names:
-        t.add_row(n, *(f"{v * lf:.{digits}f}" for v in P[n]),
-                  *(f"{v * f:.{digits + 1}f}" for v, (f, _) in zip(qpos[n], jf, strict=True)))
+    for n in iso.names:
+        t.add_row(n, *(f"{v * lf:.{digits}f}" for v in iso.positions[n]),
+                  *(f"{v * f:.{digits + 1}f}" for v, (f, _) in zip(iso.joints[n], jf,
+                                                                   strict=True)))
     out.print(t)
     out.print(f"cycle: {' -> '.join(CYCLE)} -> P1, {cycles} times ({len(rows)} moves)")
     if program:
         out.print(f"wrote the {program} program -> {escape(output)}")
     out.print(f"wrote {len(rows)} poses -> {escape(poses_csv)}")
     if json_out:
-        write_json(json_out, {"robot": r.name, "cube_edge_m": size, "center_m": center,
-                              "positions_m": {n: P[n] for n in names},
-                              "joints": {n: qpos[n] for n in names}, "cycle": list(CYCLE),
-                              "cycles": cycles, "output": output})
+        write_json(json_out, iso.to_dict(output))

@@ -149,7 +149,7 @@ def flow_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
     """The :func:`~kincal.workflow.flow.run_flow` keywords of ``options`` (lists given in
     a manifest become the comma-separated text the command line takes)."""
     from kincal.units import parse_quantity
-    from kincal.workflow.options import parse_stages
+    from kincal.workflow.options import parse_prior_text, parse_stages
 
     out: dict[str, Any] = {}
     for k, v in options.items():
@@ -161,6 +161,8 @@ def flow_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
             v = parse_stages(v)
         elif k == "tolerance" and isinstance(v, str):
             v = parse_quantity(v, "length", "tolerance")
+        elif k == "prior" and isinstance(v, str):
+            v = parse_prior_text(v, "prior")
         out[k] = v
     return out
 

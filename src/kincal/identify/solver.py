@@ -1125,6 +1125,10 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         from its start without them (module docstring, "Identifiability at the
         solution").
     """
+    if not isinstance(robot, Robot):
+        raise KincalError(f"calibrate takes a serial Robot, not a {type(robot).__name__}; a "
+                          "five-bar calibrates with kincal.parallel.file_calibration."
+                          "calibrate_fivebar_file or kincal.parallel.calibration.calibrate")
     if method not in METHODS:
         raise KincalError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
     if loss not in LOSSES:

@@ -282,7 +282,11 @@ def calibrate(
     )
 
 
-def _entry(k: int, theta: np.ndarray, r: np.ndarray, step: float, **extra: float) -> dict:
+History = list[dict[str, Any]]
+
+
+def _entry(k: int, theta: np.ndarray, r: np.ndarray, step: float, **extra: float
+           ) -> dict[str, Any]:
     return {
         "iteration": k,
         "params": dict(zip(res.ALL_NAMES, theta.tolist(), strict=True)),
@@ -292,7 +296,8 @@ def _entry(k: int, theta: np.ndarray, r: np.ndarray, step: float, **extra: float
     }
 
 
-def _scaled_step(jac: np.ndarray, r: np.ndarray, idx: np.ndarray, damping: float = 0.0):
+def _scaled_step(jac: np.ndarray, r: np.ndarray, idx: np.ndarray, damping: float = 0.0
+                 ) -> np.ndarray:
     """Least-squares step on unit-norm columns: min |W_s d - r|^2 + damping |d|^2."""
     w = jac[:, idx]
     norms = np.linalg.norm(w, axis=0)
@@ -301,10 +306,11 @@ def _scaled_step(jac: np.ndarray, r: np.ndarray, idx: np.ndarray, damping: float
         ws = np.vstack([ws, np.sqrt(damping) * np.eye(idx.size)])
         r = np.r_[r, np.zeros(idx.size)]
     d, *_ = np.linalg.lstsq(ws, r, rcond=None)
-    return d / norms
+    return np.asarray(d / norms)
 
 
-def _gauss_newton(problem, theta, idx, tol, max_iter, history):
+def _gauss_newton(problem: _Problem, theta: np.ndarray, idx: np.ndarray, tol: float,
+                  max_iter: int, history: History) -> tuple[np.ndarray, bool, History]:
     """The thesis's iteration; a step after which the model cannot reach every
     measured point is halved until it can (recorded as ``halvings``)."""
     converged = False
@@ -331,7 +337,8 @@ def _gauss_newton(problem, theta, idx, tol, max_iter, history):
     return theta, converged, history
 
 
-def _levenberg_marquardt(problem, theta, idx, tol, max_iter, history):
+def _levenberg_marquardt(problem: _Problem, theta: np.ndarray, idx: np.ndarray, tol: float,
+                         max_iter: int, history: History) -> tuple[np.ndarray, bool, History]:
     """Levenberg-Marquardt on unit-norm columns (damping lambda I = lambda diag(W^T W))."""
     converged = False
     lam = 1e-3

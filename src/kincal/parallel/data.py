@@ -25,7 +25,8 @@ import numpy as np
 
 from kincal.errors import MeasurementFileError
 from kincal.io import read_text
-from kincal.parallel.files import ANGLE_UNITS, LENGTH_UNITS, write_text_atomic
+from kincal.parallel.files import write_text_atomic
+from kincal.robots.files import ANGLE_UNITS, LENGTH_UNITS
 
 _QUANTITIES = {
     "q1": "angle",

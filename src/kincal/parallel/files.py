@@ -18,6 +18,7 @@ Every problem raises :class:`RobotFileError` with one line naming the field.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -151,7 +152,8 @@ def fivebar_from_dict(data: Mapping[str, Any], source: str) -> FiveBar:
     )
 
 
-def _limits(r: _Reader, data: Any, scale: float):
+def _limits(r: _Reader, data: Any, scale: float
+            ) -> tuple[tuple[float, float], tuple[float, float]] | None:
     if data is None:
         return None
     data = r.mapping(data, "limits")
@@ -171,7 +173,8 @@ def _limits(r: _Reader, data: Any, scale: float):
     return (out[0], out[1])
 
 
-def fivebar_to_dict(robot: FiveBar, length_unit: str = "m", angle_unit: str = "rad") -> dict:
+def fivebar_to_dict(robot: FiveBar, length_unit: str = "m", angle_unit: str = "rad"
+                    ) -> dict[str, Any]:
     """Mapping for a robot file, values in the requested units."""
     ls, an = 1.0 / LENGTH_UNITS[length_unit], 1.0 / ANGLE_UNITS[angle_unit]
     out: dict[str, Any] = {
@@ -220,7 +223,7 @@ def write_fivebar(robot: FiveBar, path: str | Path) -> Path:
     return write_text_atomic(path, yaml.safe_dump(fivebar_to_dict(robot), sort_keys=False))
 
 
-def load_fivebar(name_or_path: str | Path) -> FiveBar:
+def load_fivebar(name_or_path: str | os.PathLike[str]) -> FiveBar:
     """A five-bar from a file path or a built-in robot name (``fivebar``, ``fivebar_thesis``)."""
     path = Path(name_or_path)
     if not path.is_file():

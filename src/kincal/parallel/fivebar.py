@@ -136,7 +136,8 @@ class FiveBar:
                     f"unknown five-bar parameter(s) {', '.join(unknown)}; "
                     f"known: {', '.join(self.param_names)}"
                 )
-            changes = {_FIELDS[self.param_names.index(k)]: float(v) for k, v in values.items()}
+            changes: dict[str, Any] = {_FIELDS[self.param_names.index(k)]: float(v)
+                                       for k, v in values.items()}
         else:
             arr = np.asarray(values, dtype=float).ravel()
             if arr.shape != (len(_FIELDS),):

@@ -47,7 +47,7 @@ MODES: tuple[str, ...] = ("++", "+-", "-+", "--")
 
 def cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """z-component of the planar cross product ``a x b`` over the last axis."""
-    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return np.asarray(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
 
 
 def unit(angle: np.ndarray) -> np.ndarray:

@@ -15,17 +15,26 @@ threshold 1e-10.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from kincal.errors import KincalError
+from kincal.identify.checks import Verdict
 from kincal.parallel import kinematics as kin
 from kincal.parallel.calibration import LENGTHS_FREE, FiveBarCalibration, calibrate
 from kincal.parallel.files import load_fivebar
 from kincal.parallel.fivebar import FiveBar
+from kincal.parallel.trust import fivebar_tolerances, judge_fivebar
 
 EXPERIMENT_TRUE_LENGTHS: dict[str, float] = {"l1": 1.86, "l2": 2.2, "l3": 2.8, "l4": 3.3}
+#: Tolerances [m] of the experiment's lengths for the verdict: its nominal lengths are a
+#: drawing up to 0.3 m from the true ones, so a length is implausible beyond 10 x 0.05 m.
+EXPERIMENT_TOLERANCES: dict[str, float] = dict.fromkeys(LENGTHS_FREE, 0.05)
 EXPERIMENT_MOTOR_RANGES: tuple[tuple[float, float], tuple[float, float]] = (
     (0.0, np.pi / 2),
     (np.pi / 2, np.pi),
@@ -43,7 +52,7 @@ def simulate(
     nominal: FiveBar,
     n: int,
     rng: np.random.Generator,
-    ranges: tuple[tuple[float, float], tuple[float, float]] = EXPERIMENT_MOTOR_RANGES,
+    ranges: Sequence[tuple[float, float]] = EXPERIMENT_MOTOR_RANGES,
     noise: float = 0.0,
     min_measure: float = 0.2,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -94,6 +103,93 @@ def run_reference_experiment(
         nominal, q, x, free=LENGTHS_FREE, residual=residual, method=method, tol=tol, sigma=sigma
     )
     return result, true
+
+
+@dataclass(frozen=True)
+class FiveBarSimulation:
+    """Simulated measurements of a five-bar: readings ``q`` (N,2) [rad] and end points
+    ``x`` (N,2) [m] of the ``true`` robot, drawn with ``seed`` and reading noise
+    ``noise`` [rad] around the ``nominal`` one's well-conditioned configurations."""
+
+    nominal: FiveBar
+    true: FiveBar
+    q: np.ndarray
+    x: np.ndarray
+    seed: int
+    noise: float
+
+    def comment(self, program: str = "kincal fivebar-simulate") -> str:
+        """The measurement file's header: where it comes from, the true parameters (SI)."""
+        return (f"simulated by {program} from {self.nominal.name}, seed {self.seed}, "
+                f"noise {math.degrees(self.noise):g} deg\ntrue parameters (SI): "
+                + ", ".join(f"{k}={v:.12g}" for k, v, _ in self.true.parameter_table()))
+
+    def to_dict(self, output: str | None = None) -> dict[str, Any]:
+        """Plain mapping for JSON (SI); ``output``: the file written."""
+        return {"robot": self.nominal.name, "measurements": int(self.q.shape[0]),
+                "output": output, "seed": self.seed, "noise_rad": self.noise,
+                "true_parameters": {k: v for k, v, _ in self.true.parameter_table()}}
+
+
+def simulate_fivebar(nominal: FiveBar, true_values: dict[str, float], n: int, seed: int = 0,
+                     ranges: Sequence[tuple[float, float]] | None = None, noise: float = 0.0
+                     ) -> FiveBarSimulation:
+    """Measurements of ``nominal`` with the parameters ``true_values`` [m / rad] changed
+    (:func:`simulate`); ``ranges``: motor-angle ranges [rad] (default: the robot's
+    reading limits, else the full turn)."""
+    true = nominal.with_params(true_values)
+    if ranges is None:
+        ranges = nominal.limits if nominal.limits is not None else \
+            ((-np.pi, np.pi), (-np.pi, np.pi))
+    q, x = simulate(true, nominal, n, np.random.default_rng(seed), tuple(ranges), noise=noise)
+    return FiveBarSimulation(nominal, true, q, x, seed, noise)
+
+
+@dataclass(frozen=True)
+class ReferenceExperiment:
+    """One run of the reference experiment, judged.
+
+    Attributes:
+        calibration: the estimate of the four lengths; ``true``: the true robot.
+        n, seed: configurations and random seed; ``noise``: reading noise [rad].
+        verdict: converged, lengths within 10 x :data:`EXPERIMENT_TOLERANCES`, standard
+            errors below 1 m (:func:`kincal.parallel.trust.judge_fivebar`).
+    """
+
+    calibration: FiveBarCalibration
+    true: FiveBar
+    n: int
+    seed: int
+    noise: float
+    verdict: Verdict
+
+    @property
+    def largest_length_error(self) -> float:
+        """max_k |l_k estimated - l_k true| [m]."""
+        return max(abs(self.calibration.params[k] - v)
+                   for k, v in EXPERIMENT_TRUE_LENGTHS.items())
+
+    def to_dict(self) -> dict[str, Any]:
+        """The calibration's ``to_dict()`` plus ``experiment`` (truth, bases, n, seed,
+        noise [rad]) and ``trust`` (the verdict); SI units."""
+        t = self.true
+        return {**self.calibration.to_dict(),
+                "experiment": {"true": EXPERIMENT_TRUE_LENGTHS, "n": self.n, "seed": self.seed,
+                               "noise_rad": self.noise,
+                               "bases_m": {"base1": [t.base1_x, t.base1_y],
+                                           "base2": [t.base2_x, t.base2_y]}},
+                "trust": self.verdict.to_dict()}
+
+
+def reference_experiment(n: int = 50, seed: int = 0, method: str = "gauss-newton",
+                         residual: str = "ik", noise: float = 0.0, tol: float = 1e-10
+                         ) -> ReferenceExperiment:
+    """:func:`run_reference_experiment` with its verdict (arguments alike; ``noise`` [rad])."""
+    if n < 3:
+        raise KincalError("at least 3 configurations are needed for 4 lengths")
+    result, true = run_reference_experiment(n, seed, method, residual, noise, tol)
+    verdict = judge_fivebar(result, fivebar_tolerances(EXPERIMENT_TOLERANCES))
+    return ReferenceExperiment(result, true, n, seed, noise, verdict)
 
 
 def plot_reference_experiment(

@@ -91,13 +91,12 @@ class ReportView:
         self.held_by_prior: list[str] = []
         idx = [self.names.index(n) for n in self.estimated]
         cov = np.asarray(result.covariance, dtype=float)
+        self.correlation: Array | None = None
         if cov.shape == (len(idx), len(idx)) and len(idx) > 1:
             s = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
             small = cov / np.outer(s, s)
             self.correlation = np.eye(len(self.names))
             self.correlation[np.ix_(idx, idx)] = small
-        else:
-            self.correlation = None
         self.history = [
             _Step(np.array([h["params"][n] for n in self.names], dtype=float), "all",
                   0.5 * float(h["rms"]) ** 2 * max(1, 2 * len(result.residuals)),
@@ -126,10 +125,11 @@ class ReportView:
                 "identifiability": self.identifiability.to_dict(), "message": ""}
 
 
-def fivebar_comparison(result: FiveBarCalibration, q: Array, x: Array, title: str = "train"
-                       ) -> ErrorComparison:
+def fivebar_comparison(result: FiveBarCalibration, q: Array, x: Array, title: str = "train",
+                       label: str | None = None) -> ErrorComparison:
     """End-point position errors |dX| [m] of the nominal and the calibrated five-bar on the
-    measurements (each model in its own nearest assembly mode)."""
+    measurements (each model in its own nearest assembly mode); ``label`` (default the
+    title): ``train`` or ``validation``."""
     q, x = np.asarray(q, dtype=float), np.asarray(x, dtype=float)
     start = np.asarray(result.start, dtype=float)
     end = np.array([result.params[n] for n in res.ALL_NAMES], dtype=float)
@@ -138,7 +138,7 @@ def fivebar_comparison(result: FiveBarCalibration, q: Array, x: Array, title: st
         sigma = res.fk_assembly_nearest(theta, q, x)
         dx = res.fk_model(theta, q, x, sigma)[0]
         out.append({"position_m": np.linalg.norm(dx, axis=1)})
-    return ErrorComparison(title, title, out[0], out[1],
+    return ErrorComparison(title if label is None else label, title, out[0], out[1],
                            "before: the nominal five-bar and measurement frame; after: the "
                            "calibrated ones (end-point position in the measurement frame)")
 
@@ -146,11 +146,14 @@ def fivebar_comparison(result: FiveBarCalibration, q: Array, x: Array, title: st
 def fivebar_report(result: FiveBarCalibration, q: Array, x: Array, data_name: str,
                    inputs: Mapping[str, str] | None = None,
                    truth: Mapping[str, float] | None = None,
-                   sections: Sequence[str] = ()) -> str:
-    """The HTML report of a five-bar calibration (:func:`kincal.report.html.render_html`)."""
+                   sections: Sequence[str] = (),
+                   comparisons: Sequence[ErrorComparison] | None = None) -> str:
+    """The HTML report of a five-bar calibration (:func:`kincal.report.html.render_html`);
+    ``comparisons``: the before/after tables (default: the training file ``q``, ``x``)."""
     from kincal.report.html import render_html
 
-    comp = fivebar_comparison(result, q, x, f"train ({data_name})")
-    return render_html(ReportView(result), [comp],
+    comps = list(comparisons) if comparisons is not None else [
+        fivebar_comparison(result, q, x, f"train ({data_name})")]
+    return render_html(ReportView(result), comps,
                        title=f"kincal calibration of {result.nominal.name} (five-bar)",
                        inputs=inputs, truth=truth, extra_sections=list(sections))

@@ -61,7 +61,7 @@ def rotation(angle: float) -> np.ndarray:
 
 def to_base(theta: np.ndarray, x_m: np.ndarray) -> np.ndarray:
     """Measured points (N,2) in the robot base frame: ``t + R x_m``."""
-    return theta[10:12] + x_m @ rotation(theta[12]).T
+    return np.asarray(theta[10:12] + x_m @ rotation(theta[12]).T)
 
 
 def ik_model(

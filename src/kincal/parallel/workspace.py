@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -42,6 +42,11 @@ class Workspace:
     type2: np.ndarray
     assembly: np.ndarray
     area: float
+
+    def to_dict(self, robot: str, output: str | None = None) -> dict[str, Any]:
+        """The summary for JSON: robot, working mode, area [m^2], the plot written."""
+        return {"robot": robot, "working_mode": self.mode, "area_m2": self.area,
+                "output": output}
 
 
 def workspace(

@@ -418,11 +418,12 @@ def _hold(r: _Reader, value: Any, path: KeyPath) -> dict[str, tuple[float, str |
 def hold_robot(robot: Any, setup: Setup) -> Any:
     """``robot`` with the setup's held joints fixed (:func:`kincal.robots.hold.hold_joints`);
     a value of the wrong dimension or an unknown joint names the line."""
+    from kincal.robots.chain import Robot
     from kincal.robots.hold import hold_joints
 
     if not setup.hold:
         return robot
-    if not hasattr(robot, "joints"):
+    if not isinstance(robot, Robot):
         raise SetupError(f"{setup.where('hold')}: only serial robots have joints to hold")
     kinds = {j.name: j.kind for j in robot.joints}
     values = {}

@@ -47,11 +47,13 @@ from kincal.workflow.options import (
     METHODS,
     PROCEDURES,
     STAGES,
+    Prior,
     check_flow_options,
     check_options_used,
     parse_prior,
     parse_selection,
     parse_stages,
+    prior_spec,
 )
 from kincal.workflow.report_sections import (
     artifact_figures,
@@ -133,7 +135,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              max_iter: int | None = None, validation_frames: str = "auto",
              procedure: str = "lm", condition_growth: float | None = None,
              cycles: int | None = None, tolerance: float | None = None,
-             prior: str | None = None, cross_validate: int | None = None,
+             prior: Prior = None, cross_validate: int | None = None,
              progress: Callable[[Any], Any] | None = None, select: str | None = None,
              folds: int = 10, masses: Sequence[Any] | None = None,
              joint_models: Sequence[Sequence[str]] | None = None,
@@ -158,13 +160,15 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             None = until converged).
         tolerance: patent only: stop when no predicted point moves more than this [m]
             (default 1e-7 m).
-        prior: ``--prior`` text (:mod:`kincal.identify.tolerances`): entries that
-            override the parameters' manufacturing tolerances (role defaults, then the
-            robot file's ``tolerances:``), ``scale=K``, or ``none`` for plain least
-            squares.  By default (``procedure="lm"``) the calibration is the maximum
-            a-posteriori estimate with Gaussian priors of these standard deviations
-            centred on the nominal values, the noise scale estimated first.  The
-            tolerances also bound what is plausible (``FlowResult.verdict``).
+        prior: typed (:data:`~kincal.workflow.options.Prior`; ``--prior`` text becomes
+            one by :func:`~kincal.workflow.options.parse_prior_text`): None or
+            ``"tolerances"``, ``"none"`` for plain least squares, a mapping ``{role, name or
+            pattern: sigma [m / rad]}`` or a ``TolSpec`` whose entries override the
+            parameters' manufacturing tolerances (role defaults, then the robot file's
+            ``tolerances:``) and may scale them.  By default (``procedure="lm"``) the
+            calibration is the maximum a-posteriori estimate with Gaussian priors of
+            these standard deviations centred on the nominal values, the noise scale
+            estimated first.  The tolerances also bound what is plausible (``FlowResult.verdict``).
         cross_validate: K-fold cross-validation of the same calibration on the training
             data (the fold tasks of :mod:`~kincal.identify.validation`, folds drawn with
             seed 0; one training block, ``procedure="lm"``): how well the chosen model
@@ -354,21 +358,20 @@ def _accuracy(res: Any, cv: Mapping[str, Any] | None,
 
 
 def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
-                  prior: str | None, folds: int, masses: Sequence[Any] | None,
+                  prior: Prior, folds: int, masses: Sequence[Any] | None,
                   joint_models: Sequence[Sequence[str]] | None, mapper: Callable[..., Any],
                   options: Mapping[str, Any], warnings: list[str]
                   ) -> tuple[Any, list[Any], list[Any], Any]:
     """``--select auto``: the selection, the blocks inside the chosen joint model, and the
     tolerances with the chosen prior scale (appends to ``warnings``)."""
     from kincal.identify.selection import JOINT_MODELS, PRIOR_SCALES, candidates, select_model
-    from kincal.identify.tolerances import parse_tolerance_entries
     from kincal.measure.joints.deflection import JointDeflection
     from kincal.measure.joints.terms import with_joint_model
 
     if any(isinstance(b, JointDeflection) for b in [*blocks, *holdouts]):
         raise KincalError("--select auto chooses the joint model itself: give the blocks "
                           "without one (joint_models= restricts the models it tries)")
-    spec = parse_tolerance_entries(prior)
+    spec = prior_spec(prior)
     scales: Sequence[float | None] = PRIOR_SCALES
     if not spec.use_prior:
         scales = [None]
@@ -391,15 +394,15 @@ def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
     return sel, blocks, holdouts, tols.with_scale(choice.scale)
 
 
-def tolerances_of(robot: Any, prob: Any, prior: str | None = None) -> Any:
+def tolerances_of(robot: Any, prob: Any, prior: Prior = None) -> Any:
     """The manufacturing tolerances of a calibration problem's parameters: role defaults,
-    the robot file's ``tolerances:`` section, then ``--prior`` entries
+    the robot file's ``tolerances:`` section, then the entries of ``prior``
     (:func:`~kincal.identify.tolerances.resolve_tolerances`)."""
     from kincal.identify.tolerances import resolve_tolerances
 
     meta = getattr(robot, "meta", {}) or {}
     return resolve_tolerances(prob.names, prob.units, prob.roles, meta.get("tolerances"),
-                              prior, robot_source=str(meta.get("file", robot.name)))
+                              prior_spec(prior), robot_source=str(meta.get("file", robot.name)))
 
 
 def _holdout_comparison(nominal: Any, calibrated: Any, train: list[Any], holdouts: list[Any],

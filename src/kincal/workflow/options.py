@@ -6,23 +6,38 @@ usable from Python (:mod:`kincal.workflow.flow` re-exports every name):
 * :func:`check_flow_options` - one-line errors for options that do not fit together;
 * :func:`check_options_used` - every ``--units`` / ``--ignore`` entry matches a column;
 * :func:`parse_selection` - ``--free`` / ``--fix`` patterns -> parameter names;
+* :func:`parse_prior_text` - ``--prior`` text -> the typed :data:`Prior` of the API;
+* :func:`prior_spec` - a :data:`Prior` -> the parsed tolerance entries;
 * :func:`parse_prior` - ``--prior`` entries -> prior standard deviations [m / rad];
 * :func:`parse_stages` - ``--stages`` text -> the one-stage solver's stages.
 
 Every error is a one-line :class:`~kincal.errors.KincalError` naming the option.
+
+The Python API takes typed values, the command line and the setup file text: a
+:data:`Prior` is ``None`` or ``"tolerances"`` (Gaussian priors of the manufacturing
+tolerances), ``"none"`` (plain least squares), a mapping ``{role, name or pattern:
+sigma [m / rad] or None}`` that overrides the tolerances of the parameters it matches
+(None: no prior for them), or a parsed :class:`~kincal.identify.tolerances.TolSpec`
+(what :func:`parse_prior_text` makes of ``"length=0.5mm,offset=0.05deg,scale=3"``).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Literal, TypeAlias
 
 from kincal.errors import KincalError, MeasurementFileError
 from kincal.identify.solver import LOSSES, METHODS, STAGE_KEYWORDS
+from kincal.identify.tolerances import Entry, TolSpec, parse_tolerance_entries
 
 __all__ = ["check_options_used", "parse_selection", "parse_stages", "parse_prior",
-           "check_flow_options", "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
+           "parse_prior_text", "prior_spec", "prior_given", "Prior", "check_flow_options",
+           "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
+
+#: The prior of a calibration, typed (module docstring).
+Prior: TypeAlias = TolSpec | Mapping[str, float | None] | Literal["tolerances", "none"] | None
 
 PROCEDURES = ("lm", "patent")
 STAGES = STAGE_KEYWORDS
@@ -77,6 +92,47 @@ def parse_selection(names: Sequence[str], roles: Sequence[str], free: str | None
     return expand(free), expand(fix) or []
 
 
+def parse_prior_text(text: str | None, option: str = "option --prior") -> TolSpec | None:
+    """``--prior`` / setup ``prior:`` text -> a :class:`~kincal.identify.tolerances.TolSpec`
+    (None stays None): roles, names or ``*`` patterns with a value and its unit, ``none``,
+    ``scale=K`` (:func:`~kincal.identify.tolerances.parse_tolerance_entries`); one-line
+    errors name ``option``."""
+    return None if text is None else parse_tolerance_entries(text, option)
+
+
+def prior_spec(prior: Prior) -> TolSpec:
+    """The tolerance entries of a typed :data:`Prior` (module docstring).
+
+    ``None`` and ``"tolerances"``: no entries (the tolerances as they are); ``"none"``: no
+    prior; a mapping: one entry per key, its value in SI applied to every parameter the key
+    matches whatever its unit (None: no prior for them).
+    """
+    if prior is None or prior == "tolerances":
+        return TolSpec()
+    if prior == "none":
+        return TolSpec(use_prior=False)
+    if isinstance(prior, TolSpec):
+        return prior
+    if isinstance(prior, str):
+        raise KincalError(f"prior {prior!r}: the Python API takes 'tolerances', 'none', a "
+                          "mapping {role, name or pattern: sigma [m / rad]} or a TolSpec "
+                          "(parse_prior_text parses command-line text)")
+    entries = []
+    for target, sigma in prior.items():
+        if sigma is not None and not (math.isfinite(sigma) and sigma > 0):
+            raise KincalError(f"prior {target!r}: the standard deviation must be positive "
+                              f"(got {sigma!r})")
+        value = None if sigma is None else float(sigma)
+        entries.append(Entry(str(target), value, None,
+                             f"{target}={'none' if value is None else f'{value:g}'}"))
+    return TolSpec(tuple(entries))
+
+
+def prior_given(prior: Prior) -> bool:
+    """Does ``prior`` change anything (entries, a scale, or no prior)?"""
+    return prior_spec(prior) != TolSpec()
+
+
 def parse_prior(text: str | None, names: Sequence[str], units: Sequence[str]
                 ) -> dict[str, float]:
     """``--prior`` entries alone -> prior standard deviations ``{parameter name: s}``
@@ -117,7 +173,7 @@ def _choice(value: str, option: str, allowed: Sequence[str]) -> str:
 def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str = "linear",
                        stages: Sequence[str] | None = None, validation_frames: str = "auto",
                        condition_growth: float | None = None, cycles: int | None = None,
-                       tolerance: float | None = None, prior: str | None = None) -> None:
+                       tolerance: float | None = None, prior: Prior = None) -> None:
     """One-line errors for options of :func:`run_flow` that do not fit together (checked
     before any file is read; ``tolerance`` in m)."""
     _choice(procedure, "--procedure", PROCEDURES)
@@ -125,7 +181,7 @@ def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str =
     _choice(loss, "--loss", LOSSES)
     _choice(validation_frames, "--validation-frames", ("auto", "training", "register"))
     if procedure == "patent":
-        if method != "lm" or loss != "linear" or stages or prior:
+        if method != "lm" or loss != "linear" or stages or prior_given(prior):
             raise KincalError("--method, --loss, --stages and --prior choose the one-stage "
                               "solver (--procedure lm); the patent has its own two stages")
     elif condition_growth is not None or cycles is not None or tolerance is not None:

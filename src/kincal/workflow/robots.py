@@ -34,4 +34,5 @@ def load_any_robot(spec: str | os.PathLike[str], base_link: str | None = None,
         from kincal.parallel.files import load_fivebar  # only for five-bars: fast start
 
         return load_fivebar(spec)
-    return load_robot(spec, base_link=base_link, tip_link=tip_link)
+    robot: Robot = load_robot(spec, base_link=base_link, tip_link=tip_link)
+    return robot
