@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.robots.scratch import scratch
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import FRAME_FIELDS, matrix_to_angles, rate_matrix
 
 Array = NDArray[np.float64]
@@ -297,24 +297,32 @@ class Robot:
         """The chain compiled for batched evaluation (built on first use, per robot)."""
         return _Plan(self, self._structure)
 
-    def fk(self, q: ArrayLike) -> Array:
-        """Forward kinematics ``T(q) = E_1 ... E_K``: (N, n) -> (N, 4, 4); (n,) -> (4, 4)."""
+    def fk(self, q: ArrayLike, workspace: ChainWorkspace | None = None) -> Array:
+        """Forward kinematics ``T(q) = E_1 ... E_K``: (N, n) -> (N, 4, 4); (n,) -> (4, 4).
+
+        ``workspace``: the caller's working memory when it evaluates repeatedly
+        (:class:`~kincal.robots.workspace.ChainWorkspace`); default a fresh one.
+        """
         q2, single = self._check_q(q)
-        T, _, _ = self._plan.evaluate(q2, joints=False, params=False)
+        T, _, _ = self._plan.evaluate(q2, False, False, workspace or ChainWorkspace())
         return T[0] if single else T
 
     def fk_with_jacobians(
-        self, q: ArrayLike, joints: bool = True, params: bool = True
+        self, q: ArrayLike, joints: bool = True, params: bool = True,
+        workspace: ChainWorkspace | None = None
     ) -> tuple[Array, Array | None, Array | None]:
         """Forward kinematics plus the geometric and parameter Jacobians in one pass.
 
         Returns ``(T, J, Jp)`` with ``T`` (N, 4, 4), ``J`` (N, 6, n) the geometric
         Jacobian in the base frame and ``Jp`` (N, 6, P) the parameter Jacobian
         ``d[p_end; phi_end] / d(param)`` in the base frame (rows vx vy vz wx wy wz;
-        columns in ``param_names`` order).  Always batched (N >= 1).
+        columns in ``param_names`` order).  Always batched (N >= 1).  ``J`` is None
+        unless ``joints``, ``Jp`` None unless ``params``.  ``workspace``: the caller's
+        working memory (:class:`~kincal.robots.workspace.ChainWorkspace`; default a
+        fresh one); the results never live in it.
         """
         q2, _ = self._check_q(q)
-        return self._plan.evaluate(q2, joints=joints, params=params)
+        return self._plan.evaluate(q2, joints, params, workspace or ChainWorkspace())
 
     def jacobian(self, q: ArrayLike, frame: Literal["base", "tool"] = "base") -> Array:
         """Geometric Jacobian ``[v; omega] = J(q) q_dot``: (N, 6, n), or (6, n) for (n,).
@@ -371,7 +379,8 @@ class Robot:
 
     def point_jacobian(self, q: ArrayLike, points: ArrayLike, left: ArrayLike | None = None,
                        columns: Sequence[int] | None = None, rotation: bool = False,
-                       out: tuple[Array, Array, Array | None] | None = None
+                       out: tuple[Array, Array, Array | None] | None = None,
+                       workspace: ChainWorkspace | None = None
                        ) -> tuple[Array, Array, Array | None]:
         """Points fixed on the tool and their parameter Jacobian, configurations last.
 
@@ -392,6 +401,10 @@ class Robot:
             out: arrays ``(Y, D, Rot)`` of the shapes below to write the results into
                 (``Rot`` None when not ``rotation``), e.g. working arrays reused from
                 call to call; default fresh ones.
+            workspace: the caller's working memory for the chain's temporaries
+                (:class:`~kincal.robots.workspace.ChainWorkspace`, reused between
+                calls; default a fresh one).  ``out`` may be arrays of the same
+                workspace under other names.
 
         Returns:
             ``Y`` (K, 3, N) [m], ``D`` (C, K, 3, N) with ``D[j, k, i, l] = d y_{l,k,i} /
@@ -404,7 +417,7 @@ class Robot:
         cols = tuple(range(self.num_params)) if columns is None else \
             tuple(int(c) for c in columns)
         return self._plan.points(q2, m, None if left is None else np.asarray(left, float),
-                                 cols, rotation, out)
+                                 cols, rotation, out, workspace or ChainWorkspace())
 
     def frames(self, q: ArrayLike) -> Array:
         """Frames after every joint (for plotting): (N, n + 2, 4, 4) base, joints, tool."""
@@ -768,8 +781,11 @@ class _Plan:
             V += self.offsets[:, None]
         return V
 
-    def evaluate(self, q: Array, joints: bool, params: bool
+    def evaluate(self, q: Array, joints: bool, params: bool, workspace: ChainWorkspace
                  ) -> tuple[Array, Array | None, Array | None]:
+        """Frames (N, 4, 4) and, when asked, the geometric (N, 6, n) and parameter
+        (N, 6, P) Jacobians of the configurations ``q`` (N, n), block by block; the
+        temporaries come from ``workspace``."""
         N = q.shape[0]
         record = joints or params
         # Jacobians are stored (6, columns, N) and returned as (N, 6, columns) views: every
@@ -784,7 +800,7 @@ class _Plan:
         L = self._block_size(N, joints, params)
         for start in range(0, N, L):
             sl = slice(start, min(N, start + L))
-            b = self._scratch(sl.stop - sl.start, record, params)
+            b = self._block_arrays(sl.stop - sl.start, record, params, workspace)
             F, S = self._sweep(q, sl, b, record)
             Tb = T[sl]
             for c in range(4):
@@ -800,11 +816,12 @@ class _Plan:
                 self._param_columns(F, S, b, Jp[:, :, sl])
         return out
 
-    def _scratch(self, L: int, record: bool, params: bool) -> dict[str, Array]:
-        """Working arrays for a block of ``L`` configurations, carved out of one
-        :func:`scratch` array (reused from call to call; never part of a result)."""
+    def _block_arrays(self, L: int, record: bool, params: bool, workspace: ChainWorkspace
+                      ) -> dict[str, Array]:
+        """Working arrays for a block of ``L`` configurations, carved out of one array of
+        ``workspace`` (reused from call to call; never part of a result)."""
         total, layout = _block_layout(L, self.J, self.R if params else 0, record)
-        flat = scratch("chain.block", (total,))
+        flat = workspace.array("chain.block", (total,))
         return {k: flat[o:o + n].reshape(shape) for k, o, n, shape in layout}
 
     def _trig(self, V: Array, b: dict[str, Array]) -> tuple[Array, Array]:
@@ -897,8 +914,8 @@ class _Plan:
         return sel
 
     def points(self, q: Array, points: Array, left: Array | None, columns: tuple[int, ...],
-               rotation: bool, out: tuple[Array, Array, Array | None] | None = None
-               ) -> tuple[Array, Array, Array | None]:
+               rotation: bool, out: tuple[Array, Array, Array | None] | None,
+               workspace: ChainWorkspace) -> tuple[Array, Array, Array | None]:
         """Tool points, their parameter Jacobian and the tool rotation, configurations last.
 
         For the points ``m_k`` (K, 3) in the tool frame and a constant frame ``H`` in
@@ -958,7 +975,7 @@ class _Plan:
         for start in range(0, N, L):
             sl = slice(start, min(N, start + L))
             Lb = sl.stop - sl.start
-            b = self._scratch(Lb, record, False)
+            b = self._block_arrays(Lb, record, False, workspace)
             F, S = self._sweep(q, sl, b, record, prefix)
             Yb = Y[:, :, sl]
             for k in range(K):                                   # y_k = p + R m_k
@@ -975,12 +992,12 @@ class _Plan:
                 Db[...] = 0.0
             if sel.n == 0:
                 continue
-            Z = scratch("chain.Z", (6, K, 3, Lb))
-            d = scratch("chain.dY", (K, 3, Lb))
-            tmp = scratch("chain.tZ", (3, K, Lb))
+            Z = workspace.array("chain.Z", (6, K, 3, Lb))
+            d = workspace.array("chain.dY", (K, 3, Lb))
+            tmp = workspace.array("chain.tZ", (3, K, Lb))
             # all markers at once: rows written in place (one block) or into a buffer
             one_block = Lb == N and sel.direct
-            base = Dout if one_block else scratch("chain.out", (self.R, K, 3, Lb))
+            base = Dout if one_block else workspace.array("chain.out", (self.R, K, 3, Lb))
             if sel.pre:
                 for k in range(K):
                     rows_k = base[: sel.pre, k]
