@@ -852,9 +852,9 @@ class _Plan:
         replaces the chain's constant prefix (e.g. with a frame in front of it).
         """
         L = sl.stop - sl.start
-        S = b.get("S")
-        cur = S[0] if record else b["X"]  # type: ignore[index]
-        spare = None if record else b["Y"]
+        S = b["S"] if record else None
+        cur = b["X"] if S is None else S[0]
+        spare = b["Y"] if S is None else cur      # the other frame buffer (not recording)
         np.copyto(cur, self.prefix if prefix is None else prefix)
         if self.J == 0:
             return cur, S
@@ -878,13 +878,13 @@ class _Plan:
             kind, matrix, shifts = self.posts[m]
             if kind == "identity" and (m == self.J - 1 or not record):
                 continue
-            nxt = S[m + 1] if record else cur  # type: ignore[index]
-            if kind == "matrix":                  # X <- X C: one matrix product
-                if not record:
+            nxt = cur if S is None else S[m + 1]
+            if matrix is not None:                # X <- X C: one matrix product
+                if S is None:
                     nxt, spare = spare, cur
                 np.matmul(matrix, cur.reshape(4, 3 * L), out=nxt.reshape(4, 3 * L))
             else:
-                if record:
+                if S is not None:
                     np.copyto(nxt, cur)
                 for i, v in shifts:               # translation only: p <- p + v x_i
                     np.multiply(nxt[i], v, out=t1)
@@ -992,6 +992,7 @@ class _Plan:
                 Db[...] = 0.0
             if sel.n == 0:
                 continue
+            assert S is not None                                 # recorded: C > 0
             Z = workspace.array("chain.Z", (6, K, 3, Lb))
             d = workspace.array("chain.dY", (K, 3, Lb))
             tmp = workspace.array("chain.tZ", (3, K, Lb))
@@ -1080,7 +1081,7 @@ class _Plan:
         if self.rows_unique:
             out[:, self.row_param] = TW
         else:
-            np.add.at(out, (slice(None), self.row_param), TW)
+            np.add.at(out.transpose(1, 0, 2), self.row_param, TW.transpose(1, 0, 2))
 
 
 # ---------------------------------------------------------------------------
