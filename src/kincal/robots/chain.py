@@ -49,6 +49,9 @@ from kincal.spatial import FRAME_FIELDS, matrix_to_angles, rate_matrix
 
 Array = NDArray[np.float64]
 
+__all__ = ["ROTATIONS", "TRANSLATIONS", "KINDS", "ROLES", "ElementaryTransform", "Joint", "Robot",
+           "ChainBuilder", "ChainWorkspace", "elementary_matrix"]
+
 ROTATIONS = ("Rx", "Ry", "Rz")
 TRANSLATIONS = ("Tx", "Ty", "Tz")
 KINDS = ROTATIONS + TRANSLATIONS
@@ -109,6 +112,24 @@ class Robot:
     Build robots with the front ends (:func:`kincal.robots.dh.from_dh`,
     :func:`kincal.robots.urdf.load_urdf`, :func:`kincal.robots.files.load_robot`) or
     with :class:`ChainBuilder`.  ``robot.with_params(...)`` returns a new robot.
+
+    The kernel's interface (everything else in this module is private):
+
+    * :meth:`fk` ``T(q)``; :meth:`jacobian` the geometric Jacobian (base or tool frame);
+      :meth:`param_jacobian` ``d[p; phi]/d(param)``; :meth:`fk_with_jacobians` all three
+      from one pass; :meth:`point_jacobian` points on the tool and their parameter
+      Jacobian, configurations last (the fast path of the measurement blocks);
+    * :meth:`with_params` a robot with other parameter values (the compiled chain's
+      shape is shared, only the numbers are compiled again); :meth:`frame_parameters`
+      the 6 values of the base or tool frame in :data:`kincal.spatial.FRAME_FIELDS`
+      order; :meth:`params`, :meth:`param_index`, :meth:`param_indices`.
+
+    Like Pinocchio's ``Model`` and ``Data``, the robot is the immutable model (shareable
+    between threads) and the working memory is separate: the evaluation methods take
+    a :class:`~kincal.robots.workspace.ChainWorkspace` owned by a caller that evaluates
+    repeatedly (a fresh one per call by default).  A workspace is never shared between
+    threads.  The checks in ``tests/test_kernel_reference.py`` hold the tuned kernel to
+    a ten-line reference forward kinematics and parameter Jacobian.
 
     Attributes:
         name: display name.
@@ -324,15 +345,16 @@ class Robot:
         q2, _ = self._check_q(q)
         return self._plan.evaluate(q2, joints, params, workspace or ChainWorkspace())
 
-    def jacobian(self, q: ArrayLike, frame: Literal["base", "tool"] = "base") -> Array:
+    def jacobian(self, q: ArrayLike, frame: Literal["base", "tool"] = "base",
+                 workspace: ChainWorkspace | None = None) -> Array:
         """Geometric Jacobian ``[v; omega] = J(q) q_dot``: (N, 6, n), or (6, n) for (n,).
 
         ``frame="base"``: velocity of the tool origin and angular velocity in the base
         frame.  ``frame="tool"``: the same two vectors expressed in the tool frame,
-        ``J_e = diag(R^T, R^T) J_0``.
+        ``J_e = diag(R^T, R^T) J_0``.  ``workspace`` as in :meth:`fk_with_jacobians`.
         """
         q2, single = self._check_q(q)
-        T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False)
+        T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False, workspace=workspace)
         assert J is not None
         if frame == "tool":
             J = _to_tool_frame(T, J)
@@ -364,14 +386,16 @@ class Robot:
         JA[:, 3:, :] = np.linalg.solve(E, J[:, 3:, :])
         return JA[0] if single else JA
 
-    def param_jacobian(self, q: ArrayLike, names: Sequence[str] | None = None) -> Array:
+    def param_jacobian(self, q: ArrayLike, names: Sequence[str] | None = None,
+                       workspace: ChainWorkspace | None = None) -> Array:
         """Identification Jacobian ``d[p; phi]/d(param)`` in the base frame.
 
         (N, n) -> (N, 6, P) (or (6, P) for (n,)), columns for ``names`` (all
-        parameters by default), computed analytically from unit twists.
+        parameters by default), computed analytically from unit twists.  ``workspace``
+        as in :meth:`fk_with_jacobians`.
         """
         q2, single = self._check_q(q)
-        _, _, Jp = self.fk_with_jacobians(q2, joints=False, params=True)
+        _, _, Jp = self.fk_with_jacobians(q2, joints=False, params=True, workspace=workspace)
         assert Jp is not None
         if names is not None:
             Jp = Jp[:, :, self.param_indices(names)]
