@@ -20,7 +20,7 @@ from kincal.measure.instruments.position import PositionMeasurement, simulate_po
 from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import load_robot
-from kincal.robots.scratch import scratch
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import (
     exp_so3,
     frame_from_matrix,
@@ -361,14 +361,22 @@ def test_compressed_never_forms_the_jacobian():
     assert peak < 0.25 * M * P * 8, f"peak {peak / 1e6:.1f} MB for a {M * P * 8 / 1e6:.1f} MB J"
 
 
-def test_scratch_memory_is_reused_and_never_escapes():
-    """``scratch`` hands the same memory back for the same name (grown when too small);
-    what compressed() and the residuals return is not such memory: a second evaluation
-    at another theta leaves the first one's results as they were."""
-    a = scratch("test.a", (4, 5))
-    b = scratch("test.a", (2, 3))
+def test_workspace_memory_is_reused_and_never_escapes():
+    """A workspace hands the same memory back for the same name (grown when too small),
+    keeps at most its byte budget, and two workspaces never share; what compressed() and
+    the residuals return is not such memory: a second evaluation at another theta leaves
+    the first one's results as they were."""
+    ws = ChainWorkspace()
+    a = ws.array("test.a", (4, 5))
+    b = ws.array("test.a", (2, 3))
     assert np.shares_memory(a, b) and b.shape == (2, 3) and b.flags.c_contiguous
-    assert not np.shares_memory(scratch("test.a", (40, 50)), a)     # grown: new memory
+    grown = ws.array("test.a", (40, 50))
+    assert not np.shares_memory(grown, a)                            # grown: new memory
+    assert ws.nbytes == 40 * 50 * 8
+    assert not np.shares_memory(ChainWorkspace().array("test.a", (4, 5)), grown)
+    small = ChainWorkspace(max_bytes=100)
+    big = small.array("test.b", (4, 5))                              # over budget: not kept
+    assert small.nbytes == 0 and not np.shares_memory(small.array("test.b", (4, 5)), big)
     prob, theta, rng = _problem(300)
     c1, r1 = prob.compressed(theta), prob.residuals(theta)
     kept = (c1.R.copy(), c1.z.copy(), c1.r.copy(), r1.copy())

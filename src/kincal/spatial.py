@@ -183,7 +183,8 @@ def exp_so3(omega: ArrayLike) -> Array:
     ts = np.where(small, 1.0, t)
     a = np.where(small, 1.0 - t**2 / 6.0, np.sin(ts) / ts)
     b = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(ts)) / ts**2)
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    R: Array = np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return R
 
 
 def pose_error(T_target: ArrayLike, T_actual: ArrayLike) -> Array:

@@ -35,7 +35,7 @@ from __future__ import annotations
 import copy
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
@@ -44,7 +44,7 @@ from scipy.linalg.lapack import dtpqrt
 
 from kincal.errors import KincalError
 from kincal.robots.chain import Robot
-from kincal.robots.scratch import scratch
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import FRAME_FIELDS
 
 if TYPE_CHECKING:
@@ -279,7 +279,8 @@ class MeasurementModel(ABC):
 
     def system_pieces(self, robot: Robot, extra: Array, robot_columns: NDArray[np.intp],
                       own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS, *,
-                      robot_out: Callable[[int], Array | None] | None = None
+                      robot_out: Callable[[int], Array | None] | None = None,
+                      workspace: ChainWorkspace | None = None
                       ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
         """The residuals and the Jacobian columns a least-squares step needs, in pieces.
 
@@ -291,19 +292,26 @@ class MeasurementModel(ABC):
         *transposed* (one row per parameter, so that a piece is written column by
         column), in that row order.  The default takes them from
         :meth:`evaluate_chunks`; blocks with a faster path override it.  A piece's
-        arrays may be working memory the next piece reuses
-        (:func:`scratch`): use them before asking for the next.
+        arrays may be working memory the next piece reuses (from ``workspace``): use
+        them before asking for the next.
 
         ``robot_out``, when given, maps a piece's ``n`` to a C-contiguous
         (len(robot_columns), n) array (or None) that a block may compute ``Jr`` into
         and yield (the caller's own buffer: no copy); blocks are free to ignore it.
+        ``workspace``: the caller's working memory
+        (:class:`~kincal.robots.workspace.ChainWorkspace`, e.g. the stacked problem's),
+        reused between calls; None: the block makes its own for the call.  Blocks are
+        free to ignore it.
         """
         for sl, r, Jr, Je in self.evaluate_chunks(robot, extra, rows):
             yield sl, None, r, Jr[:, robot_columns].T, Je[:, own_columns].T
 
-    def residuals_into(self, robot: Robot, extra: Array, out: Array) -> None:
+    def residuals_into(self, robot: Robot, extra: Array, out: Array, *,
+                       workspace: ChainWorkspace | None = None) -> None:
         """The whitened residuals of :meth:`evaluate` written into ``out`` (M,).  The
-        default copies them; blocks that can compute them in place override it."""
+        default copies them; blocks that can compute them in place override it (with
+        the caller's working memory ``workspace`` when given, as in
+        :meth:`system_pieces`)."""
         out[...] = self.evaluate(robot, extra, jacobian=False)[0]
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
@@ -396,6 +404,10 @@ class StackedProblem:
     units: tuple[str, ...]
     roles: tuple[str, ...]
     slices: list[slice]          # slice of theta owned by each block
+    #: working memory of repeated evaluations, lent to the blocks and the chain (each
+    #: problem has its own: one problem is evaluated by one thread at a time)
+    workspace: ChainWorkspace = field(default_factory=ChainWorkspace, init=False,
+                                      repr=False, compare=False)
 
     @property
     def num_robot(self) -> int:
@@ -480,13 +492,11 @@ class StackedProblem:
         caller (e.g. a prior's rows), so that it need not be copied to append them.
         """
         robot, extras = self.split(theta)
-        if len(self.blocks) == 1 and not spare_rows:
-            return self.blocks[0].evaluate(robot, extras[0], jacobian=False)[0]
         out = np.empty(self.num_residuals() + spare_rows)
         start = 0
         for b, e in zip(self.blocks, extras, strict=True):
             m = b.num_residuals()
-            b.residuals_into(robot, e, out[start: start + m])
+            b.residuals_into(robot, e, out[start: start + m], workspace=self.workspace)
             start += m
         return out
 
@@ -577,12 +587,13 @@ class StackedProblem:
         T = np.zeros((p + 1, p + 1), order="F")
         nb = min(FOLD_BLOCK, p + 1)
         robot, extras = self.split(theta)
+        ws = self.workspace
         # the robot columns go straight into the fold buffer when they are a run of its
         # rows (a block may compute them there: no copy)
         handed: list[Array] = []
 
         def robot_rows(n: int) -> Array | None:
-            handed[:] = [scratch("compressed.B", (p + 1, n))[dst_r]]
+            handed[:] = [ws.array("compressed.B", (p + 1, n))[dst_r]]
             return handed[0]
 
         into = robot_rows if isinstance(dst_r, slice) and rob_src.size else None
@@ -598,7 +609,7 @@ class StackedProblem:
             idle[rob_dst] = idle[own_dst] = False
             idle = np.flatnonzero(idle)
             for sl, order, rc, Jr, Je in b.system_pieces(robot, e, rob_src, own_src, rows,
-                                                         robot_out=into):
+                                                         robot_out=into, workspace=ws):
                 if sl.stop > m:
                     raise KincalError(f"measurement block {b.name!r} returned more residuals "
                                       f"than its residual_owner() lists ({m})")
@@ -610,7 +621,7 @@ class StackedProblem:
                 if r is not None:
                     r[idx] = rc
                 rw2 += float(rc @ rc) if w is None else float((w[idx] * rc) @ rc)
-                B = scratch("compressed.B", (p + 1, n))
+                B = ws.array("compressed.B", (p + 1, n))
                 if idle.size:
                     B[idle] = 0.0
                 if rob_src.size and not (handed and Jr.shape == handed[0].shape

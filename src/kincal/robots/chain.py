@@ -44,10 +44,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
-from kincal.robots.scratch import scratch
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import FRAME_FIELDS, matrix_to_angles, rate_matrix
 
 Array = NDArray[np.float64]
+
+__all__ = ["ROTATIONS", "TRANSLATIONS", "KINDS", "ROLES", "ElementaryTransform", "Joint", "Robot",
+           "ChainBuilder", "ChainWorkspace", "elementary_matrix"]
 
 ROTATIONS = ("Rx", "Ry", "Rz")
 TRANSLATIONS = ("Tx", "Ty", "Tz")
@@ -109,6 +112,24 @@ class Robot:
     Build robots with the front ends (:func:`kincal.robots.dh.from_dh`,
     :func:`kincal.robots.urdf.load_urdf`, :func:`kincal.robots.files.load_robot`) or
     with :class:`ChainBuilder`.  ``robot.with_params(...)`` returns a new robot.
+
+    The kernel's interface (everything else in this module is private):
+
+    * :meth:`fk` ``T(q)``; :meth:`jacobian` the geometric Jacobian (base or tool frame);
+      :meth:`param_jacobian` ``d[p; phi]/d(param)``; :meth:`fk_with_jacobians` all three
+      from one pass; :meth:`point_jacobian` points on the tool and their parameter
+      Jacobian, configurations last (the fast path of the measurement blocks);
+    * :meth:`with_params` a robot with other parameter values (the compiled chain's
+      shape is shared, only the numbers are compiled again); :meth:`frame_parameters`
+      the 6 values of the base or tool frame in :data:`kincal.spatial.FRAME_FIELDS`
+      order; :meth:`params`, :meth:`param_index`, :meth:`param_indices`.
+
+    Like Pinocchio's ``Model`` and ``Data``, the robot is the immutable model (shareable
+    between threads) and the working memory is separate: the evaluation methods take
+    a :class:`~kincal.robots.workspace.ChainWorkspace` owned by a caller that evaluates
+    repeatedly (a fresh one per call by default).  A workspace is never shared between
+    threads.  The checks in ``tests/test_kernel_reference.py`` hold the tuned kernel to
+    a ten-line reference forward kinematics and parameter Jacobian.
 
     Attributes:
         name: display name.
@@ -297,34 +318,43 @@ class Robot:
         """The chain compiled for batched evaluation (built on first use, per robot)."""
         return _Plan(self, self._structure)
 
-    def fk(self, q: ArrayLike) -> Array:
-        """Forward kinematics ``T(q) = E_1 ... E_K``: (N, n) -> (N, 4, 4); (n,) -> (4, 4)."""
+    def fk(self, q: ArrayLike, workspace: ChainWorkspace | None = None) -> Array:
+        """Forward kinematics ``T(q) = E_1 ... E_K``: (N, n) -> (N, 4, 4); (n,) -> (4, 4).
+
+        ``workspace``: the caller's working memory when it evaluates repeatedly
+        (:class:`~kincal.robots.workspace.ChainWorkspace`); default a fresh one.
+        """
         q2, single = self._check_q(q)
-        T, _, _ = self._plan.evaluate(q2, joints=False, params=False)
+        T, _, _ = self._plan.evaluate(q2, False, False, workspace or ChainWorkspace())
         return T[0] if single else T
 
     def fk_with_jacobians(
-        self, q: ArrayLike, joints: bool = True, params: bool = True
+        self, q: ArrayLike, joints: bool = True, params: bool = True,
+        workspace: ChainWorkspace | None = None
     ) -> tuple[Array, Array | None, Array | None]:
         """Forward kinematics plus the geometric and parameter Jacobians in one pass.
 
         Returns ``(T, J, Jp)`` with ``T`` (N, 4, 4), ``J`` (N, 6, n) the geometric
         Jacobian in the base frame and ``Jp`` (N, 6, P) the parameter Jacobian
         ``d[p_end; phi_end] / d(param)`` in the base frame (rows vx vy vz wx wy wz;
-        columns in ``param_names`` order).  Always batched (N >= 1).
+        columns in ``param_names`` order).  Always batched (N >= 1).  ``J`` is None
+        unless ``joints``, ``Jp`` None unless ``params``.  ``workspace``: the caller's
+        working memory (:class:`~kincal.robots.workspace.ChainWorkspace`; default a
+        fresh one); the results never live in it.
         """
         q2, _ = self._check_q(q)
-        return self._plan.evaluate(q2, joints=joints, params=params)
+        return self._plan.evaluate(q2, joints, params, workspace or ChainWorkspace())
 
-    def jacobian(self, q: ArrayLike, frame: Literal["base", "tool"] = "base") -> Array:
+    def jacobian(self, q: ArrayLike, frame: Literal["base", "tool"] = "base",
+                 workspace: ChainWorkspace | None = None) -> Array:
         """Geometric Jacobian ``[v; omega] = J(q) q_dot``: (N, 6, n), or (6, n) for (n,).
 
         ``frame="base"``: velocity of the tool origin and angular velocity in the base
         frame.  ``frame="tool"``: the same two vectors expressed in the tool frame,
-        ``J_e = diag(R^T, R^T) J_0``.
+        ``J_e = diag(R^T, R^T) J_0``.  ``workspace`` as in :meth:`fk_with_jacobians`.
         """
         q2, single = self._check_q(q)
-        T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False)
+        T, J, _ = self.fk_with_jacobians(q2, joints=True, params=False, workspace=workspace)
         assert J is not None
         if frame == "tool":
             J = _to_tool_frame(T, J)
@@ -356,14 +386,16 @@ class Robot:
         JA[:, 3:, :] = np.linalg.solve(E, J[:, 3:, :])
         return JA[0] if single else JA
 
-    def param_jacobian(self, q: ArrayLike, names: Sequence[str] | None = None) -> Array:
+    def param_jacobian(self, q: ArrayLike, names: Sequence[str] | None = None,
+                       workspace: ChainWorkspace | None = None) -> Array:
         """Identification Jacobian ``d[p; phi]/d(param)`` in the base frame.
 
         (N, n) -> (N, 6, P) (or (6, P) for (n,)), columns for ``names`` (all
-        parameters by default), computed analytically from unit twists.
+        parameters by default), computed analytically from unit twists.  ``workspace``
+        as in :meth:`fk_with_jacobians`.
         """
         q2, single = self._check_q(q)
-        _, _, Jp = self.fk_with_jacobians(q2, joints=False, params=True)
+        _, _, Jp = self.fk_with_jacobians(q2, joints=False, params=True, workspace=workspace)
         assert Jp is not None
         if names is not None:
             Jp = Jp[:, :, self.param_indices(names)]
@@ -371,7 +403,8 @@ class Robot:
 
     def point_jacobian(self, q: ArrayLike, points: ArrayLike, left: ArrayLike | None = None,
                        columns: Sequence[int] | None = None, rotation: bool = False,
-                       out: tuple[Array, Array, Array | None] | None = None
+                       out: tuple[Array, Array, Array | None] | None = None,
+                       workspace: ChainWorkspace | None = None
                        ) -> tuple[Array, Array, Array | None]:
         """Points fixed on the tool and their parameter Jacobian, configurations last.
 
@@ -392,6 +425,10 @@ class Robot:
             out: arrays ``(Y, D, Rot)`` of the shapes below to write the results into
                 (``Rot`` None when not ``rotation``), e.g. working arrays reused from
                 call to call; default fresh ones.
+            workspace: the caller's working memory for the chain's temporaries
+                (:class:`~kincal.robots.workspace.ChainWorkspace`, reused between
+                calls; default a fresh one).  ``out`` may be arrays of the same
+                workspace under other names.
 
         Returns:
             ``Y`` (K, 3, N) [m], ``D`` (C, K, 3, N) with ``D[j, k, i, l] = d y_{l,k,i} /
@@ -404,7 +441,7 @@ class Robot:
         cols = tuple(range(self.num_params)) if columns is None else \
             tuple(int(c) for c in columns)
         return self._plan.points(q2, m, None if left is None else np.asarray(left, float),
-                                 cols, rotation, out)
+                                 cols, rotation, out, workspace or ChainWorkspace())
 
     def frames(self, q: ArrayLike) -> Array:
         """Frames after every joint (for plotting): (N, n + 2, 4, 4) base, joints, tool."""
@@ -768,8 +805,11 @@ class _Plan:
             V += self.offsets[:, None]
         return V
 
-    def evaluate(self, q: Array, joints: bool, params: bool
+    def evaluate(self, q: Array, joints: bool, params: bool, workspace: ChainWorkspace
                  ) -> tuple[Array, Array | None, Array | None]:
+        """Frames (N, 4, 4) and, when asked, the geometric (N, 6, n) and parameter
+        (N, 6, P) Jacobians of the configurations ``q`` (N, n), block by block; the
+        temporaries come from ``workspace``."""
         N = q.shape[0]
         record = joints or params
         # Jacobians are stored (6, columns, N) and returned as (N, 6, columns) views: every
@@ -784,7 +824,7 @@ class _Plan:
         L = self._block_size(N, joints, params)
         for start in range(0, N, L):
             sl = slice(start, min(N, start + L))
-            b = self._scratch(sl.stop - sl.start, record, params)
+            b = self._block_arrays(sl.stop - sl.start, record, params, workspace)
             F, S = self._sweep(q, sl, b, record)
             Tb = T[sl]
             for c in range(4):
@@ -800,11 +840,12 @@ class _Plan:
                 self._param_columns(F, S, b, Jp[:, :, sl])
         return out
 
-    def _scratch(self, L: int, record: bool, params: bool) -> dict[str, Array]:
-        """Working arrays for a block of ``L`` configurations, carved out of one
-        :func:`scratch` array (reused from call to call; never part of a result)."""
+    def _block_arrays(self, L: int, record: bool, params: bool, workspace: ChainWorkspace
+                      ) -> dict[str, Array]:
+        """Working arrays for a block of ``L`` configurations, carved out of one array of
+        ``workspace`` (reused from call to call; never part of a result)."""
         total, layout = _block_layout(L, self.J, self.R if params else 0, record)
-        flat = scratch("chain.block", (total,))
+        flat = workspace.array("chain.block", (total,))
         return {k: flat[o:o + n].reshape(shape) for k, o, n, shape in layout}
 
     def _trig(self, V: Array, b: dict[str, Array]) -> tuple[Array, Array]:
@@ -835,9 +876,9 @@ class _Plan:
         replaces the chain's constant prefix (e.g. with a frame in front of it).
         """
         L = sl.stop - sl.start
-        S = b.get("S")
-        cur = S[0] if record else b["X"]  # type: ignore[index]
-        spare = None if record else b["Y"]
+        S = b["S"] if record else None
+        cur = b["X"] if S is None else S[0]
+        spare = b["Y"] if S is None else cur      # the other frame buffer (not recording)
         np.copyto(cur, self.prefix if prefix is None else prefix)
         if self.J == 0:
             return cur, S
@@ -861,13 +902,13 @@ class _Plan:
             kind, matrix, shifts = self.posts[m]
             if kind == "identity" and (m == self.J - 1 or not record):
                 continue
-            nxt = S[m + 1] if record else cur  # type: ignore[index]
-            if kind == "matrix":                  # X <- X C: one matrix product
-                if not record:
+            nxt = cur if S is None else S[m + 1]
+            if matrix is not None:                # X <- X C: one matrix product
+                if S is None:
                     nxt, spare = spare, cur
                 np.matmul(matrix, cur.reshape(4, 3 * L), out=nxt.reshape(4, 3 * L))
             else:
-                if record:
+                if S is not None:
                     np.copyto(nxt, cur)
                 for i, v in shifts:               # translation only: p <- p + v x_i
                     np.multiply(nxt[i], v, out=t1)
@@ -897,8 +938,8 @@ class _Plan:
         return sel
 
     def points(self, q: Array, points: Array, left: Array | None, columns: tuple[int, ...],
-               rotation: bool, out: tuple[Array, Array, Array | None] | None = None
-               ) -> tuple[Array, Array, Array | None]:
+               rotation: bool, out: tuple[Array, Array, Array | None] | None,
+               workspace: ChainWorkspace) -> tuple[Array, Array, Array | None]:
         """Tool points, their parameter Jacobian and the tool rotation, configurations last.
 
         For the points ``m_k`` (K, 3) in the tool frame and a constant frame ``H`` in
@@ -958,7 +999,7 @@ class _Plan:
         for start in range(0, N, L):
             sl = slice(start, min(N, start + L))
             Lb = sl.stop - sl.start
-            b = self._scratch(Lb, record, False)
+            b = self._block_arrays(Lb, record, False, workspace)
             F, S = self._sweep(q, sl, b, record, prefix)
             Yb = Y[:, :, sl]
             for k in range(K):                                   # y_k = p + R m_k
@@ -975,12 +1016,13 @@ class _Plan:
                 Db[...] = 0.0
             if sel.n == 0:
                 continue
-            Z = scratch("chain.Z", (6, K, 3, Lb))
-            d = scratch("chain.dY", (K, 3, Lb))
-            tmp = scratch("chain.tZ", (3, K, Lb))
+            assert S is not None                                 # recorded: C > 0
+            Z = workspace.array("chain.Z", (6, K, 3, Lb))
+            d = workspace.array("chain.dY", (K, 3, Lb))
+            tmp = workspace.array("chain.tZ", (3, K, Lb))
             # all markers at once: rows written in place (one block) or into a buffer
             one_block = Lb == N and sel.direct
-            base = Dout if one_block else scratch("chain.out", (self.R, K, 3, Lb))
+            base = Dout if one_block else workspace.array("chain.out", (self.R, K, 3, Lb))
             if sel.pre:
                 for k in range(K):
                     rows_k = base[: sel.pre, k]
@@ -1063,7 +1105,7 @@ class _Plan:
         if self.rows_unique:
             out[:, self.row_param] = TW
         else:
-            np.add.at(out, (slice(None), self.row_param), TW)
+            np.add.at(out.transpose(1, 0, 2), self.row_param, TW.transpose(1, 0, 2))
 
 
 # ---------------------------------------------------------------------------

@@ -76,8 +76,9 @@ class ControllerMap:
     def to_axes(self, q: ArrayLike) -> Array:
         """Controller axis values (its unit) from model joints [rad], (..., n)."""
         qq = np.asarray(q, dtype=float) - self.offset
-        return np.linalg.solve(self.matrix, qq.T).T / self.scale if qq.ndim > 1 else \
-            np.linalg.solve(self.matrix, qq) / self.scale
+        a = (np.linalg.solve(self.matrix, qq.T).T if qq.ndim > 1
+             else np.linalg.solve(self.matrix, qq))
+        return np.asarray(a / self.scale, dtype=np.float64)
 
     @property
     def is_identity(self) -> bool:

@@ -50,7 +50,7 @@ import os
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -61,6 +61,8 @@ from kincal.robots.chain import KINDS, ROLES, ChainBuilder, Robot
 from kincal.robots.dh import DHLink, dh_links, from_dh
 from kincal.spatial import FRAME_FIELDS
 from kincal.units import UNITS
+
+_JOINT_KINDS = ("revolute", "prismatic")
 
 #: Units a robot file may state (``units:``, ``joint_units:``), factors from the one
 #: table of :data:`kincal.units.UNITS`.
@@ -121,6 +123,11 @@ class FieldReader:
         if value not in options:
             raise self.fail(field, f"must be one of {', '.join(options)}; got {value!r}")
         return str(value)
+
+    def joint_kind(self, value: Any, field: str) -> Literal["revolute", "prismatic"]:
+        """``"revolute"`` or ``"prismatic"``; any other value is an error naming ``field``."""
+        return "prismatic" if self.choice(value, field, _JOINT_KINDS) == "prismatic" \
+            else "revolute"
 
     def limits(self, value: Any, field: str, scale: float) -> tuple[float, float]:
         if value is None:
@@ -228,7 +235,7 @@ def _dh_robot(r: FieldReader, data: Mapping[str, Any], name: str, conv: str) -> 
         extra = sorted(map(str, set(row) - allowed))
         if extra:
             raise r.fail(f"{f}.{extra[0]}", f"is not a DH field (use {', '.join(sorted(allowed))})")
-        kind = r.choice(r.get(row, "type", f"{f}."), f"{f}.type", ("revolute", "prismatic"))
+        kind = r.joint_kind(r.get(row, "type", f"{f}."), f"{f}.type")
         beta = None
         if "beta" in row:
             if conv != "hayati":
@@ -245,7 +252,7 @@ def _dh_robot(r: FieldReader, data: Mapping[str, Any], name: str, conv: str) -> 
             joint=kind, beta=beta, name=jname, lower=lo, upper=hi))
     names = [L.name for L in links]
     if len(set(names)) != len(names):
-        dup = sorted({n for n in names if names.count(n) > 1})
+        dup = sorted({str(n) for n in names if names.count(n) > 1})
         raise r.fail("joints", f"has duplicate joint names {dup}")
     return from_dh(links, "modified" if conv == "modified_dh" else "standard", name,
                    _frame(r, data, "base", ls, as_), _frame(r, data, "tool", ls, as_),
@@ -265,12 +272,12 @@ def _ets_robot(r: FieldReader, data: Mapping[str, Any], name: str) -> Robot:
         f = f"joints[{i}]"
         row = r.mapping(row, f)
         jn = r.string(r.get(row, "name", f"{f}."), f"{f}.name")
-        kind = r.choice(r.get(row, "type", f"{f}."), f"{f}.type", ("revolute", "prismatic"))
-        lo, hi = r.limits(row.get("limits"), f"{f}.limits", as_ if kind == "revolute" else ls)
+        jkind = r.joint_kind(r.get(row, "type", f"{f}."), f"{f}.type")
+        lo, hi = r.limits(row.get("limits"), f"{f}.limits", as_ if jkind == "revolute" else ls)
         if jn in index:
             raise r.fail(f"{f}.name", f"repeats joint {jn!r}")
-        index[jn] = b.joint(jn, kind, lo, hi)
-        kinds[jn] = kind
+        index[jn] = b.joint(jn, jkind, lo, hi)
+        kinds[jn] = jkind
     chain = r.get(data, "chain", "")
     if not isinstance(chain, list) or not chain:
         raise r.fail("chain", "must be a non-empty list of elementary transforms")

@@ -51,7 +51,8 @@ def element_span(masked: str, tag: str, name: str) -> tuple[int, int, int]:
     raise RobotFileError(f"no <{tag} name={name!r}> in the file")
 
 
-def format_floats(old: str | None, values: Sequence[float], shortest: str) -> str:
+def format_floats(old: str | None, values: Sequence[float] | NDArray[np.float64],
+                  shortest: str) -> str:
     """The attribute value for ``values``: numbers equal to the old ones keep their text."""
     parts = old.split() if old is not None else []
     if len(parts) != len(values):

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import KincalError
 from kincal.measure.base import CHUNK_ROWS, BlockWrapper, ParamSpec
+from kincal.robots.workspace import ChainWorkspace
 
 Array = NDArray[np.float64]
 
@@ -88,15 +89,17 @@ class ToolPointBlock(BlockWrapper):
 
     def system_pieces(self, robot: Any, extra: Array, robot_columns: NDArray[np.intp],
                       own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS, *,
-                      robot_out: Callable[[int], Array | None] | None = None
+                      robot_out: Callable[[int], Array | None] | None = None,
+                      workspace: ChainWorkspace | None = None
                       ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
         """The inner block's pieces (its fast path), own columns mapped past the marker."""
         own = np.flatnonzero(self._keep)[np.asarray(own_columns, dtype=np.intp)]
         yield from self.inner.system_pieces(robot, self._full(extra), robot_columns, own, rows,
-                                            robot_out=robot_out)
+                                            robot_out=robot_out, workspace=workspace)
 
-    def residuals_into(self, robot: Any, extra: Array, out: Array) -> None:
-        self.inner.residuals_into(robot, self._full(extra), out)
+    def residuals_into(self, robot: Any, extra: Array, out: Array, *,
+                       workspace: ChainWorkspace | None = None) -> None:
+        self.inner.residuals_into(robot, self._full(extra), out, workspace=workspace)
 
     def residual_owner(self) -> NDArray[np.intp]:
         owner: NDArray[np.intp] = self.inner.residual_owner()

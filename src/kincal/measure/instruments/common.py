@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.measure.base import ParamSpec, Triangle, configuration_slices
 from kincal.robots.chain import Robot
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import FRAME_FIELDS, frame_from_matrix, homogeneous, rotx, roty, rotz, skew
 
 Array = NDArray[np.float64]
@@ -364,3 +365,16 @@ def check_configurations(q: ArrayLike, name: str) -> Array:
         raise KincalError(f"measurements {name!r}: joint reading in row {row} is not finite")
     return q
 
+
+def rotate_twists(G: Array, Jp: Array, ws: ChainWorkspace) -> tuple[Array, Array]:
+    """``G Jv`` and ``G Jw`` (3, P, n) for the chain's parameter Jacobian ``Jp`` (n, 6, P).
+
+    Computed in the chain's storage order (component, parameter, configuration): one
+    (3, 3) x (3, P n) product each.
+    """
+    n, _, P = Jp.shape
+    J6 = Jp.transpose(1, 2, 0)                                    # (6, P, n)
+    V, W = ws.array("twists.V", (3, P, n)), ws.array("twists.W", (3, P, n))
+    np.matmul(G, J6[:3].reshape(3, -1), out=V.reshape(3, -1))
+    np.matmul(G, J6[3:].reshape(3, -1), out=W.reshape(3, -1))
+    return V, W

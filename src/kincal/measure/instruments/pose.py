@@ -45,19 +45,15 @@ from kincal.measure.instruments.common import (
     check_configurations,
     inverse_left_jacobian_so3,
     project_so3,
+    rotate_twists,
     sigma_array,
 )
 from kincal.measure.instruments.csvio import one_block
 from kincal.measure.instruments.placement import truth_values
-
-# _Scratch and _rotate_twists: the per-evaluation working arrays and the twist rotation
-# both tracker models use (kept beside the position model, whose kernel owns them)
 from kincal.measure.instruments.position import (
     DEFAULT_SIGMA,
     TRACKER_OPTIONS,
     UNNAMED,
-    _rotate_twists,
-    _Scratch,
     check_positive,
     file_units,
     instrument_matrix,
@@ -68,6 +64,7 @@ from kincal.measure.instruments.position import (
 from kincal.measure.registry import Instrument, register
 from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import (
     exp_so3,
     frame_from_matrix,
@@ -177,7 +174,7 @@ class PoseMeasurement(MeasurementModel):
             return np.concatenate([dy * wp[:, None], e * wo[:, None]], 1).reshape(-1), None, None
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 12))
-        ws, frames = _Scratch(), self._frames(extra)
+        ws, frames = ChainWorkspace(), self._frames(extra)
         for cs in configuration_slices(self.N, 6, CHUNK_ROWS):
             rs = slice(6 * cs.start, 6 * cs.stop)
             self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
@@ -187,7 +184,7 @@ class PoseMeasurement(MeasurementModel):
                         ) -> Iterator[tuple[slice, Array, Array, Array]]:
         extra = np.asarray(extra, dtype=float)
         P = robot.num_params
-        ws, frames = _Scratch(), self._frames(extra)
+        ws, frames = ChainWorkspace(), self._frames(extra)
         for cs in configuration_slices(self.N, 6, rows):
             n = 6 * (cs.stop - cs.start)
             r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, 12))
@@ -195,7 +192,7 @@ class PoseMeasurement(MeasurementModel):
             yield slice(6 * cs.start, 6 * cs.stop), r, Jr, Je
 
     def _fill(self, robot: Robot, frames: tuple[Array, Array, Array, Array], cs: slice,
-              r: Array, Jr: Array, Je: Array, ws: _Scratch) -> None:
+              r: Array, Jr: Array, Je: Array, ws: ChainWorkspace) -> None:
         """Residuals and Jacobians of configurations ``cs`` into ``r`` (6n,), ``Jr``
         (6n, P), ``Je`` (6n, 12) (rows: position x y z, then rotation, per pose).
 
@@ -210,7 +207,7 @@ class PoseMeasurement(MeasurementModel):
 
         position rows divided by ``sigma_position``, rotation rows by ``sigma_orientation``.
         """
-        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True)
+        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True, workspace=ws)
         n, P = T.shape[0], robot.num_params
         G = frames[0][:3, :3].T                                   # R_I^T
         dy, e, a, y = self._raw(T, frames, cs)
@@ -220,11 +217,11 @@ class PoseMeasurement(MeasurementModel):
         np.multiply(e, wo[:, None], out=rr[:, 3:])
         L = inverse_left_jacobian_so3(e)                           # (n, 3, 3)
         assert Jp is not None                                      # params=True
-        V, W = _rotate_twists(G, Jp, ws)                           # R_I^T Jv, R_I^T Jw
+        V, W = rotate_twists(G, Jp, ws)                           # R_I^T Jv, R_I^T Jw
         ar = np.ascontiguousarray((a @ G.T).T)                    # a' (3, n)
         Lc = np.ascontiguousarray(L.transpose(1, 2, 0))           # (3, 3, n)
         out = Jr.reshape(n, 6, P)
-        buf, tmp = ws.get("buf", (P, n)), ws.get("tmp", (P, n))
+        buf, tmp = ws.array("fill.buf", (P, n)), ws.array("fill.tmp", (P, n))
         for i in range(3):
             j, l = (i + 1) % 3, (i + 2) % 3
             np.multiply(W[j], ar[l], out=buf)

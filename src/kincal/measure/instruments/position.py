@@ -72,6 +72,7 @@ from kincal.measure.files import (
 from kincal.measure.instruments.common import (
     check_configurations,
     project_so3,
+    rotate_twists,
     sigma_array,
 )
 from kincal.measure.instruments.csvio import one_block
@@ -79,7 +80,7 @@ from kincal.measure.instruments.placement import truth_values
 from kincal.measure.registry import Instrument, register
 from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
-from kincal.robots.scratch import scratch
+from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import frame_from_matrix, matrix_from_frame
 
 #: Configurations a position block's closed-form start uses at most (evenly spaced).
@@ -99,39 +100,6 @@ def _marker_order(L: int, K: int) -> NDArray[np.intp]:
     (marker, coordinate, configuration): ``3 K l + 3 k + i`` at position ``(k, i, l)``."""
     return (np.arange(3 * K, dtype=np.intp)[:, None]
             + 3 * K * np.arange(L, dtype=np.intp)[None, :]).reshape(-1)
-
-
-class _Scratch:
-    """Working arrays reused by the pieces of one evaluation.
-
-    A fresh array of a few hundred kB per piece costs page faults comparable to the
-    arithmetic on it; the pieces of one evaluation share these instead.
-    """
-
-    def __init__(self) -> None:
-        self._flat: dict[str, Array] = {}
-
-    def get(self, name: str, shape: tuple[int, ...]) -> Array:
-        """A C-contiguous array of ``shape`` (uninitialised), named ``name``."""
-        size = int(np.prod(shape))
-        b = self._flat.get(name)
-        if b is None or b.size < size:
-            b = self._flat[name] = np.empty(size)
-        return b[:size].reshape(shape)
-
-
-def _rotate_twists(G: Array, Jp: Array, ws: _Scratch) -> tuple[Array, Array]:
-    """``G Jv`` and ``G Jw`` (3, P, n) for the chain's parameter Jacobian ``Jp`` (n, 6, P).
-
-    Computed in the chain's storage order (component, parameter, configuration): one
-    (3, 3) x (3, P n) product each.
-    """
-    n, _, P = Jp.shape
-    J6 = Jp.transpose(1, 2, 0)                                    # (6, P, n)
-    V, W = ws.get("V", (3, P, n)), ws.get("W", (3, P, n))
-    np.matmul(G, J6[:3].reshape(3, -1), out=V.reshape(3, -1))
-    np.matmul(G, J6[3:].reshape(3, -1), out=W.reshape(3, -1))
-    return V, W
 
 
 # --------------------------------------------------------------------------- position
@@ -215,18 +183,20 @@ class PositionMeasurement(MeasurementModel):
     def num_residuals(self) -> int:
         return int(3 * self.K * self.N)
 
-    def predict(self, robot: Robot, extra: ArrayLike, out: Array | None = None) -> Array:
+    def predict(self, robot: Robot, extra: ArrayLike, out: Array | None = None, *,
+                workspace: ChainWorkspace | None = None) -> Array:
         """Predicted observations ``y_pred`` (N, K, 3) [m] (in pieces of configurations;
-        into ``out`` when given)."""
+        into ``out`` when given; temporaries from the caller's ``workspace`` when given)."""
         extra = np.asarray(extra, dtype=float)
         H, m = self._left(extra), extra[6:].reshape(self.K, 3)
         if out is None:
             out = np.empty((self.N, self.K, 3))
+        ws = ChainWorkspace() if workspace is None else workspace
         for cs in configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
             L = cs.stop - cs.start
             Y, _, _ = robot.point_jacobian(self.q[cs], m, H, (), out=(
-                scratch("predict.Y", (self.K, 3, L)), scratch("predict.D", (0, self.K, 3, L)),
-                None))
+                ws.array("predict.Y", (self.K, 3, L)), ws.array("predict.D", (0, self.K, 3, L)),
+                None), workspace=ws)
             out[cs] = Y.transpose(2, 0, 1)
         return out
 
@@ -241,7 +211,8 @@ class PositionMeasurement(MeasurementModel):
 
     def system_pieces(self, robot: Robot, extra: Array, robot_columns: NDArray[np.intp],
                       own_columns: NDArray[np.intp], rows: int = CHUNK_ROWS, *,
-                      robot_out: Callable[[int], Array | None] | None = None
+                      robot_out: Callable[[int], Array | None] | None = None,
+                      workspace: ChainWorkspace | None = None
                       ) -> Iterator[tuple[slice, NDArray[np.intp] | None, Array, Array, Array]]:
         """The selected columns straight from the chain's point Jacobian.
 
@@ -251,7 +222,8 @@ class PositionMeasurement(MeasurementModel):
         last: a piece's rows are ordered (marker, coordinate, configuration).  Block
         columns as in :meth:`_fill`: ``-R_I^T`` (translation), ``y x E'_c`` (rotation),
         ``R_I^T R_e`` (marker); every row divided by its ``sigma``.  The robot columns
-        are computed into ``robot_out``'s array when it gives one.
+        are computed into ``robot_out``'s array when it gives one; the pieces' working
+        arrays come from ``workspace`` (the caller's; default one for this call).
         """
         extra = np.asarray(extra, dtype=float)
         G, _, m, Ep = self._frames(extra)
@@ -259,24 +231,26 @@ class PositionMeasurement(MeasurementModel):
         K, step = self.K, 3 * self.K
         cols = tuple(int(c) for c in robot_columns)
         own = [int(c) for c in own_columns]
+        ws = ChainWorkspace() if workspace is None else workspace
         for cs in configuration_slices(self.N, step, rows):
             L = cs.stop - cs.start
-            # working arrays (scratch): each piece is folded before the next one is made
+            # working arrays (ws): each piece is folded before the next one is made
             into = None if robot_out is None else robot_out(step * L)
             Y, D, Rot = robot.point_jacobian(
                 self.q[cs], m, H, cols, rotation=True,
-                out=(scratch("pieces.Y", (K, 3, L)),
-                     scratch("pieces.D", (len(cols), K, 3, L)) if into is None
-                     else into.reshape(len(cols), K, 3, L), scratch("pieces.Rot", (3, 3, L))))
+                out=(ws.array("pieces.Y", (K, 3, L)),
+                     ws.array("pieces.D", (len(cols), K, 3, L)) if into is None
+                     else into.reshape(len(cols), K, 3, L), ws.array("pieces.Rot", (3, 3, L))),
+                workspace=ws)
             wT = (1.0 / self.sigma[cs]).T                         # (K, L)
             y = None
             if any(3 <= c < 6 for c in own):                      # predictions
-                y = scratch("pieces.y", (K, 3, L))
+                y = ws.array("pieces.y", (K, 3, L))
                 np.copyto(y, Y)
             Y -= self._y[cs].transpose(1, 2, 0)
             Y *= wT[:, None, :]                                   # whitened residuals
             D *= wT[None, :, None, :]
-            Je = scratch("pieces.Je", (len(own), K, 3, L))
+            Je = ws.array("pieces.Je", (len(own), K, 3, L))
             for j, c in enumerate(own):
                 if c < 3:                                         # -R_I^T
                     np.multiply(-G[:, c][None, :, None], wT[:, None, :], out=Je[j])
@@ -319,16 +293,17 @@ class PositionMeasurement(MeasurementModel):
             return r, None, None
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 6 + 3 * self.K))
-        ws, frames = _Scratch(), self._frames(extra)
+        ws, frames = ChainWorkspace(), self._frames(extra)
         for cs in configuration_slices(self.N, 3 * self.K, CHUNK_ROWS):
             rs = slice(3 * self.K * cs.start, 3 * self.K * cs.stop)
             self._fill(robot, frames, cs, r[rs], Jr[rs], Je[rs], ws)
         return r, Jr, Je
 
-    def residuals_into(self, robot: Robot, extra: Array, out: Array) -> None:
+    def residuals_into(self, robot: Robot, extra: Array, out: Array, *,
+                       workspace: ChainWorkspace | None = None) -> None:
         """The whitened residuals computed in ``out`` (M,) itself."""
         y = out.reshape(self.N, self.K, 3)
-        self.predict(robot, np.asarray(extra, dtype=float), y)
+        self.predict(robot, np.asarray(extra, dtype=float), y, workspace=workspace)
         y -= self._y
         y /= self.sigma[:, :, None]
 
@@ -336,7 +311,7 @@ class PositionMeasurement(MeasurementModel):
                         ) -> Iterator[tuple[slice, Array, Array, Array]]:
         extra = np.asarray(extra, dtype=float)
         step, P, E = 3 * self.K, robot.num_params, 6 + 3 * self.K
-        ws, frames = _Scratch(), self._frames(extra)
+        ws, frames = ChainWorkspace(), self._frames(extra)
         for cs in configuration_slices(self.N, step, rows):
             n = (cs.stop - cs.start) * step
             r, Jr, Je = np.empty(n), np.empty((n, P)), np.empty((n, E))
@@ -344,7 +319,7 @@ class PositionMeasurement(MeasurementModel):
             yield slice(step * cs.start, step * cs.stop), r, Jr, Je
 
     def _fill(self, robot: Robot, frames: tuple[Array, Array, Array, Array], cs: slice,
-              r: Array, Jr: Array, Je: Array, ws: _Scratch) -> None:
+              r: Array, Jr: Array, Je: Array, ws: ChainWorkspace) -> None:
         """Residuals and Jacobians of configurations ``cs`` into ``r`` (3nK,), ``Jr``
         (3nK, P), ``Je`` (3nK, 6 + 3K) (rows ordered configuration, marker, coordinate).
 
@@ -362,7 +337,7 @@ class PositionMeasurement(MeasurementModel):
         every row divided by its ``sigma``.
         """
         K = self.K
-        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True)
+        T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True, workspace=ws)
         n, P = T.shape[0], robot.num_params
         G, Ep = frames[0], frames[3]                              # R_I^T, R_I^T E
         a, y = self._points(T, frames)
@@ -370,10 +345,10 @@ class PositionMeasurement(MeasurementModel):
         np.multiply(y - self._y[cs], w[:, :, None], out=r.reshape(n, K, 3))
         # robot columns: computed as (P, n) planes, written transposed into the rows
         assert Jp is not None                                     # params=True
-        V, W = _rotate_twists(G, Jp, ws)
+        V, W = rotate_twists(G, Jp, ws)
         ar = np.ascontiguousarray((a @ G.T).transpose(1, 2, 0))  # a' (K, 3, n)
         out = Jr.reshape(n, K, 3, P)
-        buf, tmp = ws.get("buf", (P, n)), ws.get("tmp", (P, n))
+        buf, tmp = ws.array("fill.buf", (P, n)), ws.array("fill.tmp", (P, n))
         for k in range(K):
             for i in range(3):
                 j, l = (i + 1) % 3, (i + 2) % 3
@@ -438,6 +413,7 @@ class PositionMeasurement(MeasurementModel):
         S_y, S_pe = np.zeros((K, 3)), np.zeros((K, 3))
         S_R = np.zeros((K, 3, 3))
         S_ype, S_yR = np.zeros((K, 3, 3)), np.zeros((K, 3, 3, 3))
+        ws = ChainWorkspace()
         for cs in configuration_slices(len(q_all), 3 * K, CHUNK_ROWS):
             T = robot.fk(q_all[cs])
             Re, pe = T[:, :3, :3], T[:, :3, 3]
@@ -446,7 +422,7 @@ class PositionMeasurement(MeasurementModel):
             ReT = Re.transpose(2, 0, 1)                            # ReT[c, :, a] = Re[:, a, c]
             # the systems' columns as rows (n, K, 3) of B (no transposed copy to fold):
             # step 1: [vec_col(A); t; m_1 .. m_K | p_e]
-            B = scratch("initial_guess.B", (p1 + 1, n, K, 3))
+            B = ws.array("initial_guess.B", (p1 + 1, n, K, 3))
             B[...] = 0.0
             for a in range(3):
                 for b in range(3):
