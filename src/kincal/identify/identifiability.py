@@ -317,7 +317,8 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
     chosen, Q, Rf = _greedy_base(Js, zero, order, tol)
     r = len(chosen)
     chosen_set = set(chosen)
-    Rinv: Array = np.linalg.solve(Rf, np.eye(r)) if chosen else np.zeros((0, 0))
+    Rinv = (np.asarray(np.linalg.solve(Rf, np.eye(r)), dtype=np.float64) if chosen
+            else np.zeros((0, 0)))
     others = [i for i in range(P) if not zero[i] and i not in chosen_set]
     dependent, combinations, residual = _dependencies(Js, names, chosen, others, Q, Rinv, col)
     if chosen:
