@@ -455,6 +455,16 @@ def _wrapped_offsets(prob: StackedProblem, theta: Array) -> Array:
     return theta
 
 
+def _check_options(method: str, loss: str, noise_scale: float | None) -> None:
+    """Raise :class:`KincalError` for an unknown method or loss or a bad noise scale."""
+    if method not in METHODS:
+        raise KincalError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
+    if loss not in LOSSES:
+        raise KincalError(f"unknown loss {loss!r}; use one of {', '.join(LOSSES)}")
+    if noise_scale is not None and not (np.isfinite(noise_scale) and noise_scale > 0):
+        raise KincalError(f"noise_scale must be positive and finite, got {noise_scale!r}")
+
+
 def _start(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
            prior: Mapping[str, float] | str | None, initial: dict[str, float] | None
            ) -> tuple[StackedProblem, Array, Array, dict[int, float]]:
@@ -546,12 +556,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         from its start without them (module docstring, "Identifiability at the
         solution").
     """
-    if method not in METHODS:
-        raise KincalError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
-    if loss not in LOSSES:
-        raise KincalError(f"unknown loss {loss!r}; use one of {', '.join(LOSSES)}")
-    if noise_scale is not None and not (np.isfinite(noise_scale) and noise_scale > 0):
-        raise KincalError(f"noise_scale must be positive and finite, got {noise_scale!r}")
+    _check_options(method, loss, noise_scale)
     prob, theta0, center, prior_s = _start(robot, blocks, prior, initial)
     estimate_noise = bool(prior_s) and noise_scale is None and not trust_sigma
     settings = StageSettings(method, RobustLoss.of(prob, loss, loss_scale), max_iter, tol_step,
