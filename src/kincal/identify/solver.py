@@ -9,6 +9,15 @@ over the *estimated* parameters (the identifiable base set of the candidates; ev
 other parameter is held at its initial value: the robot's nominal value, or the
 block's closed-form initial guess).
 
+Where the parts live: one stage's iteration in :mod:`~kincal.identify.stage`, one module
+per method (:mod:`~kincal.identify.gauss_newton`, :mod:`~kincal.identify.levenberg_marquardt`),
+the reuse of triangles and residuals in :mod:`~kincal.identify.linearisation`, the stopping
+rules in :mod:`~kincal.identify.stopping` and the stage statuses in
+:mod:`~kincal.identify.status`, robust weights in :mod:`~kincal.identify.robust`, prior rows
+and the noise scale in :mod:`~kincal.identify.prior`, the check at the solution in
+:mod:`~kincal.identify.reselection`, the result in :mod:`~kincal.identify.result`; this
+module orchestrates them.
+
 Methods (each step solves the linearised problem with the SVD of ``J D^-1``, ``D`` the
 column norms, so the step is the same in any units; ``J`` is never formed: the weighted
 problem is compressed piece by piece to its QR triangle ``[W^1/2 J | W^1/2 r] = Q [[R, z],
