@@ -173,3 +173,17 @@ def test_counts_from_many_measurements(hayati, pose, expected):
     rep = analyze(J, names, roles=roles)
     assert rep.rank == expected
     assert rep.dependent["d[3]"] == ["d[2]"]
+
+
+def test_unscaled_analysis_reports_dependent_columns() -> None:
+    """``scale=False`` with both a base set and a dependent column: the coefficients come
+    in parameter units (the columns divided by one common norm, so it cancels)."""
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(2, 20))
+    J = np.column_stack([a, b, 2.0 * a - 0.5 * b])
+    rep = analyze(J, ["a", "b", "c"], scale=False)
+    assert rep.identifiable == ["a", "b"]
+    assert rep.combinations["c"] == pytest.approx({"a": 2.0, "b": -0.5})
+    scaled = analyze(J, ["a", "b", "c"])
+    assert rep.combinations["c"] == pytest.approx(scaled.combinations["c"])
+    assert rep.cond_unscaled == pytest.approx(scaled.cond_unscaled)

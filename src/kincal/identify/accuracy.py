@@ -56,7 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 from kincal.errors import KincalError
 from kincal.identify.solver import CalibrationResult
 from kincal.identify.uncertainty import propagated_variance
-from kincal.measure.base import HasProbe
+from kincal.measure.base import HasProbe, MeasurementModel
 from kincal.measure.instruments.pose import PoseMeasurement
 from kincal.measure.instruments.position import PositionMeasurement
 from kincal.robots.chain import Robot
@@ -83,6 +83,23 @@ def _position_block(result: CalibrationResult, block: str | None) -> Any:
     return b
 
 
+def _fk_and_param_jacobian(robot: Robot, q: Array) -> tuple[Array, Array]:
+    """``(T, Jp)``: the poses (N, 4, 4) and the parameter Jacobian (N, 6, P) at ``q``."""
+    T, _, Jp = robot.fk_with_jacobians(q, joints=False, params=True)
+    if Jp is None:
+        raise KincalError(f"robot {robot.name!r} returned no parameter Jacobian")
+    return T, Jp
+
+
+def _jacobians_of(block: MeasurementModel, robot: Robot, extra: Array
+                  ) -> tuple[Array, Array, Array]:
+    """``(r, J_robot, J_block)`` of ``block`` at the robot and its parameters ``extra``."""
+    r, Jr, Je = block.evaluate(robot, extra, jacobian=True)
+    if Jr is None or Je is None:
+        raise KincalError(f"block {block.name!r} returned no Jacobian")
+    return r, Jr, Je
+
+
 def _position_jacobian(result: CalibrationResult, q_eval: ArrayLike,
                        point: ArrayLike | None, block: str | None) -> Array:
     """d(predicted position)/d(estimated params): (M, 3, p)."""
@@ -92,7 +109,7 @@ def _position_jacobian(result: CalibrationResult, q_eval: ArrayLike,
     robot = result.robot
     if point is not None:
         m = np.asarray(point, dtype=float).reshape(3)
-        T, _, Jp = robot.fk_with_jacobians(q, joints=False, params=True)
+        T, Jp = _fk_and_param_jacobian(robot, q)
         a = T[:, :3, :3] @ m
         G = Jp[:, :3, :] + np.cross(Jp[:, 3:, :], a[:, :, None], axis=1)
         full = np.zeros((len(q), 3, len(prob.names)))
@@ -101,6 +118,7 @@ def _position_jacobian(result: CalibrationResult, q_eval: ArrayLike,
     b = _position_block(result, block)
     sl = prob.block_slice(b.name)
     extra = result.theta[sl]
+    dummy: MeasurementModel
     if isinstance(b, PositionMeasurement):
         dummy = PositionMeasurement(q, np.zeros((len(q), b.K, 3)) if b.K > 1
                                     else np.zeros((len(q), 3)), 1.0, b.name, b.K)
@@ -108,7 +126,7 @@ def _position_jacobian(result: CalibrationResult, q_eval: ArrayLike,
     else:
         dummy = PoseMeasurement(q, np.tile(np.eye(4), (len(q), 1, 1)), 1.0, 1.0, b.name)
         rows = 6
-    _, Jr, Je = dummy.evaluate(robot, extra, jacobian=True)
+    _, Jr, Je = _jacobians_of(dummy, robot, extra)
     full = np.zeros((Jr.shape[0], len(prob.names)))
     full[:, : prob.num_robot] = Jr
     full[:, sl] = Je
@@ -179,7 +197,8 @@ class TrainingRegion:
     def outside_joint_ranges(self, q: ArrayLike) -> NDArray[np.bool_]:
         """(N,) True where some joint lies outside its training range."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        return np.any((q < self.joint_min - 1e-9) | (q > self.joint_max + 1e-9), axis=1)
+        outside = (q < self.joint_min - 1e-9) | (q > self.joint_max + 1e-9)
+        return np.asarray(np.any(outside, axis=1), dtype=np.bool_)
 
     def outside_hull(self, p: ArrayLike) -> NDArray[np.bool_]:
         """(N,) True where a point lies outside the training hull (False without one)."""
@@ -459,8 +478,9 @@ def accuracy_model(result: CalibrationResult, point: ArrayLike | None = None) ->
         for b, kb in enumerate(pk):
             if kb is not None:
                 Cpp[a, b] = C[ka, kb]
-    qs = [np.asarray(b.q, dtype=float) for b in result.problem.blocks
-          if np.ndim(getattr(b, "q", None)) == 2 and np.shape(b.q)[1] == robot.n]
+    readings = [getattr(b, "q", None) for b in result.problem.blocks]
+    qs = [np.asarray(bq, dtype=float) for bq in readings
+          if bq is not None and np.ndim(bq) == 2 and np.shape(bq)[1] == robot.n]
     q = np.vstack(qs) if qs else np.zeros((0, robot.n))
     model = AccuracyModel(tuple(rob), C[np.ix_(ri, ri)] if ri else np.zeros((0, 0)), m,
                           tuple(names[i] if i is not None and pk[k] is not None else None
@@ -527,7 +547,7 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
                           f"{missing[0]!r} of the accuracy model")
     known = point is not None
     m = np.asarray(point, dtype=float).reshape(3) if known else model.point
-    T, _, Jp = robot.fk_with_jacobians(q, joints=False, params=True)
+    T, Jp = _fk_and_param_jacobian(robot, q)
     J = Jp[:, :, robot.param_indices(list(model.parameters))] if model.parameters else \
         np.zeros((len(q), 6, 0))
     R = T[:, :3, :3]
@@ -584,7 +604,7 @@ def _instrument_std(inst: Mapping[str, Any], robot: Robot, q: Array) -> tuple[Ar
     name = str(inst["block"])
     block = PositionMeasurement(q, np.zeros((len(q), 3)), 1.0, name)
     values = np.asarray(inst["values"], dtype=float)
-    r, Jr, Je = block.evaluate(robot, values, jacobian=True)
+    r, Jr, Je = _jacobians_of(block, robot, values)
     nine = list(inst.get("nine") or block.parameters().names)
     cols = []
     for n in inst["parameters"]:

@@ -189,51 +189,20 @@ def _sigma_min(R: Array) -> float:
     return float(np.linalg.svd(R, compute_uv=False)[-1]) if R.size else np.inf
 
 
-def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale: bool = True,
-            priority: ArrayLike | None = None, roles: Sequence[str] | None = None
-            ) -> IdentifiabilityReport:
-    """Identifiability of the parameters ``names`` from the Jacobian ``J`` (M, P).
+def _greedy_base(Js: Array, zero: NDArray[np.bool_], order: Sequence[int], tol: float
+                 ) -> tuple[list[int], Array, Array]:
+    """The columns of ``Js`` kept in ``order``: each one whose distance from the span of
+    those kept before it exceeds ``tol`` while the kept set's smallest singular value
+    stays above ``tol``.  Returns ``(chosen, Q, Rf)`` with ``Js[:, chosen] = Q Rf``
+    (``Q`` orthonormal columns, ``Rf`` upper triangular).
 
-    Args:
-        J: whitened identification Jacobian (rows: measurements; columns: ``names``),
-            or any matrix with the same ``J^T J`` such as its QR triangle ``R``.
-        names: one name per column.
-        tol: smallest admissible singular value of the scaled base set (default 1e-8).
-        scale: scale columns to unit norm first (recommended; otherwise all columns
-            are divided by the largest norm).
-        priority: optional class per column (lower kept first); default from
-            ``roles`` / names (:func:`default_priority`).
-        roles: parameter roles (``offset`` ... or block roles) for the default priority.
-
-    Returns:
-        An :class:`IdentifiabilityReport`.
+    An incrementally updated QR factor of the selected columns (rows of ``Qt``: the
+    orthonormal basis so far; ``Rf`` its triangle).  ``sigma_min(Rf) >= 1 / ||Rf^-1||_F``:
+    while that bound (kept up to date with the inverse of the growing triangle) is well
+    above ``tol``, no SVD is needed to accept a column.
     """
-    J = np.asarray(J, dtype=float)
-    names = tuple(names)
-    if J.ndim != 2 or J.shape[1] != len(names):
-        raise ValueError(f"J has shape {J.shape} but {len(names)} names were given")
-    tol = DEFAULT_TOL if tol is None else float(tol)
-    P = len(names)
-    if J.shape[0] > P:
-        J = r_factor(J)                         # same J^T J, (P, P)
-    norms = np.linalg.norm(J, axis=0)
-    big = norms.max() if P else 0.0
-    zero = norms <= ZERO_TOL * big if big > 0 else np.ones(P, dtype=bool)
-    if scale:
-        Js = J / np.where(zero, 1.0, norms)
-    else:
-        Js = J / (big if big > 0 else 1.0)
-    Js[:, zero] = 0.0
-    sv = singular_values(Js) if P and J.shape[0] else np.zeros(0)
-    pri = default_priority(names, roles) if priority is None else np.asarray(priority, float)
-    order = sorted(range(P), key=lambda i: (pri[i], i))
-    # Greedy selection with an incrementally updated QR factor of the selected columns.
-    # Greedy selection with an incrementally updated QR factor of the selected columns
-    # (rows of Qt: the orthonormal basis so far; Rf (k, k) its triangle).
-    # sigma_min(Rf) >= 1 / ||Rf^-1||_F: while that bound (kept up to date with the
-    # inverse of the growing triangle) is well above tol, no SVD is needed to accept.
+    m, P = Js.shape
     chosen: list[int] = []
-    m = J.shape[0]
     Qt = np.zeros((P, m))
     Rfull = np.zeros((P, P))
     Ifull = np.zeros((P, P))                    # Rf^-1
@@ -267,44 +236,96 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
         Ifull[k, k] = 1.0 / rho
         inv_f2 = f2
     r = len(chosen)
-    Q, Rf = Qt[:r].T, Rfull[:r, :r]
-    chosen_set = set(chosen)
-    identifiable = [names[i] for i in chosen]
-    unobservable = [names[i] for i in range(P) if zero[i]]
+    return chosen, Qt[:r].T, Rfull[:r, :r]
+
+
+def _dependencies(Js: Array, names: Sequence[str], chosen: list[int], others: list[int],
+                  Q: Array, Rinv: Array, col: Array
+                  ) -> tuple[dict[str, list[str]], dict[str, dict[str, float]],
+                             dict[str, float]]:
+    """``(dependent, combinations, residual)`` of the columns ``others`` on the base
+    columns ``chosen`` (``Js[:, chosen] = Q Rf``, ``Rinv = Rf^-1``).
+
+    Least squares ``B x ~ c`` (``B = Js[:, chosen]``) by ``x = Rf^-1 Q^T c`` for every
+    other column ``c`` at once; the coefficients in parameter units are
+    ``d theta_i ~ sum_b x_b col_i / col_b d theta_b`` (``col``: the divisor of each
+    column of ``Js``), those below ``COEF_TOL`` of the largest are left out; the residual
+    is ``|c - B x| / |c|``.
+    """
     dependent: dict[str, list[str]] = {}
     combinations: dict[str, dict[str, float]] = {}
     residual: dict[str, float] = {}
-    B = Js[:, chosen]
-    Rinv = np.linalg.solve(Rf, np.eye(r)) if chosen else np.zeros((0, 0))
-    others = [i for i in range(P) if not zero[i] and i not in chosen_set]
-    if chosen and others:
-        # B = Q Rf: least squares B x ~ c by x = Rf^-1 Q^T c, for every other column
-        C = Js[:, others]
-        X = Rinv @ (Q.T @ C)
-        rels = np.linalg.norm(C - B @ X, axis=0) / np.maximum(np.linalg.norm(C, axis=0),
-                                                               1e-300)
-    if chosen and others:
-        # coefficients in parameter units: d theta_i ~ sum_b c_b d theta_b (all at once)
-        absX = np.abs(X)
-        kept = (absX > COEF_TOL * np.maximum(absX.max(axis=0), 1e-300)).T.tolist()
-        coef = (X * (norms[others] if scale else big)
-                / (norms[chosen] if scale else big)[:, None]).T.tolist()
-        base_names = [names[j] for j in chosen]
-        rel_list = rels.tolist()
+    if not chosen:
+        for i in others:
+            dependent[names[i]], combinations[names[i]], residual[names[i]] = [], {}, 1.0
+        return dependent, combinations, residual
+    if not others:
+        return dependent, combinations, residual
+    C = Js[:, others]
+    X = Rinv @ (Q.T @ C)
+    rels = np.linalg.norm(C - Js[:, chosen] @ X, axis=0) / np.maximum(
+        np.linalg.norm(C, axis=0), 1e-300)
+    absX = np.abs(X)
+    kept = (absX > COEF_TOL * np.maximum(absX.max(axis=0), 1e-300)).T.tolist()
+    coef = (X * col[others] / col[chosen][:, None]).T.tolist()
+    base_names = [names[j] for j in chosen]
     for n_i, i in enumerate(others):
-        if chosen:
-            rel = rel_list[n_i]
-            comb = {b: c for b, c, k in zip(base_names, coef[n_i], kept[n_i], strict=True) if k}
-        else:
-            rel, comb = 1.0, {}
+        comb = {b: c for b, c, k in zip(base_names, coef[n_i], kept[n_i], strict=True) if k}
         dependent[names[i]] = list(comb)
         combinations[names[i]] = comb
-        residual[names[i]] = rel
+        residual[names[i]] = float(rels[n_i])
+    return dependent, combinations, residual
+
+
+def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale: bool = True,
+            priority: ArrayLike | None = None, roles: Sequence[str] | None = None
+            ) -> IdentifiabilityReport:
+    """Identifiability of the parameters ``names`` from the Jacobian ``J`` (M, P).
+
+    Args:
+        J: whitened identification Jacobian (rows: measurements; columns: ``names``),
+            or any matrix with the same ``J^T J`` such as its QR triangle ``R``.
+        names: one name per column.
+        tol: smallest admissible singular value of the scaled base set (default 1e-8).
+        scale: scale columns to unit norm first (recommended; otherwise all columns
+            are divided by the largest norm).
+        priority: optional class per column (lower kept first); default from
+            ``roles`` / names (:func:`default_priority`).
+        roles: parameter roles (``offset`` ... or block roles) for the default priority.
+
+    Returns:
+        An :class:`IdentifiabilityReport`.
+    """
+    J = np.asarray(J, dtype=float)
+    names = tuple(names)
+    if J.ndim != 2 or J.shape[1] != len(names):
+        raise ValueError(f"J has shape {J.shape} but {len(names)} names were given")
+    tol = DEFAULT_TOL if tol is None else float(tol)
+    P = len(names)
+    if J.shape[0] > P:
+        J = r_factor(J)                         # same J^T J, (P, P)
+    norms = np.linalg.norm(J, axis=0)
+    big = float(norms.max()) if P else 0.0
+    zero = norms <= ZERO_TOL * big if big > 0 else np.ones(P, dtype=bool)
+    # the divisor of each column: its norm, or (unscaled) the largest norm for all
+    col = norms if scale else np.full(P, big if big > 0 else 1.0)
+    Js = J / np.where(zero, 1.0, col) if scale else J / col
+    Js[:, zero] = 0.0
+    sv = singular_values(Js) if P and J.shape[0] else np.zeros(0)
+    pri = default_priority(names, roles) if priority is None else np.asarray(priority, float)
+    order = sorted(range(P), key=lambda i: (pri[i], i))
+    chosen, Q, Rf = _greedy_base(Js, zero, order, tol)
+    r = len(chosen)
+    chosen_set = set(chosen)
+    Rinv = (np.asarray(np.linalg.solve(Rf, np.eye(r)), dtype=np.float64) if chosen
+            else np.zeros((0, 0)))
+    others = [i for i in range(P) if not zero[i] and i not in chosen_set]
+    dependent, combinations, residual = _dependencies(Js, names, chosen, others, Q, Rinv, col)
     if chosen:
         # Js[:, chosen] = Q Rf (Q orthonormal): Rf has the singular values of the scaled
-        # base columns, and Rf diag(column norms) those of the unscaled ones (J[:, chosen])
+        # base columns, and Rf diag(column divisors) those of the unscaled ones
         sB = sv if r == P else np.linalg.svd(Rf, compute_uv=False)
-        sU = np.linalg.svd(Rf * (norms[chosen] if scale else big), compute_uv=False)
+        sU = np.linalg.svd(Rf * col[chosen], compute_uv=False)
         cond_s = float(sB[0] / sB[-1]) if sB[-1] > 0 else np.inf
         cond_u = float(sU[0] / sU[-1]) if sU[-1] > 0 else np.inf
         # variance inflation of each base parameter (scaled): diag((B^T B)^-1)
@@ -313,5 +334,7 @@ def analyze(J: ArrayLike, names: Sequence[str], tol: float | None = None, scale:
     else:
         cond_s = cond_u = np.inf
         weak = {}
+    identifiable = [names[i] for i in chosen]
+    unobservable = [names[i] for i in range(P) if zero[i]]
     return IdentifiabilityReport(names, identifiable, unobservable, dependent, combinations,
-                                 residual, len(chosen), cond_u, cond_s, sv, norms, tol, weak)
+                                 residual, r, cond_u, cond_s, sv, norms, tol, weak)

@@ -424,9 +424,9 @@ def _nominal_block(robot: Robot, q: Array, kind: str, extra: Array, noise: float
                                     else np.zeros((len(q), 3)), noise, name, K)
         y = probe.predict(robot, extra)
         return PositionMeasurement(q, y if K > 1 else y[:, 0], noise, name, K)
-    probe = PoseMeasurement(q, np.tile(np.eye(4), (len(q), 1, 1)), noise, orientation_noise,
-                            name)
-    return PoseMeasurement(q, probe.predict(robot, extra), noise, orientation_noise, name)
+    pose_probe = PoseMeasurement(q, np.tile(np.eye(4), (len(q), 1, 1)), noise,
+                                 orientation_noise, name)
+    return PoseMeasurement(q, pose_probe.predict(robot, extra), noise, orientation_noise, name)
 
 
 def design_problem(robot: Robot, q: ArrayLike, instrument: str = "position",

@@ -52,6 +52,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from kincal.defaults import STAGE_MAX_ITER, STAGE_TOLERANCE_M
 from kincal.errors import KincalError
 from kincal.identify.identifiability import IdentifiabilityReport, analyze, default_priority
 from kincal.identify.solver import CalibrationResult, IterationRecord, match_names
@@ -359,11 +360,63 @@ def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: 
 
 
 # --------------------------------------------------------------------------- procedure
+def _stage_sets(J0: Array, prob: StackedProblem, stage_cands: Sequence[Sequence[int]], run: int,
+                tol_rank: float | None) -> tuple[list[list[int]], list[int], list[list[str]]]:
+    """The estimated set of every stage, chosen once at the starting point (as the patent
+    analyses ``A`` once): each stage keeps the base set of its candidates given the
+    parameters earlier stages chose.  Returns ``(per stage, union, dependent groups)``
+    (the groups only when ``run`` picks a member of each)."""
+    stage_est: list[list[int]] = []
+    chosen: list[int] = []
+    groups: list[list[str]] = []
+    for sc in stage_cands:
+        est, rep = _analyze(J0, prob, sorted(set(sc) | set(chosen)), chosen, run, tol_rank)
+        est = [i for i in est if i in sc]
+        if run:
+            groups += [g for g in dependent_groups(rep) if g not in groups]
+        stage_est.append(est)
+        chosen = sorted(set(chosen) | set(est))
+    return stage_est, chosen, groups
+
+
+def _final_statistics(prob: StackedProblem, theta: Array, J0: Array, cand: list[int],
+                      all_est: list[int], tol_rank: float | None, trust_sigma: bool
+                      ) -> tuple[Array, IdentifiabilityReport,
+                                 tuple[list[str], float, Array, Array, Array], list[str]]:
+    """Statistics over the union ``all_est`` of the estimated parameters at ``theta``:
+    ``(r, report, (estimated names, sigma0, std, covariance, correlation), messages)``
+    with ``sigma0 = sqrt(r^T r / (M - p))`` (1 under ``trust_sigma`` or without
+    redundancy) and ``Cov = sigma0^2 (J^T J)^-1`` over the jointly identifiable part."""
+    names = prob.names
+    r, J = prob.residuals_and_jacobian(theta)
+    pri = np.where(np.isin(np.arange(len(cand)), [cand.index(i) for i in all_est]), 0.0, 1.0)
+    report = analyze(J0[:, cand], [names[i] for i in cand], tol=tol_rank, priority=pri)
+    est_names = [names[i] for i in all_est]
+    messages = []
+    if set(report.identifiable) != set(est_names):
+        messages.append("the estimated set is not jointly identifiable at the solution; "
+                        "covariance over its identifiable part")
+        all_est = sorted(names.index(n) for n in report.identifiable)
+        est_names = [names[i] for i in all_est]
+    dof = len(r) - len(all_est)
+    sigma0 = 1.0 if trust_sigma or dof <= 0 else float(np.sqrt(r @ r / dof))
+    std = np.zeros(len(names))
+    if all_est:
+        cov = sigma0**2 * inverse_normal_matrix(J[:, all_est])
+        std[all_est] = standard_errors(cov)
+        corr = correlation(cov)
+    else:
+        cov = corr = np.zeros((0, 0))
+    return r, report, (est_names, sigma0, std, cov, corr), messages
+
+
 def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
                      stages: Sequence[Sequence[str]] = DEFAULT_STAGES,
-                     tolerance: float = 1e-7, condition_growth: float | None = None,
+                     tolerance: float = STAGE_TOLERANCE_M,
+                     condition_growth: float | None = None,
                      progress: Callable[[IterationRecord], Any] | None = None, *,
-                     cycles: int | None = None, max_cycles: int = 200, max_iter: int = 20,
+                     cycles: int | None = None, max_cycles: int = 200,
+                     max_iter: int = STAGE_MAX_ITER,
                      run: int = 0, free: Sequence[str] | str | None = None,
                      fixed: Sequence[str] | str = (), tol_rank: float | None = None,
                      trust_sigma: bool = False, compare: bool = False) -> CalibrationResult:
@@ -417,17 +470,7 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
     labels = [_label(s) for s in specs]
     # identifiability once, at the starting point (as the patent analyses A once)
     _, J0 = prob.residuals_and_jacobian(theta0)
-    stage_est: list[list[int]] = []
-    chosen: list[int] = []
-    groups: list[list[str]] = []
-    for sc in stage_cands:
-        est, rep = _analyze(J0, prob, sorted(set(sc) | set(chosen)), chosen, run, tol_rank)
-        est = [i for i in est if i in sc]
-        if run:
-            groups += [g for g in dependent_groups(rep) if g not in groups]
-        stage_est.append(est)
-        chosen = sorted(set(chosen) | set(est))
-    all_est = chosen
+    stage_est, all_est, groups = _stage_sets(J0, prob, stage_cands, run, tol_rank)
     proc = _Procedure(prob, list(zip(labels, stage_est, strict=True)), max_iter, progress)
     if cycles is not None:
         theta = theta0.copy()
@@ -440,26 +483,9 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
                                                 tolerance, max_cycles)
     history, corrections, estimated = proc.history, proc.corrections, proc.estimated
     cycle_moves = proc.cycle_moves
-    # final statistics over the union of the estimated parameters
-    r, J = prob.residuals_and_jacobian(theta)
-    pri = np.where(np.isin(np.arange(len(cand)), [cand.index(i) for i in all_est]), 0.0, 1.0)
-    report = analyze(J0[:, cand], [names[i] for i in cand], tol=tol_rank, priority=pri)
-    est_names = [names[i] for i in all_est]
-    messages = []
-    if set(report.identifiable) != set(est_names):
-        messages.append("the estimated set is not jointly identifiable at the solution; "
-                        "covariance over its identifiable part")
-        all_est = sorted(names.index(n) for n in report.identifiable)
-        est_names = [names[i] for i in all_est]
-    dof = len(r) - len(all_est)
-    sigma0 = 1.0 if trust_sigma or dof <= 0 else float(np.sqrt(r @ r / dof))
-    std = np.zeros(len(names))
-    if all_est:
-        cov = sigma0**2 * inverse_normal_matrix(J[:, all_est])
-        std[all_est] = standard_errors(cov)
-        corr = correlation(cov)
-    else:
-        cov = corr = np.zeros((0, 0))
+    r, report, stats, messages = _final_statistics(prob, theta, J0, cand, all_est, tol_rank,
+                                                   trust_sigma)
+    est_names, sigma0, std, cov, corr = stats
     kept, discarded = _kept(prob, selection)
     n_cyc = len(cycle_moves)
     how = "one pass (the patent)" if cycles == 1 else (
