@@ -12,7 +12,8 @@ from kincal.identify.levenberg_marquardt import Damping, levenberg_marquardt_ste
 from kincal.identify.linearisation import Linearisation, half_weighted_ss
 from kincal.identify.status import StageStatus
 from kincal.measure.base import stack
-from kincal.measure.simulate import perturb_robot, random_configurations, simulate_positions
+from kincal.measure.instruments.position import simulate_positions
+from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.files import load_robot
 
 
