@@ -21,7 +21,6 @@ from rich.table import Table
 import kincal.cli.simulate  # noqa: F401  (registers `instruments`, `simulate` first in --help)
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
-    BaseLink,
     DataOpt,
     IgnoreOpt,
     JointModelOpt,
@@ -29,14 +28,10 @@ from kincal.cli.calibration_common import (
     OptionalDataOpt,
     OptionalRobotArg,
     Progress,
-    RobotArg,
     SchedulerOpt,
-    TipLink,
     UnitsOpt,
     WorkersOpt,
     fold_engine,
-    is_fivebar,
-    joint_masses,
     load,
     out_console,
     print_cross_validation,
@@ -51,6 +46,7 @@ from kincal.cli.calibration_common import (
     read_blocks,
     serial,
 )
+from kincal.cli.common import BaseLink, RobotArg, TipLink, is_fivebar
 from kincal.cli.options import SiOpt, length_option, use_si
 from kincal.cli.setupfile import (
     ConfigOpt,
@@ -66,6 +62,7 @@ from kincal.defaults import STAGE_TOLERANCE_M, max_iter_for
 from kincal.errors import CheckFailedError, KincalError
 from kincal.identify.tolerances import describe_defaults
 from kincal.io import check_outputs
+from kincal.workflow.session import joint_masses
 
 
 @app.command()

@@ -18,18 +18,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink, is_fivebar re-exported)
-    BaseLink,
-    JsonOut,
-    RobotArg,
-    TipLink,
-    console,
-    err_console,
-    is_fivebar,
-)
+from kincal.cli.common import JsonOut, console, err_console, is_fivebar
 from kincal.cli.options import console_quantity, console_units
 from kincal.errors import KincalError
-from kincal.workflow.session import joint_masses  # noqa: F401  (re-exported)
 
 JsonOpt = JsonOut
 

@@ -19,16 +19,15 @@ from rich.markup import escape
 
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
-    BaseLink,
     IgnoreOpt,
     JsonOpt,
-    TipLink,
     UnitsOpt,
     check_unit,
     load,
     out_console,
     serial,
 )
+from kincal.cli.common import BaseLink, TipLink
 from kincal.cli.options import SiOpt, use_si
 from kincal.errors import KincalError, MeasurementFileError
 from kincal.io import check_outputs

@@ -22,7 +22,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.calibration_common import BaseLink, JsonOpt, TipLink, load, out_console, serial
+from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
+from kincal.cli.common import BaseLink, TipLink
 from kincal.errors import KincalError
 
 _SHOWN = 40

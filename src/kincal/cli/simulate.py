@@ -21,17 +21,14 @@ from rich.table import Table
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
     AngleUnit,
-    BaseLink,
     JsonOpt,
     LengthUnit,
-    RobotArg,
-    TipLink,
     check_unit,
     load,
     out_console,
     serial,
 )
-from kincal.cli.common import console
+from kincal.cli.common import BaseLink, RobotArg, TipLink, console
 from kincal.cli.options import SeedOpt, SiOpt, Units, quantity
 from kincal.errors import KincalError
 from kincal.io import check_outputs
