@@ -347,7 +347,7 @@ def calibrate_cmd(
             f"{b} row {i + 1}" for b, i in res.outliers[:10]))
     for k, v in written.items():
         out.print(f"{k}: {escape(v)}")
-    if not flow.trusted:
+    if flow.verdict is not None and not flow.trusted:
         withheld = [p for p in (output, urdf) if p and p not in written.values()]
         tail = (f"; no calibrated robot written ({', '.join(withheld)}; --force writes it)"
                 if withheld else "; written anyway (--force)" if force and output else "")

@@ -189,7 +189,7 @@ def compensate_cmd(
     if pred is not None:
         _print_prediction(out, pred, comp, table, cu)
     out.print(f"joint commands ({angle_unit} / {length_unit}) -> {escape(output)}"
-              + (f"; filtered targets -> {escape(filtered)}" if ftext else ""))
+              + (f"; filtered targets -> {escape(filtered)}" if ftext and filtered else ""))
     if json_out:
         write_json(json_out, run.to_dict())
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -85,7 +85,7 @@ class Trajectory:
     xd: Array | None = None
     xdd: Array | None = None
     kind: str = "joint"
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -375,11 +375,15 @@ def concatenate(parts: Sequence[Trajectory]) -> Trajectory:
                     raise KincalError("cannot join joint-space and Cartesian trajectories")
                 acc.append(arr[1:])
         offset = t[-1][-1] if t[-1].size else offset
-    cat = (lambda a: None if a is None else np.concatenate(a))  # noqa: E731
     first = parts[0]
     return Trajectory(np.concatenate(t), np.concatenate(q), np.concatenate(qd),
-                      np.concatenate(qdd), first.joint_names, first.joint_units, cat(xs),
-                      cat(xds), cat(xdds), kind="path" if len(parts) > 1 else first.kind)
+                      np.concatenate(qdd), first.joint_names, first.joint_units, _joined(xs),
+                      _joined(xds), _joined(xdds), kind="path" if len(parts) > 1 else first.kind)
+
+
+def _joined(arrays: list[Array] | None) -> Array | None:
+    """The arrays end to end, or None for a trajectory without that quantity."""
+    return None if arrays is None else np.concatenate(arrays)
 
 
 def cartesian_via(robot: Robot, poses: Sequence[ArrayLike], q0: ArrayLike, dt: float,
