@@ -404,8 +404,9 @@ def print_weak(out: Console, weak: Sequence[Any]) -> None:
     out.print(t)
 
 
-def print_patent(out: Console, info: Any) -> None:
-    """The patent procedure's record: selection, cycles, comparison with one-stage LM."""
+def print_staged_selection(out: Console, info: Any) -> None:
+    """The staged-selection procedure's record (the cross-bar patent's): data selection,
+    cycles, comparison with one-stage LM."""
 
     d = info.to_dict()
     n_all = len(d["kept"]) + len(d["discarded"])
