@@ -149,10 +149,7 @@ def filter_cmd(
                         else f"{r.predicted_std_mm:.6f}", ";".join(r.warnings), r.reason])
         atomic_write_text(csv_out, buf.getvalue())
     if json_out:
-        write_json(json_out, {"program": program, "dialect": res.dialect,
-                              "robot": cal.name, "nominal": nom.name,
-                              "outputs": list(targets.values()),
-                              "targets": [r.to_dict() for r in rows]})
+        write_json(json_out, res.to_dict(outputs=list(targets.values())))
     if res.failed:
         first = res.failed[0]
         print(f"error: {len(res.failed)} of {len(rows)} targets could not be filtered and were "
