@@ -11,6 +11,7 @@ nothing behind (the error is one line, exit code 2).  Sibling modules:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -434,15 +435,8 @@ def validate_cmd(
     to each robot: they absorb a little of any robot error."""
     from kincal.io import write_json
     from kincal.measure.joints.terms import parse_joint_model, with_joint_model
-    from kincal.report.metrics import error_metrics, merge_errors
-    from kincal.workflow.flow import (
-        accuracy_from_result,
-        check_options_used,
-        extras_from_result,
-        result_document,
-        validate_blocks,
-    )
-    from kincal.workflow.heldout import BEFORE_DEFINITION
+    from kincal.workflow.flow import check_options_used
+    from kincal.workflow.validation import validate_on_files
 
     out = out_console(json_out)
     use_si(si)
@@ -463,34 +457,14 @@ def validate_cmd(
     masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
-    extras = extras_from_result(result) if result else None
-    doc_in = result_document(result) if result else {}
-    accuracy = None
-    if isinstance(doc_in.get("accuracy_model"), dict):
-        accuracy = accuracy_from_result(str(result), r)
-    files = validate_blocks(r, blocks, before, extras, validation_frames,
-                            extras_from_result(result, "before") if result else None,
-                            accuracy)
-    print_heldout(out, files, f"Errors of {r.name} on held-out data")
-    iso_doc = _iso9283(out, r, before, blocks, extras) if iso9283 else None
+    val = validate_on_files(r, blocks, before, result, validation_frames)
+    print_heldout(out, val.files, f"Errors of {r.name} on held-out data")
+    if iso9283:
+        val = dataclasses.replace(val, iso9283=_iso9283(out, r, before, blocks, val.extras))
     if json_out:
-        overall = error_metrics(merge_errors([f.after for f in files]))
-        doc: dict[str, Any] = {"robot": r.name, "overall": overall,
-                               "files": {f.block.source_label: f.metrics() for f in files},
-                               "before_definition": BEFORE_DEFINITION}
-        if iso_doc is not None:
-            doc["iso9283"] = iso_doc
-        if before is not None:
-            doc["overall_before"] = error_metrics(merge_errors([f.before for f in files]))
-        if accuracy is not None:
-            doc["predicted"] = {f.block.source_label: {"outside_joint_ranges":
-                                                      f.prediction.outside_joint_ranges,
-                                                      "outside_hull": f.prediction.outside_hull,
-                                                      **f.prediction.to_dict()}
-                                for f in files if f.prediction is not None}
-        write_json(json_out, doc)
+        write_json(json_out, val.to_dict())
     if report:
-        _validation_report(report, r, files, accuracy, iso_doc, {
+        _validation_report(report, r, val.files, val.accuracy, val.iso9283, {
             "robot": robot, "data": ", ".join(data), "result": result or "-",
             "before": nominal or "-", "frames": validation_frames})
         out.print(f"report: {escape(report)}")
