@@ -47,8 +47,10 @@ from kincal.spatial import log_so3, matrix_to_angles, rate_matrix, wrap_angle
 
 Array = NDArray[np.float64]
 Method = Literal["inverse", "transpose", "pinv", "dls", "adaptive"]
-METHODS: tuple[str, ...] = ("inverse", "transpose", "pinv", "dls", "adaptive")
+METHODS: tuple[Method, ...] = ("inverse", "transpose", "pinv", "dls", "adaptive")
 Orientation = Literal["axis_angle", "zyz", "rpy"]
+Integrator = Literal["euler", "rk4"]
+INTEGRATORS: tuple[Integrator, ...] = ("euler", "rk4")
 
 
 # ---------------------------------------------------------------------------
@@ -230,7 +232,7 @@ def clik(robot: Robot, motion: CartesianMotion | Callable[[Array], tuple[Array, 
          q0: ArrayLike, dt: float, gain: float | ArrayLike = 50.0, method: Method = "inverse",
          damping: float = 0.1, threshold: float = 0.1,
          task: Literal["position", "pose"] = "position", orientation: Orientation = "axis_angle",
-         integrator: Literal["euler", "rk4"] = "euler", duration: float | None = None,
+         integrator: Integrator = "euler", duration: float | None = None,
          progress: Callable[[int, int], None] | None = None) -> ClikResult:
     """Closed-loop inverse kinematics along a desired motion.
 
@@ -363,7 +365,7 @@ def spherical_arm_motion(timing: str = "quintic",
     """
     T0, T1 = np.eye(4), np.eye(4)
     T0[:3, 3], T1[:3, 3] = SPHERICAL_ARM_P_I, SPHERICAL_ARM_P_F
-    return CartesianMotion(LinePath(T0, T1), TimingLaw(timing, duration))  # type: ignore[arg-type]
+    return CartesianMotion(LinePath(T0, T1), TimingLaw.named(timing, duration))
 
 
 def run_spherical_arm(method: Method = "inverse", gain: float | ArrayLike = 50.0,
