@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,6 +42,9 @@ from kincal.motion.timing import (
 )
 from kincal.robots.chain import Robot
 from kincal.spatial import matrix_to_rpy, pose_error
+
+if TYPE_CHECKING:                 # types only: matplotlib loads lazily
+    from matplotlib.figure import Figure
 
 Array = NDArray[np.float64]
 
@@ -158,14 +161,14 @@ class Trajectory:
         plt.close(fig)
 
 
-def _save(fig: object, path: str | Path) -> None:
+def _save(fig: Figure, path: str | Path) -> None:
     """Save a matplotlib figure atomically as PNG."""
     import io
 
     from kincal.io import atomic_write_bytes
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)  # type: ignore[attr-defined]
+    fig.savefig(buf, format="png", dpi=110)
     atomic_write_bytes(path, buf.getvalue())
 
 
