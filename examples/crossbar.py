@@ -28,7 +28,7 @@ from kincal.identify.solver import calibrate
 from kincal.identify.staged_selection import calibrate_staged_selection, compare_results
 from kincal.measure.artifacts import ArtifactGeometry, Probe, simulate_artifact
 from kincal.measure.simulate import perturb_robot
-from kincal.report.artifact_plots import length_summary, save_patent_figures
+from kincal.report.artifact_plots import length_summary, save_length_error_figures
 
 
 def main() -> None:
@@ -79,7 +79,7 @@ def main() -> None:
         print(f"{label:>24}: training {tr:8.4f} mm   held-out {va:8.4f} mm")
     pred = np.sqrt(np.mean(held.sigma_distance**2)) * 1e3
     print(f"{'noise level':>24}: {pred:8.4f} mm (encoder noise propagated to a length)")
-    files = save_patent_figures(train, nominal, lm.robot, args.out)
+    files = save_length_error_figures(train, nominal, lm.robot, args.out)
     print("\nfigures:", ", ".join(files.values()))
 
 

@@ -7,7 +7,11 @@ import numpy as np
 from kincal.identify.solver import calibrate
 from kincal.measure.artifacts import ArtifactGeometry, Probe, simulate_artifact
 from kincal.measure.simulate import perturb_robot
-from kincal.report.artifact_plots import length_summary, plot_lengths, save_patent_figures
+from kincal.report.artifact_plots import (
+    length_summary,
+    plot_lengths,
+    save_length_error_figures,
+)
 from kincal.robots.files import load_robot
 
 
@@ -21,7 +25,7 @@ def test_figures_4_and_5(tmp_path):
                              Probe.length(0.1), joint_std=np.radians(0.001),
                              model_robot=nominal, name="cross")
     res = calibrate(nominal, [b])
-    files = save_patent_figures(b, nominal, res.robot, tmp_path / "figs")
+    files = save_length_error_figures(b, nominal, res.robot, tmp_path / "figs")
     for f in files.values():
         img = mpimg.imread(f)
         assert img.ndim == 3 and img.shape[0] > 200 and img.shape[1] > 400

@@ -173,7 +173,7 @@ def test_cross_validation_compares_models_on_training_alone(capsys, files):
 
 @pytest.mark.parametrize(("args", "message"), [
     (["--cross-validate", "1"], "needs at least 2 folds"),
-    (["--cross-validate", "3", "--procedure", "patent"], "works with --procedure lm"),
+    (["--cross-validate", "3", "--procedure", "staged-selection"], "works with --procedure lm"),
 ])
 def test_bad_cross_validation_is_one_line(capsys, files, args, message):
     code, _, err = run(capsys, "calibrate", "puma560", "--data", files / "train.csv",

@@ -92,6 +92,10 @@ def test_only_the_numbers_of_changed_targets_change(case, tmp_path, calibrated, 
         args += ["--frames", tmp_path / frames]
     code, _, err = run(capsys, *args)
     assert code == 0, err
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert doc["program"] == str(src) and doc["nominal"] == robot and doc["robot"]
+    assert doc["outputs"] and all(Path(o).parent == out.parent for o in doc["outputs"])
+    assert doc["dialect"] == dialect and len(doc["targets"]) >= 1
     for f in (tmp_path / "out").iterdir():
         old, new = (tmp_path / f.name).read_bytes(), f.read_bytes()
         assert old.count(b"\r\n") == new.count(b"\r\n") and old.count(b"\n") == new.count(b"\n")

@@ -19,7 +19,7 @@ sed -n '/^identifiability/,/more (see/p' cross.txt
 # --8<-- [end:cross-calibrate]
 
 # --8<-- [start:patent]
-kincal calibrate puma560 --data cross.csv --procedure patent --condition-growth 1.0 \
+kincal calibrate puma560 --data cross.csv --procedure staged-selection --condition-growth 1.0 \
     -o patent_cal.yaml --json patent.json > patent.txt
 sed -n '/patent data selection/,/^robot/p' patent.txt
 # --8<-- [end:patent]

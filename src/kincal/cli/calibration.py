@@ -11,8 +11,10 @@ nothing behind (the error is one line, exit code 2).  Sibling modules:
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -21,7 +23,6 @@ from rich.table import Table
 import kincal.cli.simulate  # noqa: F401  (registers `instruments`, `simulate` first in --help)
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
-    BaseLink,
     DataOpt,
     IgnoreOpt,
     JointModelOpt,
@@ -29,14 +30,10 @@ from kincal.cli.calibration_common import (
     OptionalDataOpt,
     OptionalRobotArg,
     Progress,
-    RobotArg,
     SchedulerOpt,
-    TipLink,
     UnitsOpt,
     WorkersOpt,
     fold_engine,
-    is_fivebar,
-    joint_masses,
     load,
     out_console,
     print_cross_validation,
@@ -45,12 +42,13 @@ from kincal.cli.calibration_common import (
     print_identifiability,
     print_ignored,
     print_parameters,
-    print_patent,
     print_selection,
+    print_staged_selection,
     print_weak,
     read_blocks,
     serial,
 )
+from kincal.cli.common import BaseLink, RobotArg, TipLink, is_fivebar
 from kincal.cli.options import SiOpt, length_option, use_si
 from kincal.cli.setupfile import (
     ConfigOpt,
@@ -62,10 +60,15 @@ from kincal.cli.setupfile import (
     require_robot,
     uses_setup,
 )
-from kincal.defaults import STAGE_TOLERANCE_M, max_iter_for
+from kincal.defaults import max_iter_for
 from kincal.errors import CheckFailedError, KincalError
-from kincal.identify.tolerances import describe_defaults
 from kincal.io import check_outputs
+from kincal.workflow.session import joint_masses
+
+if TYPE_CHECKING:                 # types only: the workflow loads lazily (start-up time)
+    from rich.console import Console
+
+    from kincal.workflow.result import FlowResult
 
 
 @app.command()
@@ -122,98 +125,105 @@ def identifiability(
                               "candidates": [prob.names[i] for i in cand]})
 
 
+# ------------------------------------------------------------------ options of `calibrate`
+OutputOpt = Annotated[str | None, typer.Option("-o", "--output", help="Calibrated robot file "
+                                               "(YAML, SI units).")]
+ValidateOpt = Annotated[list[str] | None, typer.Option(
+    "--validate", help="Held-out measurement CSV (repeatable): errors before/after.")]
+ReportOpt = Annotated[str | None, typer.Option("--report", help="Write a single-file HTML "
+                                               "report here (artifact data: also the "
+                                               "plots of the artifact's length errors as PNG "
+                                               "next to it).")]
+UrdfOpt = Annotated[str | None, typer.Option("--urdf", help="Also write the calibrated robot as "
+                                             "URDF (URDF robots: the original file with "
+                                             "corrected joint origins). Default for URDF "
+                                             "robots: next to -o.")]
+ProcedureOpt = Annotated[str, typer.Option(
+    "--procedure", help="lm: one-stage least squares (--method); staged-selection: the "
+    "cross-bar patent's procedure (angles, then lengths; optional data selection).")]
+StagesOpt = Annotated[str | None, typer.Option("--stages", help="Comma-separated stages, e.g. "
+                                               "'offsets,all' (encoder offsets first).")]
+MethodOpt = Annotated[str, typer.Option("--method", help="lm | gauss-newton (--procedure "
+                                        "lm).")]
+LossOpt = Annotated[str, typer.Option("--loss", help="linear | huber | cauchy (robust to "
+                                      "outliers).")]
+LossScaleOpt = Annotated[float, typer.Option("--loss-scale", help="Robust threshold in "
+                                              "standard deviations.")]
+ConditionGrowthOpt = Annotated[float | None, typer.Option(
+    "--condition-growth", metavar="FACTOR", help="--procedure staged-selection: the "
+    "patent's data selection: discard a placement if the condition number grows by more "
+    "than FACTOR (>= 1; default: keep all).")]
+CyclesOpt = Annotated[int | None, typer.Option(
+    "--cycles", metavar="N", help="--procedure staged-selection: passes through the two "
+    "stages; 1 = the patent literally (default: until no point moves).")]
+ToleranceOpt = Annotated[str | None, typer.Option(
+    "--tolerance", metavar="LENGTH", help="--procedure staged-selection: a stage stops "
+    "when no predicted probe point moves more than this, with its unit (default 0.1um).")]
+FreeOpt = Annotated[str | None, typer.Option("--free", help="Parameters to estimate: names, * "
+                                             "patterns or role:offset (default: every "
+                                             "identifiable one).")]
+FixOpt = Annotated[str | None, typer.Option("--fix", help="Parameters to hold at their "
+                                            "nominal values.")]
+MaxIterOpt = Annotated[int | None, typer.Option(
+    "--max-iter", min=1, help="Iterations: in all (lm, default 100) or per stage and "
+    "cycle (staged-selection, default 20).")]
+PriorOpt = Annotated[str | None, typer.Option(
+    "--prior", metavar="ENTRIES|none", help="The estimate is maximum a-posteriori: "
+    "Gaussian priors centred on the nominal values with the parameters' manufacturing "
+    "tolerances (default: length 1mm, angle 0.1deg, encoder offset 0.5deg; base, tool "
+    "and instrument parameters none; a robot file's 'tolerances:' section overrides). "
+    "Entries override them: roles, names or * patterns with a value and its unit, e.g. "
+    "'length=0.5mm,offset=0.05deg,*.origin.r?=0.2deg', 'd[3]=none', 'scale=3' (the "
+    "prior is 3x the tolerances). 'none': plain least squares. The tolerances also "
+    "bound what is plausible (10x). Does not change which parameters are estimated.")]
+CrossValidateOpt = Annotated[int | None, typer.Option(
+    "--cross-validate", metavar="K", help="Also run K-fold cross-validation of the same "
+    "calibration on the training file (folds drawn with seed 0): the RMS error on "
+    "measurements each fold was not fitted to. Compare models (--joint-model, --prior, "
+    "markers) by it, not by the validation file.")]
+SelectOpt = Annotated[str, typer.Option(
+    "--select", metavar="auto|none", help="auto: choose the joint model (geometric, "
+    "+hysteresis, +compliance where the URDF has masses) and the prior scale (1x, 3x the "
+    "tolerances, least squares) by K-fold cross-validation on the training files, print "
+    "the table and fit the winner: the lowest cross-validated RMS among the fits that "
+    "converge with plausible estimates. --joint-model and --prior none/scale= restrict "
+    "it. none (default): fit the model as given.")]
+FoldsOpt = Annotated[int, typer.Option("--folds", min=2, help="K of --select auto "
+                                       "(permutation seed 0).")]
+SharedMarkerOpt = Annotated[bool, typer.Option(
+    "--shared-marker", help="The --data (and --validate) files see one physical tool "
+    "point (the same reflector, the same ball): estimate it once, as the robot's tool "
+    "origin (tool.x/y/z), instead of one marker or probe per file.")]
+CalibrationFramesOpt = Annotated[str, typer.Option(
+    "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
+    "session: use the training frames and markers, no refit), 'register' (the "
+    "instrument moved: refit its frame only), 'auto' (training when the file's name tag "
+    "matches a training file's, else register).")]
+TruthOpt = Annotated[str | None, typer.Option("--truth", help="Simulations: the true robot "
+                                              "file, shown in the report.")]
+AllParametersOpt = Annotated[bool, typer.Option("--all", help="List every parameter, not only "
+                                                 "the estimated ones.")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Write the calibrated robot even when "
+                                        "the calibration cannot be trusted (did not converge, "
+                                        "or an estimate more than 10 tolerances from nominal); "
+                                        "the exit status is still 1.")]
+
+
 @app.command("calibrate")
 @uses_setup
 def calibrate_cmd(
     ctx: typer.Context, robot: OptionalRobotArg = None, data: OptionalDataOpt = None,
-    output: Annotated[str | None, typer.Option("-o", "--output", help="Calibrated robot file "
-                                               "(YAML, SI units).")] = None,
-    validate_files: Annotated[list[str] | None, typer.Option(
-        "--validate", help="Held-out measurement CSV (repeatable): errors before/after.")
-    ] = None,
-    report: Annotated[str | None, typer.Option("--report", help="Write a single-file HTML "
-                                               "report here (artifact data: also the "
-                                               "plots of the artifact's length errors as PNG "
-                                               "next to it).")] = None,
-    json_out: JsonOpt = None,
-    urdf: Annotated[str | None, typer.Option("--urdf", help="Also write the calibrated robot as "
-                                             "URDF (URDF robots: the original file with "
-                                             "corrected joint origins). Default for URDF "
-                                             "robots: next to -o.")] = None,
-    procedure: Annotated[str, typer.Option(
-        "--procedure", help="lm: one-stage least squares (--method); patent: the cross-bar "
-        "patent's procedure (angles, then lengths; optional data selection).")] = "lm",
-    stages: Annotated[str | None, typer.Option("--stages", help="Comma-separated stages, e.g. "
-                                               "'offsets,all' (encoder offsets first).")] = None,
-    method: Annotated[str, typer.Option("--method", help="lm | gauss-newton (--procedure "
-                                        "lm).")] = "lm",
-    loss: Annotated[str, typer.Option("--loss", help="linear | huber | cauchy (robust to "
-                                      "outliers).")] = "linear",
-    loss_scale: Annotated[float, typer.Option("--loss-scale", help="Robust threshold in "
-                                              "standard deviations.")] = 3.0,
-    condition_growth: Annotated[float | None, typer.Option(
-        "--condition-growth", metavar="FACTOR", help="--procedure patent: the patent's data "
-        "selection: discard a placement if the condition number grows by more than FACTOR "
-        "(>= 1; default: keep all).")] = None,
-    cycles: Annotated[int | None, typer.Option(
-        "--cycles", metavar="N", help="--procedure patent: passes through the two stages; "
-        "1 = the patent literally (default: until no point moves).")] = None,
-    tolerance_text: Annotated[str | None, typer.Option(
-        "--tolerance", metavar="LENGTH", help="--procedure patent: a stage stops when no "
-        "predicted probe point moves more than this, with its unit (default 0.1um).")
-    ] = None,
-    free: Annotated[str | None, typer.Option("--free", help="Parameters to estimate: names, * "
-                                             "patterns or role:offset (default: every "
-                                             "identifiable one).")] = None,
-    fix: Annotated[str | None, typer.Option("--fix", help="Parameters to hold at their "
-                                            "nominal values.")] = None,
-    max_iter: Annotated[int | None, typer.Option(
-        "--max-iter", min=1, help="Iterations: in all (lm, default 100) or per stage and "
-        "cycle (patent, default 20).")] = None,
-    prior: Annotated[str | None, typer.Option(
-        "--prior", metavar="ENTRIES|none", help="The estimate is maximum a-posteriori: "
-        "Gaussian priors centred on the nominal values with the parameters' manufacturing "
-        "tolerances (default: length 1mm, angle 0.1deg, encoder offset 0.5deg; base, tool "
-        "and instrument parameters none; a robot file's 'tolerances:' section overrides). "
-        "Entries override them: roles, names or * patterns with a value and its unit, e.g. "
-        "'length=0.5mm,offset=0.05deg,*.origin.r?=0.2deg', 'd[3]=none', 'scale=3' (the "
-        "prior is 3x the tolerances). 'none': plain least squares. The tolerances also "
-        "bound what is plausible (10x). Does not change which parameters are estimated.")
-    ] = None,
-    joint_model: JointModelOpt = None,
-    cross_validate: Annotated[int | None, typer.Option(
-        "--cross-validate", metavar="K", help="Also run K-fold cross-validation of the same "
-        "calibration on the training file (folds drawn with seed 0): the RMS error on "
-        "measurements each fold was not fitted to. Compare models (--joint-model, --prior, "
-        "markers) by it, not by the validation file.")] = None,
-    select: Annotated[str, typer.Option(
-        "--select", metavar="auto|none", help="auto: choose the joint model (geometric, "
-        "+hysteresis, +compliance where the URDF has masses) and the prior scale (1x, 3x the "
-        "tolerances, least squares) by K-fold cross-validation on the training files, print "
-        "the table and fit the winner: the lowest cross-validated RMS among the fits that "
-        "converge with plausible estimates. --joint-model and --prior none/scale= restrict "
-        "it. none (default): fit the model as given.")] = "none",
-    folds: Annotated[int, typer.Option("--folds", min=2, help="K of --select auto "
-                                       "(permutation seed 0).")] = 10,
-    shared_marker: Annotated[bool, typer.Option(
-        "--shared-marker", help="The --data (and --validate) files see one physical tool "
-        "point (the same reflector, the same ball): estimate it once, as the robot's tool "
-        "origin (tool.x/y/z), instead of one marker or probe per file.")] = False,
-    scheduler: SchedulerOpt = None, workers: WorkersOpt = None,
-    units: UnitsOpt = None, ignore: IgnoreOpt = None,
-    validation_frames: Annotated[str, typer.Option(
-        "--validation-frames", help="Instrument frames on held-out files: 'training' (same "
-        "session: use the training frames and markers, no refit), 'register' (the "
-        "instrument moved: refit its frame only), 'auto' (training when the file's name tag "
-        "matches a training file's, else register).")] = "auto",
-    truth: Annotated[str | None, typer.Option("--truth", help="Simulations: the true robot "
-                                              "file, shown in the report.")] = None,
-    all_parameters: Annotated[bool, typer.Option("--all", help="List every parameter, not only "
-                                                 "the estimated ones.")] = False,
-    force: Annotated[bool, typer.Option("--force", help="Write the calibrated robot even when "
-                                        "the calibration cannot be trusted (did not converge, "
-                                        "or an estimate more than 10 tolerances from nominal); "
-                                        "the exit status is still 1.")] = False,
+    output: OutputOpt = None, validate_files: ValidateOpt = None, report: ReportOpt = None,
+    json_out: JsonOpt = None, urdf: UrdfOpt = None, procedure: ProcedureOpt = "lm",
+    stages: StagesOpt = None, method: MethodOpt = "lm", loss: LossOpt = "linear",
+    loss_scale: LossScaleOpt = 3.0, condition_growth: ConditionGrowthOpt = None,
+    cycles: CyclesOpt = None, tolerance_text: ToleranceOpt = None, free: FreeOpt = None,
+    fix: FixOpt = None, max_iter: MaxIterOpt = None, prior: PriorOpt = None,
+    joint_model: JointModelOpt = None, cross_validate: CrossValidateOpt = None,
+    select: SelectOpt = "none", folds: FoldsOpt = 10, shared_marker: SharedMarkerOpt = False,
+    scheduler: SchedulerOpt = None, workers: WorkersOpt = None, units: UnitsOpt = None,
+    ignore: IgnoreOpt = None, validation_frames: CalibrationFramesOpt = "auto",
+    truth: TruthOpt = None, all_parameters: AllParametersOpt = False, force: ForceOpt = False,
     base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
     config: ConfigOpt = None, hold: HoldOpt = None, instrument: InstrumentOpt = None,
     option: OptionOpt = None,
@@ -224,9 +234,10 @@ def calibrate_cmd(
     --config setup.yaml takes the robot, the files (each with its own reading options),
     the options and the outputs from a setup file (`kincal init` writes one).
 
-    --procedure patent follows the cross-bar patent: angles (joint offsets, twists), then
-    lengths, with an optional condition-number data selection; the JSON and report add its
-    record and a comparison with one-stage Levenberg-Marquardt on the same data."""
+    --procedure staged-selection follows the cross-bar patent: angles (joint offsets,
+    twists), then lengths, with an optional condition-number data selection; the JSON and
+    report add its record and a comparison with one-stage Levenberg-Marquardt on the same
+    data."""
     from kincal.measure.joints.terms import parse_joint_model
     from kincal.workflow.flow import (
         check_flow_options,
@@ -235,6 +246,7 @@ def calibrate_cmd(
         truth_values,
         write_outputs,
     )
+    from kincal.workflow.inputs import calibration_inputs
     from kincal.workflow.session import available_masses, read_session
 
     out = out_console(json_out)
@@ -243,6 +255,7 @@ def calibrate_cmd(
     if not data:
         raise KincalError("`kincal calibrate` needs --data FILE (or data: in the setup file)")
     r = held_robot(ctx, load(robot, base_link, tip_link), hold)
+    flow_procedure = workflow_procedure(procedure)
     if is_fivebar(r):
         from kincal.cli.fivebar import calibrate_fivebar_command
 
@@ -252,16 +265,13 @@ def calibrate_cmd(
     from kincal.workflow.options import parse_prior_text
 
     prior_value = parse_prior_text(prior)            # the typed prior of the library
-    check_flow_options(procedure=procedure, method=method, loss=loss,
+    check_flow_options(procedure=flow_procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior_value)
     train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
                                      instrument=instrument, options=option)
-    if urdf is None and output and r.meta.get("convention") == "urdf":
-        urdf = str(Path(output).with_suffix(".urdf"))
-        if Path(robot).is_file() and Path(urdf).resolve() == Path(robot).resolve():
-            urdf = str(Path(output).with_name(Path(output).stem + "_calibrated.urdf"))
+    urdf = _urdf_output(robot, r, output, urdf)
     check_outputs({"-o": output, "--urdf": urdf, "--json": json_out, "--report": report},
                   {"--data": [s.path for s in train_src],
                    "--validate": [s.path for s in held_src],
@@ -273,51 +283,80 @@ def calibrate_cmd(
     session = read_session(r, train_src, held_src, joint_model=None if auto else joint_model,
                            spec=robot, base_link=base_link, tip_link=tip_link)
     print_ignored(out, session.blocks + session.holdouts)
-    blocks, holdouts, terms = session.blocks, session.holdouts, session.terms
+    terms = session.terms
     masses, models = None, None
     if auto:
         models = [parse_joint_model(joint_model)] if joint_model else None
         masses = available_masses(robot, base_link, tip_link)
     truth_vals = truth_values(truth) if truth else None
-    bar_total = max_iter or max_iter_for(procedure)
+    bar_total = max_iter or max_iter_for(flow_procedure)
     with Progress(bar_total, json_out != "-") as bar, fold_engine(scheduler, workers) as eng:
-        flow = run_flow(r, blocks, holdouts, free=free, fix=fix, stages=parse_stages(stages),
-                        method=method, loss=loss, loss_scale=loss_scale, max_iter=max_iter,
-                        validation_frames=validation_frames, procedure=procedure,
+        flow = run_flow(r, session.blocks, session.holdouts, free=free, fix=fix,
+                        stages=parse_stages(stages), method=method, loss=loss,
+                        loss_scale=loss_scale, max_iter=max_iter,
+                        validation_frames=validation_frames, procedure=flow_procedure,
                         condition_growth=condition_growth, cycles=cycles,
                         tolerance=tolerance, prior=prior_value,
                         cross_validate=cross_validate,
                         progress=bar, select=select, folds=folds, masses=masses,
                         joint_models=models, mapper=bar.mapper_on(eng),
                         shared_marker=shared_marker)
-    res = flow.result
     for n in flow.notes:
         out.print(f"[dim]{escape(n)}[/dim]")
     if flow.selection is not None:
         terms = flow.selection.choice.terms if flow.selection.choice else ()
         print_selection(out, flow.selection)
-    inputs = {"robot": robot, "data": ", ".join(s.path for s in train_src),
-              "validation": ", ".join(s.path for s in held_src) or "-",
-              "procedure": procedure, "method": method, "loss": loss,
-              "stages": stages or "all", "validation frames": validation_frames,
-              "free": free or "automatic (identifiable set)", "fixed": fix or "-",
-              "prior": prior or f"default tolerances ({describe_defaults()})",
-              "joint model": ", ".join(terms) or "geometric only",
-              "model selection": (f"--select auto, {folds}-fold cross-validation on the "
-                                  "training files" if auto else "none")}
-    if procedure == "patent":
-        inputs.update({"method": "patent (two stages: angles, then lengths)", "stages":
-                       "angles, lengths",
-                       "condition growth": "-" if condition_growth is None
-                       else f"{condition_growth:g}",
-                       "cycles": "until converged" if cycles is None else str(cycles),
-                       "tolerance": f"{(tolerance or STAGE_TOLERANCE_M) * 1e3:g} mm"})
+    inputs = calibration_inputs(
+        robot=robot, data=[s.path for s in train_src], validation=[s.path for s in held_src],
+        procedure=procedure, staged=procedure == "staged-selection", method=method,
+        loss=loss, stages=stages, validation_frames=validation_frames, free=free, fix=fix,
+        prior=prior, terms=terms, folds=folds if auto else None,
+        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance)
     written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
                             {"seconds": flow.seconds}, force=force)
+    _print_calibration(out, flow, terms, prior, all_parameters)
+    for k, v in written.items():
+        out.print(f"{k}: {escape(v)}")
+    if flow.verdict is not None and not flow.trusted:
+        withheld = [p for p in (output, urdf) if p and p not in written.values()]
+        tail = (f"; no calibrated robot written ({', '.join(withheld)}; --force writes it)"
+                if withheld else "; written anyway (--force)" if force and output else "")
+        raise CheckFailedError(flow.verdict.line() + tail)
+
+
+#: ``--procedure`` values -> the workflow's names of the procedures
+#: (:data:`kincal.workflow.options.PROCEDURES`).
+PROCEDURE_NAMES = {"lm": "lm", "staged-selection": "patent"}
+
+
+def workflow_procedure(procedure: str) -> str:
+    """The workflow's name of the ``--procedure`` value; a one-line error for another."""
+    if procedure not in PROCEDURE_NAMES:
+        raise KincalError(f"option --procedure: {procedure!r} is not "
+                          f"{' or '.join(PROCEDURE_NAMES)}")
+    return PROCEDURE_NAMES[procedure]
+
+
+def _urdf_output(spec: str, robot: Any, output: str | None, urdf: str | None) -> str | None:
+    """``--urdf``, by default for URDF robots next to ``-o`` (``NAME_calibrated.urdf``
+    where that would overwrite the robot's own file)."""
+    if urdf is None and output and robot.meta.get("convention") == "urdf":
+        urdf = str(Path(output).with_suffix(".urdf"))
+        if Path(spec).is_file() and Path(urdf).resolve() == Path(spec).resolve():
+            urdf = str(Path(output).with_name(Path(output).stem + "_calibrated.urdf"))
+    return urdf
+
+
+def _print_calibration(out: Console, flow: FlowResult, terms: Sequence[str],
+                       prior: str | None, all_parameters: bool) -> None:
+    """The run on the console: convergence, the prior and joint model in a sentence each,
+    the parameter, error, held-out, cross-validation and identifiability tables, the
+    weak parameters, the staged selection's record, warnings and outliers."""
+    res = flow.result
     conv = "[green]converged[/green]" if res.converged else "[red]did not converge[/red]"
     out.print(f"{conv} in {res.iterations} iterations ({flow.seconds:.2f} s), "
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
-    if getattr(res, "prior", None):
+    if res.prior:
         what = escape(prior) if prior else "default tolerances"
         if flow.tolerances is not None and flow.tolerances.scale != 1:
             what += f" x{flow.tolerances.scale:g}"
@@ -338,21 +377,13 @@ def calibrate_cmd(
         print_cross_validation(out, flow.cross_validation)
     print_identifiability(out, res)
     print_weak(out, flow.weak)
-    info: Any = res.procedure_record
-    if info is not None:
-        print_patent(out, info)
+    if res.procedure_record is not None:
+        print_staged_selection(out, res.procedure_record)
     for w in flow.warnings:
         out.print(f"[yellow]warning[/yellow]: {escape(w)}")
     if res.outliers:
         out.print(f"[yellow]{len(res.outliers)} outlier measurement(s)[/yellow]: " + ", ".join(
             f"{b} row {i + 1}" for b, i in res.outliers[:10]))
-    for k, v in written.items():
-        out.print(f"{k}: {escape(v)}")
-    if not flow.trusted:
-        withheld = [p for p in (output, urdf) if p and p not in written.values()]
-        tail = (f"; no calibrated robot written ({', '.join(withheld)}; --force writes it)"
-                if withheld else "; written anyway (--force)" if force and output else "")
-        raise CheckFailedError(flow.verdict.line() + tail)
 
 
 @app.command("validate")
@@ -393,15 +424,8 @@ def validate_cmd(
     to each robot: they absorb a little of any robot error."""
     from kincal.io import write_json
     from kincal.measure.joints.terms import parse_joint_model, with_joint_model
-    from kincal.report.metrics import error_metrics, merge_errors
-    from kincal.workflow.flow import (
-        accuracy_from_result,
-        check_options_used,
-        extras_from_result,
-        result_document,
-        validate_blocks,
-    )
-    from kincal.workflow.heldout import BEFORE_DEFINITION
+    from kincal.workflow.flow import check_options_used
+    from kincal.workflow.validation import validate_on_files
 
     out = out_console(json_out)
     use_si(si)
@@ -422,34 +446,14 @@ def validate_cmd(
     masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
-    extras = extras_from_result(result) if result else None
-    doc_in = result_document(result) if result else {}
-    accuracy = None
-    if isinstance(doc_in.get("accuracy_model"), dict):
-        accuracy = accuracy_from_result(str(result), r)
-    files = validate_blocks(r, blocks, before, extras, validation_frames,
-                            extras_from_result(result, "before") if result else None,
-                            accuracy)
-    print_heldout(out, files, f"Errors of {r.name} on held-out data")
-    iso_doc = _iso9283(out, r, before, blocks, extras) if iso9283 else None
+    val = validate_on_files(r, blocks, before, result, validation_frames)
+    print_heldout(out, val.files, f"Errors of {r.name} on held-out data")
+    if iso9283:
+        val = dataclasses.replace(val, iso9283=_iso9283(out, r, before, blocks, val.extras))
     if json_out:
-        overall = error_metrics(merge_errors([f.after for f in files]))
-        doc: dict[str, Any] = {"robot": r.name, "overall": overall,
-                               "files": {f.block.source_label: f.metrics() for f in files},
-                               "before_definition": BEFORE_DEFINITION}
-        if iso_doc is not None:
-            doc["iso9283"] = iso_doc
-        if before is not None:
-            doc["overall_before"] = error_metrics(merge_errors([f.before for f in files]))
-        if accuracy is not None:
-            doc["predicted"] = {f.block.source_label: {"outside_joint_ranges":
-                                                      f.prediction.outside_joint_ranges,
-                                                      "outside_hull": f.prediction.outside_hull,
-                                                      **f.prediction.to_dict()}
-                                for f in files if f.prediction is not None}
-        write_json(json_out, doc)
+        write_json(json_out, val.to_dict())
     if report:
-        _validation_report(report, r, files, accuracy, iso_doc, {
+        _validation_report(report, r, val.files, val.accuracy, val.iso9283, {
             "robot": robot, "data": ", ".join(data), "result": result or "-",
             "before": nominal or "-", "frames": validation_frames})
         out.print(f"report: {escape(report)}")

@@ -18,18 +18,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from kincal.cli.common import (  # noqa: F401  (BaseLink, RobotArg, TipLink, is_fivebar re-exported)
-    BaseLink,
-    JsonOut,
-    RobotArg,
-    TipLink,
-    console,
-    err_console,
-    is_fivebar,
-)
+from kincal.cli.common import JsonOut, console, err_console, is_fivebar
 from kincal.cli.options import console_quantity, console_units
 from kincal.errors import KincalError
-from kincal.workflow.session import joint_masses  # noqa: F401  (re-exported)
 
 JsonOpt = JsonOut
 
@@ -413,8 +404,9 @@ def print_weak(out: Console, weak: Sequence[Any]) -> None:
     out.print(t)
 
 
-def print_patent(out: Console, info: Any) -> None:
-    """The patent procedure's record: selection, cycles, comparison with one-stage LM."""
+def print_staged_selection(out: Console, info: Any) -> None:
+    """The staged-selection procedure's record (the cross-bar patent's): data selection,
+    cycles, comparison with one-stage LM."""
 
     d = info.to_dict()
     n_all = len(d["kept"]) + len(d["discarded"])

@@ -19,16 +19,15 @@ from rich.markup import escape
 
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
-    BaseLink,
     IgnoreOpt,
     JsonOpt,
-    TipLink,
     UnitsOpt,
     check_unit,
     load,
     out_console,
     serial,
 )
+from kincal.cli.common import BaseLink, TipLink
 from kincal.cli.options import SiOpt, use_si
 from kincal.errors import KincalError, MeasurementFileError
 from kincal.io import check_outputs
@@ -190,7 +189,7 @@ def compensate_cmd(
     if pred is not None:
         _print_prediction(out, pred, comp, table, cu)
     out.print(f"joint commands ({angle_unit} / {length_unit}) -> {escape(output)}"
-              + (f"; filtered targets -> {escape(filtered)}" if ftext else ""))
+              + (f"; filtered targets -> {escape(filtered)}" if ftext and filtered else ""))
     if json_out:
         write_json(json_out, run.to_dict())
 

@@ -17,15 +17,8 @@ import typer
 from rich.markup import escape
 
 from kincal.cli.app import app
-from kincal.cli.calibration_common import (
-    BaseLink,
-    JsonOpt,
-    RobotArg,
-    TipLink,
-    is_fivebar,
-    load,
-    out_console,
-)
+from kincal.cli.calibration_common import JsonOpt, load, out_console
+from kincal.cli.common import BaseLink, RobotArg, TipLink, is_fivebar
 from kincal.errors import KincalError
 from kincal.io import check_outputs
 

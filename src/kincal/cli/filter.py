@@ -22,7 +22,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
-from kincal.cli.calibration_common import BaseLink, JsonOpt, TipLink, load, out_console, serial
+from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
+from kincal.cli.common import BaseLink, TipLink
 from kincal.errors import KincalError
 
 _SHOWN = 40
@@ -148,10 +149,7 @@ def filter_cmd(
                         else f"{r.predicted_std_mm:.6f}", ";".join(r.warnings), r.reason])
         atomic_write_text(csv_out, buf.getvalue())
     if json_out:
-        write_json(json_out, {"program": program, "dialect": res.dialect,
-                              "robot": cal.name, "nominal": nom.name,
-                              "outputs": list(targets.values()),
-                              "targets": [r.to_dict() for r in rows]})
+        write_json(json_out, res.to_dict(outputs=list(targets.values())))
     if res.failed:
         first = res.failed[0]
         print(f"error: {len(res.failed)} of {len(rows)} targets could not be filtered and were "

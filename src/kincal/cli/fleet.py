@@ -265,8 +265,8 @@ def drift_cmd(
 
         check_outputs({"--report": report, "--json": json_out}, {})
     with _store(db, create=False) as store:
-        drifts = fleet_drift(store, false_alarm)
-        flagged = [d for d in drifts if d.flagged]
+        check = fleet_drift(store, false_alarm)
+        drifts, flagged = check.robots, check.flagged
         if report:
             from kincal.fleet.page import fleet_page
             from kincal.io import atomic_write_text
@@ -308,8 +308,7 @@ def drift_cmd(
     if json_out:
         from kincal.io import write_json
 
-        write_json(json_out, {"false_alarm": false_alarm, "flagged": len(flagged),
-                              "robots": [d.to_dict() for d in drifts]})
+        write_json(json_out, check.to_dict())
     if flagged:
         err_console.print(f"error: {len(flagged)} robot(s) drifted: "
                           + ", ".join(d.serial for d in flagged[:10])

@@ -12,7 +12,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.markup import escape
@@ -20,6 +20,11 @@ from rich.markup import escape
 from kincal.cli.app import app
 from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
 from kincal.errors import KincalError
+
+if TYPE_CHECKING:                 # types only: the robots load lazily (start-up time)
+    from rich.console import Console
+
+    from kincal.robots.chain import Robot
 
 import_app = typer.Typer(help="Other tools' files in: UR calibration files, ROS bags.",
                          no_args_is_help=True, rich_markup_mode=None)
@@ -30,7 +35,7 @@ NominalOpt = Annotated[str, typer.Option("--nominal", help="The built-in UR the 
                                          "robot file.")]
 
 
-def _round_trip_report(out, robot, nominal, text: str) -> float:
+def _round_trip_report(out: Console, robot: Robot, nominal: Robot, text: str) -> float:
     import numpy as np
 
     from kincal.robots.ur import check_round_trip

@@ -350,7 +350,7 @@ def clik_command(
     cylinder around the first axis).
     """
 
-    from kincal.motion.clik import METHODS, clik, plot_clik
+    from kincal.motion.clik import INTEGRATORS, METHODS, Method, clik, plot_clik
     from kincal.motion.trajectory import CartesianMotion, LinePath, TimingLaw
 
     out = out_dir
@@ -358,11 +358,14 @@ def clik_command(
     total = quantity(duration, "time", "--duration", positive=True)
     k = quantity(damping, "length", "--damping", minimum=0.0)
     eps = quantity(threshold, "length", "--threshold", minimum=0.0)
-    methods = method or ["inverse", "dls"]
-    for m in methods:
-        if m not in METHODS:
-            raise KincalError(f"unknown --method {m!r}; use one of {', '.join(METHODS)}")
-    if integrator not in ("euler", "rk4"):
+    methods: list[Method] = []
+    for name in method or ["inverse", "dls"]:
+        known = next((m for m in METHODS if m == name), None)
+        if known is None:
+            raise KincalError(f"unknown --method {name!r}; use one of {', '.join(METHODS)}")
+        methods.append(known)
+    scheme = next((i for i in INTEGRATORS if i == integrator), None)
+    if scheme is None:
         raise KincalError(f"option --integrator: {integrator!r} is not euler or rk4")
     g = parse_vector(gain, "--gain")
     if g.size not in (1, 3):
@@ -375,7 +378,7 @@ def clik_command(
     T0 = r.fk(q0)
     T1 = T0.copy()
     T1[:3, 3] = p_end
-    motion = CartesianMotion(LinePath(T0, T1), TimingLaw(timing, total))  # type: ignore[arg-type]
+    motion = CartesianMotion(LinePath(T0, T1), TimingLaw.named(timing, total))
     out.mkdir(parents=True, exist_ok=True)
     results = []
     quiet = json_out == "-"
@@ -389,9 +392,8 @@ def clik_command(
             def advance(i: int, n: int, task: TaskID = task) -> None:
                 bar.update(task, completed=i / n)
 
-            res = clik(r, motion, q0, step, g if g.size == 3 else float(g[0]), m,  # type: ignore[arg-type]
-                       k, eps, task="position", integrator=integrator,  # type: ignore[arg-type]
-                       progress=advance)
+            res = clik(r, motion, q0, step, g if g.size == 3 else float(g[0]), m,
+                       k, eps, task="position", integrator=scheme, progress=advance)
             res.meta["segment"] = (T0[:3, 3].tolist(), p_end.tolist())
             res.meta["damping_k"] = k
             res.to_csv(out / f"clik_{m}.csv")

@@ -8,11 +8,10 @@ every file is written atomically.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -21,20 +20,22 @@ from rich.table import Table
 from kincal.cli.app import app
 from kincal.cli.calibration_common import (
     AngleUnit,
-    BaseLink,
     JsonOpt,
     LengthUnit,
-    RobotArg,
-    TipLink,
     check_unit,
     load,
     out_console,
     serial,
 )
-from kincal.cli.common import console
+from kincal.cli.common import BaseLink, RobotArg, TipLink, console
 from kincal.cli.options import SeedOpt, SiOpt, Units, quantity
 from kincal.errors import KincalError
 from kincal.io import check_outputs
+
+if TYPE_CHECKING:                 # types only: the workflow loads lazily (start-up time)
+    from rich.console import Console
+
+    from kincal.workflow.simulation import SimulatedExperiment
 
 #: First-class artifact flags -> the instrument options they set (first one present) and
 #: the dimension of their value.
@@ -149,10 +150,11 @@ def noise_used(inst: Any, opts: dict[str, Any], sd: float, si: bool = False
 
     Artifact instruments use ``encoder_noise_deg`` when it is >= 0, else ``sd`` [rad].
     """
+    from kincal.workflow.simulation import applied_noise
+
     cu = Units(si)
     if "encoder_noise_deg" in inst.options:
-        enc = opts.get("encoder_noise_deg", inst.options["encoder_noise_deg"][0])
-        value = math.radians(enc) if enc >= 0 else sd
+        value = applied_noise(inst, opts, sd)
         return value, f"encoder noise {cu.value(value, 'rad')} per joint"
     if inst.noise_unit in ("m", "rad"):
         return sd, f"noise {cu.value(sd, inst.noise_unit)}"
@@ -214,16 +216,8 @@ def simulate(
 
     Artifact instruments (cross-bar, ball-bar, two-socket) seat a probe in the sockets
     of the artifact by IK on the true robot and record noisy joint readings."""
-    import numpy as np
-
-    from kincal.io import write_json
-    from kincal.measure.registry import (
-        get_instrument,
-        simulate_measurements,
-        write_measurements,
-    )
-    from kincal.measure.simulate import perturb_robot
-    from kincal.robots.files import robot_yaml_text
+    from kincal.measure.registry import get_instrument
+    from kincal.workflow.simulation import simulate_experiment
 
     out = out_console(json_out)
     errors = {what: quantity(text, "length" if what == "length" else "angle",
@@ -245,66 +239,57 @@ def simulate(
     if encoder_noise is not None and noise is not None:
         raise KincalError("give either --encoder-noise or --noise, not both")
     sd = parse_noise(noise, inst)
-    used, noise_text = noise_used(inst, opts, sd, si)
+    _, noise_text = noise_used(inst, opts, sd, si)
     units = {"length": check_unit(length_unit, "length", "--length-unit"),
              "angle": check_unit(angle_unit, "angle", "--angle-unit")}
-    rng = np.random.default_rng(seed)
-    names = None
-    if perturb:
-        from kincal.identify.names import match_names
+    sim = simulate_experiment(
+        nominal, inst, poses=poses, noise=sd, options=opts, seed=seed,
+        length_std=errors["length"], angle_std=errors["angle"], offset_std=errors["offset"],
+        perturb=[p.strip() for p in perturb.split(",")] if perturb else None,
+        holdout_poses=holdout_poses if holdout else None).with_notes(noise_text)
+    _write_simulation(sim, output, holdout, truth, units)
+    _print_simulation(out, sim, output, holdout, truth, noise_text, si)
+    if json_out:
+        from kincal.io import write_json
 
-        names = [nominal.param_names[i] for i in
-                 match_names(nominal.param_names, [p.strip() for p in perturb.split(",")])]
-    ls, as_, os_ = errors["length"], errors["angle"], errors["offset"]
-    true = perturb_robot(nominal, rng, length_std=ls, angle_std=as_, offset_std=os_,
-                         base_std=(ls, as_), tool_std=(ls, as_), names=names)
-    blocks, inst_truth = simulate_measurements(inst, true, rng, poses, sd, opts)
-    held = None
-    if holdout:
-        hopts = dict(opts)
-        same = inst.same_placement
-        if not same and "name" in inst.options:
-            hopts["name"] = f"{opts.get('name', inst.options['name'][0])}_holdout"
-        held, _ = simulate_measurements(inst, true, rng, holdout_poses, sd, hopts,
-                                        truth=inst_truth)
-    note = (f"Simulated by `kincal simulate`: {nominal.name} + errors (seed {seed}), measured "
-            f"by {inst.name} with {noise_text}; instrument truth: "
-            + ", ".join(f"{k}={v:.9g}" for k, v in inst_truth.items()))
-    true = dataclasses.replace(true, meta={**dict(true.meta), "notes": note})
-    truth_text = robot_yaml_text(true) if truth else None
-    write_measurements(inst, blocks, output, units, nominal)
-    if held is not None and holdout is not None:
-        write_measurements(inst, held, holdout, units, nominal)
+        write_json(json_out, sim.to_dict(output=output, holdout=holdout, truth_file=truth))
+
+
+def _write_simulation(sim: SimulatedExperiment, output: str, holdout: str | None,
+                      truth: str | None, units: dict[str, str]) -> None:
+    """The measurement CSV, the held-out CSV and the true robot's YAML, each rendered
+    before it is written atomically."""
+    from kincal.measure.registry import write_measurements
+    from kincal.robots.files import robot_yaml_text
+
+    truth_text = robot_yaml_text(sim.true) if truth else None
+    write_measurements(sim.instrument, sim.blocks, output, units, sim.nominal)
+    if sim.held is not None and holdout is not None:
+        write_measurements(sim.instrument, sim.held, holdout, units, sim.nominal)
     if truth and truth_text is not None:
         from kincal.io import atomic_write_text
 
         atomic_write_text(truth, truth_text)
-    delta = true.param_values - nominal.param_values
-    rows = sum(int(b.q.shape[0]) for b in blocks)
-    from kincal.measure.base import HasPlacements
 
-    n_pl = sum(len(b.placements) for b in blocks if isinstance(b, HasPlacements))
-    out.print(f"simulated {rows} measurements"
+
+def _print_simulation(out: Console, sim: SimulatedExperiment, output: str,
+                      holdout: str | None, truth: str | None, noise_text: str,
+                      si: bool) -> None:
+    """What was simulated and written, and the size of the injected errors."""
+    import numpy as np
+
+    nominal = sim.nominal
+    n_pl = sim.placements
+    out.print(f"simulated {sim.measurements} measurements"
               + (f" ({n_pl} placements)" if n_pl else "")
-              + f" of {escape(nominal.name)} with {inst.name} ({noise_text}) -> "
+              + f" of {escape(nominal.name)} with {sim.instrument.name} ({noise_text}) -> "
               f"{escape(output)}")
-    if held is not None:
-        hrows = sum(int(b.q.shape[0]) for b in held)
-        out.print(f"held-out: {hrows} measurements -> {escape(str(holdout))}")
+    if sim.held is not None:
+        out.print(f"held-out: {sim.held_measurements} measurements -> {escape(str(holdout))}")
+    delta = sim.true.param_values - nominal.param_values
     lin = np.array([u == "m" for u in nominal.param_units])
-    console = Units(si)
+    cu = Units(si)
     out.print(f"injected errors: {int(np.count_nonzero(delta))} parameters, largest "
-              f"{console.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
-              f"{console.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
+              f"{cu.value(np.max(np.abs(delta[lin]), initial=0), 'm', 3)} / "
+              f"{cu.value(np.max(np.abs(delta[~lin]), initial=0), 'rad', 4)}"
               + (f"; truth -> {escape(truth)}" if truth else ""))
-    if json_out:
-        doc: dict[str, Any] = {
-            "robot": nominal.name, "instrument": inst.name, "poses": poses,
-            "measurements": rows, "noise": sd, "noise_unit": inst.noise_unit,
-            "seed": seed, "output": output, "holdout": holdout, "truth_file": truth,
-            "instrument_options": opts, "instrument_truth": inst_truth,
-            "true_parameters": true.params(), "nominal_parameters": nominal.params()}
-        if "encoder_noise_deg" in inst.options:
-            doc["encoder_noise_rad"] = used
-            doc["placements"] = n_pl
-        write_json(json_out, doc)

@@ -137,7 +137,7 @@ def compensate(calibrated: Robot, targets: ArrayLike, nominal: Robot | None = No
     if nominal is not None:
         _check_compatible(calibrated, nominal)
     from_nominal = q0 is None and nominal is not None
-    if from_nominal:
+    if q0 is None and nominal is not None:
         q0 = solve_ik(nominal, T, mask=mask, tol_position=tol_position,
                       tol_orientation=tol_orientation, max_iter=max_iter, restarts=restarts,
                       rng=rng).q

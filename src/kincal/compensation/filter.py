@@ -168,25 +168,161 @@ def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
     reason = [""] * N
     asked = np.array([c is not None for c in confs], bool)
     if _closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc") and asked.any():
-        idx = np.flatnonzero(asked)
+        idx = [int(i) for i in np.flatnonzero(asked)]
         sol = ik_spherical_wrist(nominal, F[idx])
         conf = Configurator.of(nominal, cmap)
         qs, found = conf.select(sol.q, sol.reachable, [confs[i] for i in idx])
         q[idx], ok[idx] = qs, found
-        for i, f, anyr in zip(idx, found, sol.reachable.any(axis=1), strict=True):
-            if not f:
+        any_branch: list[bool] = np.any(sol.reachable, axis=1).tolist()
+        for i, f, anyr in zip(idx, found.tolist(), any_branch, strict=True):
+            asked_conf = confs[i]
+            if not f and asked_conf is not None:
                 reason[i] = (f"unreachable: no joint solution with configuration "
-                             f"{confs[i].text} inside the joint limits" if anyr else  # type: ignore[union-attr]
+                             f"{asked_conf.text} inside the joint limits" if anyr else
                              "unreachable: outside the robot's workspace")
     rest = np.flatnonzero(~asked)
     if rest.size:
-        sol = solve_ik(nominal, F[rest], q0=seeds[rest], mask="pose", tol_position=1e-10,
+        num = solve_ik(nominal, F[rest], q0=seeds[rest], mask="pose", tol_position=1e-10,
                        tol_orientation=1e-10)
-        q[rest], ok[rest] = sol.q, sol.success
-        for k, i in enumerate(rest):
-            if not sol.success[k]:
-                reason[i] = f"the nominal controller cannot reach it ({sol.reason[k]})"
+        q[rest], ok[rest] = num.q, num.success
+        for k, i in enumerate(rest.tolist()):
+            if not num.success[k]:
+                reason[i] = f"the nominal controller cannot reach it ({num.reason[k]})"
     return q, ok, reason
+
+
+@dataclass
+class _Targets:
+    """The requests as arrays: flange poses (pose targets; for offline joint targets the
+    nominal model's pose of their joints), joints, which are poses, the seeds and the
+    asked configurations."""
+
+    flange: Array
+    joints: Array
+    pose: NDArray[np.bool_]
+    seeds: Array
+    confs: list[Configuration | None]
+    tools: Array
+
+
+def _as_arrays(nominal: Robot, requests: Sequence[TargetRequest], offline_joints: bool
+               ) -> _Targets:
+    """Stack the requests (:class:`_Targets`)."""
+    N, n = len(requests), nominal.n
+    flange_in = np.tile(np.eye(4), (N, 1, 1))
+    joints_in = np.zeros((N, n))
+    pose = np.array([r.kind == "pose" for r in requests], bool)
+    for i, r in enumerate(requests):
+        if r.kind == "pose" and r.flange is not None:
+            flange_in[i] = r.flange
+        elif r.joints is not None:
+            joints_in[i] = r.joints
+    if offline_joints:
+        jt = np.flatnonzero(~pose)
+        flange_in[jt] = nominal.fk(joints_in[jt])
+    seeds = np.array([r.seed if r.seed is not None else
+                      (r.joints if r.kind == "joints" and r.joints is not None else
+                       np.clip(np.zeros(n), nominal.joint_limits[:, 0], nominal.joint_limits[:, 1]))
+                      for r in requests]).reshape(N, n)
+    confs: list[Configuration | None] = [r.config if r.kind == "pose" else None for r in requests]
+    tools = np.array([r.tool for r in requests]).reshape(N, 4, 4)
+    return _Targets(flange_in, joints_in, pose, seeds, confs, tools)
+
+
+def _nominal_joints(nominal: Robot, cmap: ControllerMap, t: _Targets, work: NDArray[np.intp],
+                    ok: NDArray[np.bool_], reason: list[str]) -> Array:
+    """Step 1: the nominal controller's joints of the targets ``work`` (the others keep
+    their joints); marks the ones it cannot reach in ``ok`` / ``reason``."""
+    q_nom = t.joints.copy()
+    if work.size:
+        w_confs = [t.confs[i] for i in work.tolist()]
+        seeds_w = t.seeds[work].copy()
+        jt_mask = ~t.pose[work]
+        seeds_w[jt_mask] = t.joints[work][jt_mask]
+        qn, okn, rn = nominal_solutions(nominal, cmap, t.flange[work], w_confs, seeds_w)
+        q_nom[work], ok[work] = qn, okn
+        for k, i in enumerate(work.tolist()):
+            reason[i] = rn[k]
+    return q_nom
+
+
+def _calibrated_joints(calibrated: Robot, nominal: Robot, flange: Array, q_nom: Array,
+                       solve: NDArray[np.intp], ok: NDArray[np.bool_], reason: list[str]
+                       ) -> Array:
+    """Step 2: ``q = f_cal^-1(F)`` for the targets ``solve``, Newton from the nominal
+    joints, the general IK where Newton does not converge; marks a target the calibrated
+    robot cannot reach, or reaches only beyond a joint limit, in ``ok`` / ``reason``."""
+    q_cal = q_nom.copy()
+    if not solve.size:
+        return q_cal
+    q_new, conv = refine(calibrated, flange[solve], q_nom[solve])
+    q_cal[solve] = q_new
+    lost = np.flatnonzero(~conv)
+    if lost.size:                      # far from the nominal solution: the general IK
+        comp = compensate(calibrated, flange[solve[lost]], nominal=nominal,
+                          q0=q_nom[solve[lost]])
+        q_cal[solve[lost]] = comp.q
+        for k, i in enumerate(solve[lost].tolist()):
+            if not comp.success[k]:
+                ok[i] = False
+                reason[i] = f"unreachable by the calibrated robot ({comp.reason[k]})"
+    lim = calibrated.joint_limits
+    outside = np.any((q_cal[solve] < lim[:, 0] - 1e-9) | (q_cal[solve] > lim[:, 1] + 1e-9),
+                     axis=1)
+    for i in solve[outside & ok[solve]].tolist():
+        ok[i] = False
+        reason[i] = "joint limits: the calibrated robot would need a joint beyond its limit"
+    return q_cal
+
+
+def _configuration_checks(conf_obj: Configurator, nominal: Robot, t: _Targets, q_nom: Array,
+                          q_cal: Array, good: NDArray[np.intp], work: NDArray[np.intp],
+                          ok: NDArray[np.bool_], reason: list[str], warnings: list[list[str]],
+                          signs: Array, flange_out: Array) -> NDArray[np.intp]:
+    """Step 3 where the robot has configuration rules: the calibrated solution's signs
+    (into ``signs``); a target on another branch than asked is refused (its flange pose
+    restored), one without an asked configuration warned of; singularity margins.
+    Returns the targets still good."""
+    signs[good] = conf_obj.signs(q_cal[good])
+    want = np.array([[c.shoulder, c.elbow, c.wrist] if c is not None else [0, 0, 0]
+                     for c in (t.confs[i] for i in good.tolist())], float).reshape(-1, 3)
+    free = ~want.any(axis=1)
+    want[free] = conf_obj.signs(q_nom[good][free])
+    same = np.all((want == 0) | (signs[good] == want), axis=1)
+    for k in np.flatnonzero(~same).tolist():
+        i = int(good[k])
+        asked = t.confs[i]
+        if asked is not None:       # the controller would not reproduce it
+            ok[i] = False
+            reason[i] = (f"the calibrated robot cannot reach it on configuration "
+                         f"{asked.text} (its nearest solution is on another branch: "
+                         "near a singularity or the workspace boundary)")
+        else:
+            warnings[i].append("branch change")
+    good = good[same | np.array([t.confs[i] is None for i in good.tolist()], bool)]
+    flange_out[work[~ok[work]]] = t.flange[work[~ok[work]]]
+    m = conf_obj.margins(q_cal[good])
+    L = check_wrist_family(nominal)
+    r3 = math.hypot(L[2].a, L[3].d)
+    near = (m[:, 0] < SINGULARITY_MARGINS[0]) | (m[:, 1] / r3 < SINGULARITY_MARGINS[1]) \
+        | (m[:, 2] < SINGULARITY_MARGINS[2])
+    for k in np.flatnonzero(near).tolist():
+        warnings[int(good[k])].append("near a singularity")
+    return good
+
+
+def _tcp_shifts(t: _Targets, flange_out: Array, offline_joints: bool) -> tuple[Array, Array]:
+    """``|p'_tcp - p_tcp|`` [m] and the rotation angle between the filtered and the original
+    TCP [rad] per target (zero for joint targets left as taught)."""
+    tcp_in, tcp_out = t.flange @ t.tools, flange_out @ t.tools
+    shift_p = np.linalg.norm(tcp_out[:, :3, 3] - tcp_in[:, :3, 3], axis=1)
+    shift_r = np.linalg.norm(log_so3(tcp_out[:, :3, :3] @ np.swapaxes(tcp_in[:, :3, :3], 1, 2)),
+                             axis=1)
+    if not offline_joints:
+        jt = np.flatnonzero(~t.pose)
+        shift_p[jt] = 0.0
+        shift_r[jt] = 0.0
+    return shift_p, shift_r
 
 
 def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetRequest],
@@ -207,57 +343,15 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
     """
     _check_compatible(calibrated, nominal)
     cmap = cmap or controller_map(nominal)
-    N, n = len(requests), nominal.n
-    flange_in = np.tile(np.eye(4), (N, 1, 1))
-    joints_in = np.zeros((N, n))
-    pose = np.array([r.kind == "pose" for r in requests], bool)
-    for i, r in enumerate(requests):
-        if r.kind == "pose" and r.flange is not None:
-            flange_in[i] = r.flange
-        elif r.joints is not None:
-            joints_in[i] = r.joints
-    if offline_joints:
-        jt = np.flatnonzero(~pose)
-        flange_in[jt] = nominal.fk(joints_in[jt])
+    N = len(requests)
+    t = _as_arrays(nominal, requests, offline_joints)
+    pose = t.pose
     work = np.flatnonzero(pose | offline_joints)
-    seeds = np.array([r.seed if r.seed is not None else
-                      (r.joints if r.kind == "joints" and r.joints is not None else
-                       np.clip(np.zeros(n), nominal.joint_limits[:, 0], nominal.joint_limits[:, 1]))
-                      for r in requests]).reshape(N, n)
-    confs: list[Configuration | None] = [r.config if r.kind == "pose" else None for r in requests]
-    q_nom = joints_in.copy()
     ok = np.ones(N, bool)
     reason = [""] * N
-    if work.size:
-        w_confs = [confs[i] for i in work]
-        seeds_w = seeds[work].copy()
-        jt_mask = ~pose[work]
-        seeds_w[jt_mask] = joints_in[work][jt_mask]
-        qn, okn, rn = nominal_solutions(nominal, cmap, flange_in[work], w_confs, seeds_w)
-        q_nom[work], ok[work] = qn, okn
-        for k, i in enumerate(work):
-            reason[i] = rn[k]
-    q_cal = q_nom.copy()
-    solve = work[ok[work]]
-    if solve.size:
-        q_new, conv = refine(calibrated, flange_in[solve], q_nom[solve])
-        q_cal[solve] = q_new
-        lost = np.flatnonzero(~conv)
-        if lost.size:                      # far from the nominal solution: the general IK
-            comp = compensate(calibrated, flange_in[solve[lost]], nominal=nominal,
-                              q0=q_nom[solve[lost]])
-            q_cal[solve[lost]] = comp.q
-            for k, i in enumerate(solve[lost]):
-                if not comp.success[k]:
-                    ok[i] = False
-                    reason[i] = f"unreachable by the calibrated robot ({comp.reason[k]})"
-        lim = calibrated.joint_limits
-        outside = np.any((q_cal[solve] < lim[:, 0] - 1e-9) | (q_cal[solve] > lim[:, 1] + 1e-9),
-                         axis=1)
-        for i in solve[outside & ok[solve]]:
-            ok[i] = False
-            reason[i] = "joint limits: the calibrated robot would need a joint beyond its limit"
-    flange_out = flange_in.copy()
+    q_nom = _nominal_joints(nominal, cmap, t, work, ok, reason)
+    q_cal = _calibrated_joints(calibrated, nominal, t.flange, q_nom, work[ok[work]], ok, reason)
+    flange_out = t.flange.copy()
     good = work[ok[work]]
     flange_out[good] = nominal.fk(q_cal[good])
     warnings: list[list[str]] = [[] for _ in range(N)]
@@ -265,64 +359,34 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
         _closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc")) else None
     signs = np.zeros((N, 3))
     if good.size and conf_obj is not None:
-        q_good = q_cal[good]
-        signs[good] = conf_obj.signs(q_good)
-        want = np.array([[c.shoulder, c.elbow, c.wrist] if c is not None else [0, 0, 0]
-                         for c in (confs[i] for i in good)], float).reshape(-1, 3)
-        free = ~want.any(axis=1)
-        want[free] = conf_obj.signs(q_nom[good][free])
-        same = np.all((want == 0) | (signs[good] == want), axis=1)
-        for k in np.flatnonzero(~same):
-            i = good[k]
-            if confs[i] is not None:       # the controller would not reproduce it
-                ok[i] = False
-                reason[i] = (f"the calibrated robot cannot reach it on configuration "
-                             f"{confs[i].text} (its nearest solution is on another branch: "  # type: ignore[union-attr]
-                             "near a singularity or the workspace boundary)")
-            else:
-                warnings[i].append("branch change")
-        good = good[same | np.array([confs[i] is None for i in good], bool)]
-        flange_out[work[~ok[work]]] = flange_in[work[~ok[work]]]
-        m = conf_obj.margins(q_cal[good])
-        L = check_wrist_family(nominal)
-        r3 = math.hypot(L[2].a, L[3].d)
-        near = (m[:, 0] < SINGULARITY_MARGINS[0]) | (m[:, 1] / r3 < SINGULARITY_MARGINS[1]) \
-            | (m[:, 2] < SINGULARITY_MARGINS[2])
-        for k in np.flatnonzero(near):
-            warnings[good[k]].append("near a singularity")
+        good = _configuration_checks(conf_obj, nominal, t, q_nom, q_cal, good, work, ok,
+                                     reason, warnings, signs, flange_out)
     elif good.size:
         jump = np.max(np.abs(q_cal[good] - q_nom[good]), axis=1)
-        for k in np.flatnonzero(jump > 0.5):
-            warnings[good[k]].append("branch change")
+        for k in np.flatnonzero(jump > 0.5).tolist():
+            warnings[int(good[k])].append("branch change")
     lim = calibrated.joint_limits
     if good.size:
         close = np.any((q_cal[good] - lim[:, 0] < LIMIT_MARGIN)
                        | (lim[:, 1] - q_cal[good] < LIMIT_MARGIN), axis=1)
-        for k in np.flatnonzero(close):
-            warnings[good[k]].append("joint limit")
-    for i in np.flatnonzero(~ok):
+        for k in np.flatnonzero(close).tolist():
+            warnings[int(good[k])].append("joint limit")
+    for i in np.flatnonzero(~ok).tolist():
         warnings[i].append("unreachable" if "reach" in reason[i] else "not filtered")
-    joints_out = joints_in.copy()
+    joints_out = t.joints.copy()
     joints_out[pose] = q_cal[pose]
     jt = np.flatnonzero(~pose)
     if offline_joints:
         joints_out[jt[ok[jt]]] = q_cal[jt[ok[jt]]]
         flange_out[jt] = nominal.fk(joints_out[jt])
-    tools = np.array([r.tool for r in requests]).reshape(N, 4, 4)
-    tcp_in, tcp_out = flange_in @ tools, flange_out @ tools
-    shift_p = np.linalg.norm(tcp_out[:, :3, 3] - tcp_in[:, :3, 3], axis=1)
-    shift_r = np.linalg.norm(log_so3(tcp_out[:, :3, :3] @ np.swapaxes(tcp_in[:, :3, :3], 1, 2)),
-                             axis=1)
-    if not offline_joints:
-        shift_p[jt] = 0.0
-        shift_r[jt] = 0.0
+    shift_p, shift_r = _tcp_shifts(t, flange_out, offline_joints)
     changed = ok & (pose | offline_joints) & ((shift_p > 1e-9) | (shift_r > 1e-9))
     std = np.full(N, np.nan)
     if accuracy is not None and good.size:
-        s, outside = tcp_accuracy(accuracy, calibrated, q_cal[good], tools[good][:, :3, 3])
+        s, outside = tcp_accuracy(accuracy, calibrated, q_cal[good], t.tools[good][:, :3, 3])
         std[good] = s
-        for k in np.flatnonzero(outside):
-            warnings[good[k]].append("outside the calibrated region")
+        for k in np.flatnonzero(outside).tolist():
+            warnings[int(good[k])].append("outside the calibrated region")
     return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
                         reason, warnings, signs)
 

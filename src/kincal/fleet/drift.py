@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -34,7 +34,7 @@ from kincal.errors import KincalError
 from kincal.robots.chain import ROLES
 from kincal.units import display_scale
 
-__all__ = ["ParameterChange", "Drift", "compare", "z_threshold", "fleet_drift"]
+__all__ = ["ParameterChange", "Drift", "FleetDrift", "compare", "z_threshold", "fleet_drift"]
 
 
 @dataclasses.dataclass
@@ -195,14 +195,39 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
                  flagged, moved, rms.get("rms_position_m"))
 
 
+@dataclasses.dataclass(frozen=True)
+class FleetDrift:
+    """The drift check of a fleet: one :class:`Drift` per robot with two calibrated
+    session dates (iterating gives them), at the false-alarm probability per robot."""
+
+    robots: list[Drift]
+    false_alarm: float
+
+    def __iter__(self) -> Iterator[Drift]:
+        return iter(self.robots)
+
+    def __len__(self) -> int:
+        return len(self.robots)
+
+    @property
+    def flagged(self) -> list[Drift]:
+        """The robots either test flagged."""
+        return [d for d in self.robots if d.flagged]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON document of ``kincal fleet drift --json``."""
+        return {"false_alarm": self.false_alarm, "flagged": len(self.flagged),
+                "robots": [d.to_dict() for d in self.robots]}
+
+
 def fleet_drift(store: Any, false_alarm: float = 1e-3,
-                serials: Sequence[str] | None = None) -> list[Drift]:
+                serials: Sequence[str] | None = None) -> FleetDrift:
     """:func:`compare` for every robot of a history with two calibrated session dates."""
     from kincal.fleet.store import latest_pairs
 
     pairs = latest_pairs(store.summaries(serials))
     if not pairs:
-        return []
+        return FleetDrift([], false_alarm)
     checks = store.crosscheck_rows()
     out = []
     for start in range(0, len(pairs), 200):
@@ -214,4 +239,4 @@ def fleet_drift(store: Any, false_alarm: float = 1e-3,
             if row is not None and row["status"] == "ok":
                 d.rms_previous_model_m = row["rms_position_m"]
             out.append(d)
-    return out
+    return FleetDrift(out, false_alarm)

@@ -144,6 +144,7 @@ class DaskEngine:
         map; a run with nothing to compute never starts a cluster)."""
         if self.client is not None:
             return self
+        # distributed carries no annotations: the no-untyped-call ignores here are that gap.
         from distributed import Client, LocalCluster
 
         quiet = logging.ERROR
@@ -153,16 +154,17 @@ class DaskEngine:
         if self.scheduler:
             _check_reachable(self.scheduler)
             try:
-                self.client = Client(self.scheduler, timeout=self.timeout,
-                                     set_as_default=False)
+                self.client = Client(  # type: ignore[no-untyped-call]
+                    self.scheduler, timeout=self.timeout, set_as_default=False)
             except (OSError, TimeoutError) as exc:
                 raise KincalError(f"option --scheduler: cannot reach a Dask scheduler at "
                                   f"{self.scheduler} ({type(exc).__name__}: {exc})") from None
         else:
-            self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                        processes=True, dashboard_address=None,
-                                        silence_logs=quiet, host="127.0.0.1")
-            self.client = Client(self.cluster, set_as_default=False)
+            self.cluster = LocalCluster(  # type: ignore[no-untyped-call]
+                n_workers=self.workers, threads_per_worker=1, processes=True,
+                dashboard_address=None, silence_logs=quiet, host="127.0.0.1")
+            self.client = Client(self.cluster,  # type: ignore[no-untyped-call]
+                                 set_as_default=False)
         info = self.client.scheduler_info()
         self.workers = len(info["workers"])
         self.threads = sum(w.get("nthreads", 1) for w in info["workers"].values()) or 1
@@ -186,7 +188,7 @@ class DaskEngine:
         self.start()
         it = enumerate(items)
         pending: dict[str, int] = {}
-        done = as_completed(loop=self.client.loop)
+        done = as_completed(loop=self.client.loop)  # type: ignore[no-untyped-call]
         exhausted = False
 
         def refill() -> None:
@@ -201,7 +203,7 @@ class DaskEngine:
                 futures = self.client.map(fn, [x for _, x in batch], pure=False)
                 for (i, _), f in zip(batch, futures, strict=True):
                     pending[f.key] = i
-                    done.add(f)
+                    done.add(f)  # type: ignore[no-untyped-call]
 
         refill()
         for f in done:
@@ -228,7 +230,8 @@ class DaskEngine:
 
     def worker_pids(self) -> dict[str, int]:
         """``{worker address: process id}`` (tests kill one)."""
-        return self.start().client.run(os.getpid)
+        pids: dict[str, int] = self.start().client.run(os.getpid)
+        return pids
 
     def close(self) -> None:
         try:

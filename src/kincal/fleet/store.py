@@ -20,7 +20,7 @@ import json
 import sqlite3
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Concatenate, ParamSpec, TypeVar
 
 import numpy as np
 from sqlalchemy import create_engine, delete, event, insert, inspect, select, update
@@ -43,7 +43,8 @@ __all__ = ["HistoryStore", "database_url", "FINISHED"]
 #: Statuses of a record that a re-run does not recompute.
 FINISHED = ("ok", "not converged", "untrusted")
 _SQLITE_MAGIC = b"SQLite format 3\x00"
-F = TypeVar("F", bound=Callable[..., Any])
+P = ParamSpec("P")
+R = TypeVar("R")
 
 
 def database_url(db: str) -> str:
@@ -65,14 +66,15 @@ def _reason(exc: BaseException) -> str:
     return f"database error: {type(orig).__name__}: {text}"
 
 
-def _guarded(method: F) -> F:
+def _guarded(method: Callable[Concatenate[HistoryStore, P], R]
+             ) -> Callable[Concatenate[HistoryStore, P], R]:
     @functools.wraps(method)
-    def wrapper(self: HistoryStore, *args: Any, **kwargs: Any) -> Any:
+    def wrapper(store: HistoryStore, /, *args: P.args, **kwargs: P.kwargs) -> R:
         try:
-            return method(self, *args, **kwargs)
+            return method(store, *args, **kwargs)
         except (SQLAlchemyError, sqlite3.Error) as exc:
-            raise KincalError(_reason(exc), source=self.display) from None
-    return wrapper  # type: ignore[return-value]
+            raise KincalError(_reason(exc), source=store.display) from None
+    return wrapper
 
 
 def _now() -> str:

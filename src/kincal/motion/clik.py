@@ -34,7 +34,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,8 +47,10 @@ from kincal.spatial import log_so3, matrix_to_angles, rate_matrix, wrap_angle
 
 Array = NDArray[np.float64]
 Method = Literal["inverse", "transpose", "pinv", "dls", "adaptive"]
-METHODS: tuple[str, ...] = ("inverse", "transpose", "pinv", "dls", "adaptive")
+METHODS: tuple[Method, ...] = ("inverse", "transpose", "pinv", "dls", "adaptive")
 Orientation = Literal["axis_angle", "zyz", "rpy"]
+Integrator = Literal["euler", "rk4"]
+INTEGRATORS: tuple[Integrator, ...] = ("euler", "rk4")
 
 
 # ---------------------------------------------------------------------------
@@ -143,7 +145,7 @@ class ClikResult:
     gain: Array
     joint_names: tuple[str, ...] = ()
     joint_units: tuple[str, ...] = ()
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     @property
     def position(self) -> Array:
@@ -156,7 +158,8 @@ class ClikResult:
     @property
     def position_error(self) -> Array:
         """(N,) ``|p_d - p|`` [m]."""
-        return np.linalg.norm(self.position_desired - self.position, axis=1)
+        err: Array = np.linalg.norm(self.position_desired - self.position, axis=1)
+        return err
 
     def path_deviation(self, path: LinePath | None = None) -> Array:
         """(N,) distance of the actual position from the straight segment [m].
@@ -169,7 +172,8 @@ class ClikResult:
             a, b = (np.asarray(v) for v in self.meta["segment"])
         d = b - a
         s = np.clip((self.position - a) @ d / (d @ d), 0.0, 1.0)
-        return np.linalg.norm(self.position - (a + s[:, None] * d), axis=1)
+        dist: Array = np.linalg.norm(self.position - (a + s[:, None] * d), axis=1)
+        return dist
 
     def summary(self) -> dict[str, float | str]:
         """Key numbers: final and peak errors, peak joint velocities, worst conditioning."""
@@ -228,7 +232,7 @@ def clik(robot: Robot, motion: CartesianMotion | Callable[[Array], tuple[Array, 
          q0: ArrayLike, dt: float, gain: float | ArrayLike = 50.0, method: Method = "inverse",
          damping: float = 0.1, threshold: float = 0.1,
          task: Literal["position", "pose"] = "position", orientation: Orientation = "axis_angle",
-         integrator: Literal["euler", "rk4"] = "euler", duration: float | None = None,
+         integrator: Integrator = "euler", duration: float | None = None,
          progress: Callable[[int, int], None] | None = None) -> ClikResult:
     """Closed-loop inverse kinematics along a desired motion.
 
@@ -269,7 +273,8 @@ def clik(robot: Robot, motion: CartesianMotion | Callable[[Array], tuple[Array, 
     N, n = t.size, robot.n
     Td, Vd, _ = motion(t)
 
-    def field_at(tk: float, q: Array, cached: tuple | None = None) -> tuple:
+    def field_at(tk: float, q: Array, cached: tuple[Array, Array] | None = None
+                 ) -> tuple[Array, Array, Array, Array, float]:
         """q_dot and the diagnostics at time tk (desired from cache or the motion)."""
         Tdk, vdk = (cached if cached is not None else (lambda r: (r[0][0], r[1][0]))(
             motion(np.array([tk]))))
@@ -360,7 +365,7 @@ def spherical_arm_motion(timing: str = "quintic",
     """
     T0, T1 = np.eye(4), np.eye(4)
     T0[:3, 3], T1[:3, 3] = SPHERICAL_ARM_P_I, SPHERICAL_ARM_P_F
-    return CartesianMotion(LinePath(T0, T1), TimingLaw(timing, duration))  # type: ignore[arg-type]
+    return CartesianMotion(LinePath(T0, T1), TimingLaw.named(timing, duration))
 
 
 def run_spherical_arm(method: Method = "inverse", gain: float | ArrayLike = 50.0,
@@ -393,7 +398,7 @@ def run_spherical_arm(method: Method = "inverse", gain: float | ArrayLike = 50.0
     return _with_meta(res, meta)
 
 
-def _with_meta(res: ClikResult, meta: dict) -> ClikResult:
+def _with_meta(res: ClikResult, meta: dict[str, Any]) -> ClikResult:
     from dataclasses import replace
 
     return replace(res, meta=meta)

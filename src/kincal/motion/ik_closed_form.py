@@ -109,7 +109,8 @@ def _poses(targets: ArrayLike) -> Array:
 def _limits_ok(robot: Robot, q: Array, reachable: NDArray[np.bool_]) -> NDArray[np.bool_]:
     lim = robot.joint_limits
     with np.errstate(invalid="ignore"):
-        inside = np.all((q >= lim[:, 0] - 1e-12) & (q <= lim[:, 1] + 1e-12), axis=-1)
+        inside: NDArray[np.bool_] = np.all((q >= lim[:, 0] - 1e-12) & (q <= lim[:, 1] + 1e-12),
+                                           axis=-1)
     return reachable & inside
 
 

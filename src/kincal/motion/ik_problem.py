@@ -69,4 +69,6 @@ class IKProblem:
     def inside(self, q: Array) -> NDArray[np.bool_]:
         if not self.limits:
             return np.ones(q.shape[0], bool)
-        return np.all((q >= self.lo - 1e-12) & (q <= self.hi + 1e-12), axis=1)
+        inside: NDArray[np.bool_] = np.all((q >= self.lo - 1e-12) & (q <= self.hi + 1e-12),
+                                           axis=1)
+        return inside

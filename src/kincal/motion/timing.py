@@ -26,9 +26,24 @@ from kincal.errors import KincalError
 
 Array = NDArray[np.float64]
 TimingKind = Literal["cubic", "quintic", "trapezoidal", "linear"]
+TIMING_KINDS: tuple[TimingKind, ...] = ("cubic", "quintic", "trapezoidal", "linear")
 
-__all__ = ["TimingKind", "TimingLaw", "cubic", "quintic", "trapezoidal", "timing_law",
-           "cubic_coefficients", "quintic_coefficients", "polyval", "sample_times"]
+__all__ = ["TimingKind", "TIMING_KINDS", "timing_kind", "TimingLaw", "cubic", "quintic",
+           "trapezoidal", "timing_law", "cubic_coefficients", "quintic_coefficients", "polyval",
+           "sample_times"]
+
+
+def timing_kind(name: str) -> TimingKind:
+    """The :data:`TimingKind` called ``name``; a one-line error for another name."""
+    for kind in TIMING_KINDS:
+        if kind == name:
+            return kind
+    raise KincalError(f"unknown timing law {name!r}; use cubic, quintic, trapezoidal or linear")
+
+
+def _check_duration(duration: float) -> None:
+    if not (duration > 0 and math.isfinite(duration)):
+        raise KincalError(f"a timing law needs a positive duration, got {duration}")
 
 
 @dataclass(frozen=True)
@@ -49,11 +64,15 @@ class TimingLaw:
     s_dot_max: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (self.duration > 0 and math.isfinite(self.duration)):
-            raise KincalError(f"a timing law needs a positive duration, got {self.duration}")
-        if self.kind not in ("cubic", "quintic", "trapezoidal", "linear"):
-            raise KincalError(f"unknown timing law {self.kind!r}; use cubic, quintic, "
-                              "trapezoidal or linear")
+        _check_duration(self.duration)
+        timing_kind(self.kind)
+
+    @classmethod
+    def named(cls, kind: str, duration: float) -> TimingLaw:
+        """A cubic, quintic or linear law from its kind's name (text of the command line),
+        with the constructor's checks in the same order (duration, then kind)."""
+        _check_duration(duration)
+        return cls(timing_kind(kind), duration)
 
     def __call__(self, t: ArrayLike) -> tuple[Array, Array, Array]:
         """``(s, s_dot [1/s], s_ddot [1/s^2])`` at times t (clamped to [0, T])."""
@@ -128,7 +147,7 @@ def timing_law(kind: str, duration: float | None = None, length: float = 1.0,
         return trapezoidal(length, v_max, a_max, duration)
     if duration is None:
         raise KincalError(f"the {kind} law needs a duration")
-    return TimingLaw(kind, float(duration))  # type: ignore[arg-type]
+    return TimingLaw.named(kind, float(duration))
 
 
 def cubic_coefficients(q0: ArrayLike, q1: ArrayLike, v0: ArrayLike, v1: ArrayLike,

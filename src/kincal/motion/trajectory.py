@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,6 +42,9 @@ from kincal.motion.timing import (
 )
 from kincal.robots.chain import Robot
 from kincal.spatial import matrix_to_rpy, pose_error
+
+if TYPE_CHECKING:                 # types only: matplotlib loads lazily
+    from matplotlib.figure import Figure
 
 Array = NDArray[np.float64]
 
@@ -85,7 +88,7 @@ class Trajectory:
     xd: Array | None = None
     xdd: Array | None = None
     kind: str = "joint"
-    meta: dict = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -158,14 +161,14 @@ class Trajectory:
         plt.close(fig)
 
 
-def _save(fig: object, path: str | Path) -> None:
+def _save(fig: Figure, path: str | Path) -> None:
     """Save a matplotlib figure atomically as PNG."""
     import io
 
     from kincal.io import atomic_write_bytes
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)  # type: ignore[attr-defined]
+    fig.savefig(buf, format="png", dpi=110)
     atomic_write_bytes(path, buf.getvalue())
 
 
@@ -375,11 +378,15 @@ def concatenate(parts: Sequence[Trajectory]) -> Trajectory:
                     raise KincalError("cannot join joint-space and Cartesian trajectories")
                 acc.append(arr[1:])
         offset = t[-1][-1] if t[-1].size else offset
-    cat = (lambda a: None if a is None else np.concatenate(a))  # noqa: E731
     first = parts[0]
     return Trajectory(np.concatenate(t), np.concatenate(q), np.concatenate(qd),
-                      np.concatenate(qdd), first.joint_names, first.joint_units, cat(xs),
-                      cat(xds), cat(xdds), kind="path" if len(parts) > 1 else first.kind)
+                      np.concatenate(qdd), first.joint_names, first.joint_units, _joined(xs),
+                      _joined(xds), _joined(xdds), kind="path" if len(parts) > 1 else first.kind)
+
+
+def _joined(arrays: list[Array] | None) -> Array | None:
+    """The arrays end to end, or None for a trajectory without that quantity."""
+    return None if arrays is None else np.concatenate(arrays)
 
 
 def cartesian_via(robot: Robot, poses: Sequence[ArrayLike], q0: ArrayLike, dt: float,

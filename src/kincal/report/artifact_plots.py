@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from kincal.measure.artifacts.model import ArtifactMeasurement
     from kincal.robots.chain import Robot
 
-__all__ = ["plot_lengths", "save_patent_figures", "length_summary"]
+__all__ = ["plot_lengths", "save_length_error_figures", "length_summary"]
 
 
 def _agg() -> Any:
@@ -100,10 +100,10 @@ def plot_lengths(block: ArtifactMeasurement, robot: Robot, extra: ArrayLike | No
     return fig
 
 
-def save_patent_figures(block: ArtifactMeasurement, nominal: Robot, calibrated: Robot,
-                        directory: str | Path, extra_nominal: ArrayLike | None = None,
-                        extra_calibrated: ArrayLike | None = None,
-                        prefix: str = "artifact") -> dict[str, str]:
+def save_length_error_figures(block: ArtifactMeasurement, nominal: Robot, calibrated: Robot,
+                              directory: str | Path, extra_nominal: ArrayLike | None = None,
+                              extra_calibrated: ArrayLike | None = None,
+                              prefix: str = "artifact") -> dict[str, str]:
     """Write the artifact's length errors under the nominal and the calibrated model as
     PNG files (the cross-bar patent's figures 4 and 5).
 

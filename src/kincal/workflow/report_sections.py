@@ -39,16 +39,16 @@ def artifact_figures(flow: FlowResult, report: str) -> dict[str, tuple[str, byte
     blocks = [b for b in flow.train if isinstance(b, ArtifactMeasurement)]
     if not blocks or flow.nominal is None:
         return {}
-    from kincal.report.artifact_plots import save_patent_figures
+    from kincal.report.artifact_plots import save_length_error_figures
 
     folder, stem = Path(report).parent, Path(report).stem
     out: dict[str, tuple[str, bytes]] = {}
     with tempfile.TemporaryDirectory(prefix="kincal-figures-") as tmp:
         for b in blocks:
             prefix = stem if len(blocks) == 1 else f"{stem}_{b.name}"
-            made = save_patent_figures(b, flow.nominal, flow.result.robot, tmp,
-                                       flow.before.get(b.name), flow.after.get(b.name),
-                                       prefix=prefix)
+            made = save_length_error_figures(b, flow.nominal, flow.result.robot, tmp,
+                                             flow.before.get(b.name), flow.after.get(b.name),
+                                             prefix=prefix)
             for key, p in made.items():
                 tag = key if len(blocks) == 1 else f"{b.name}.{key}"
                 out[tag] = (str(folder / Path(p).name), Path(p).read_bytes())

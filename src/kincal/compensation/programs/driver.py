@@ -11,7 +11,7 @@ inside.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -80,17 +80,28 @@ class TargetReport:
 
 @dataclass
 class FilteredProgram:
-    """New file texts (input path -> text) and the per-target reports."""
+    """New file texts (input path -> text) and the per-target reports; ``program`` is the
+    program's path, ``robot`` / ``nominal`` the names of the calibrated and the
+    controller's robot."""
 
     dialect: str
     texts: dict[str, str]
     originals: dict[str, str]
     reports: list[TargetReport]
     result: FilterResult | None
+    program: str = ""
+    robot: str = ""
+    nominal: str = ""
 
     @property
     def failed(self) -> list[TargetReport]:
         return [r for r in self.reports if r.status == "not filtered"]
+
+    def to_dict(self, outputs: Sequence[str] = ()) -> dict[str, Any]:
+        """The JSON document of ``kincal filter --json`` (``outputs``: the written files)."""
+        return {"program": self.program, "dialect": self.dialect, "robot": self.robot,
+                "nominal": self.nominal, "outputs": list(outputs),
+                "targets": [r.to_dict() for r in self.reports]}
 
 
 @dataclass
@@ -216,4 +227,5 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
             slot = t.slots[key]
             edits[t.file][slot.start] = (slot, float(value), ops.digits(key))
     texts = {f: render(text, edits[f], pad=ops.pad) for f, text in prog.texts.items()}
-    return FilteredProgram(d, texts, dict(prog.texts), reports, result)
+    return FilteredProgram(d, texts, dict(prog.texts), reports, result, path,
+                           calibrated.name, nominal.name)

@@ -61,8 +61,9 @@ def read_ls(path: str) -> LsProgram:
     mn0, mn1 = _section(text, "MN")
     used = set()
     if mn0 >= 0:
-        for line in text[mn0:mn1].splitlines():
-            code = line.split("!", 1)[0] if re.match(r"\s*\d*:\s*!", line) else line
+        for mn_line in text[mn0:mn1].splitlines():
+            code = (mn_line.split("!", 1)[0] if re.match(r"\s*\d*:\s*!", mn_line)
+                    else mn_line)
             used |= {int(n) for n in _USE.findall(code)}
     p0, p1 = _section(text, "POS")
     targets: list[ProgramTarget] = []
@@ -97,13 +98,13 @@ def read_ls(path: str) -> LsProgram:
             if cf is not None:
                 parts = [p.strip() for p in cf.group(1).split(",")]
                 try:
-                    turns = tuple(int(p) for p in parts[1:4])
+                    turns = [int(p) for p in parts[1:4]]
                 except ValueError:
-                    turns = ()
+                    turns = []
                 if len(parts) != 4 or len(turns) != 3:
                     raise fail(path, text, seg[0] + cf.start(1),
                                f"{name}: CONFIG must be 'F U T, t1, t4, t6', got {cf.group(1)!r}")
-                conf = fanuc_configuration(parts[0], turns)  # type: ignore[arg-type]
+                conf = fanuc_configuration(parts[0], (turns[0], turns[1], turns[2]))
                 base = seg[0] + cf.start(1)
                 for key, nm in zip(("turn1", "turn4", "turn6"),
                                    list(re.finditer(r"[+-]?\d+", cf.group(1)))[-3:], strict=True):
@@ -136,7 +137,8 @@ def pose_of(t: ProgramTarget) -> Array:
 
 def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
     """X, Y, Z [mm], W, P, R [deg] of T, angles near the point's own."""
-    x, y, z, w, p, r = xyz_rpy_mm_deg(T, t.values(("w", "p", "r")))
+    w0, p0, r0 = t.values(("w", "p", "r")).tolist()
+    x, y, z, w, p, r = xyz_rpy_mm_deg(T, (w0, p0, r0))
     return {"x": x, "y": y, "z": z, "w": w, "p": p, "r": r}
 
 

@@ -104,7 +104,7 @@ def read_urscript(path: str) -> UrProgram:
     """Read a URScript program's motion targets, in file order."""
     text = read_program_text(path)
     code = code_of(text)
-    events: list[tuple[int, str, object]] = []
+    events: list[tuple[int, str, list[Slot] | tuple[int, str]]] = []
     variables: dict[str, tuple[int, str]] = {}
     for m in _ASSIGN.finditer(code):
         variables[m.group(1)] = (m.start(2), m.group(2))
@@ -129,10 +129,10 @@ def read_urscript(path: str) -> UrProgram:
     seen: dict[int, ProgramTarget] = {}
     tcp: list[Slot] | None = None
     for _, kind, data in events:
-        if kind == "tcp":
-            tcp = data  # type: ignore[assignment]
+        if isinstance(data, list):          # "tcp": the TCP's slots
+            tcp = data
             continue
-        at, instr = data  # type: ignore[misc]
+        at, instr = data
         if at in seen:
             t = seen[at]
             key = None if tcp is None else tuple(s.value for s in tcp)

@@ -1,5 +1,6 @@
-"""The patent's procedure through the command line (issue 4): simulate a cross-bar
-experiment, calibrate it with ``--procedure patent --condition-growth``, and check the
+"""The staged-selection procedure (the cross-bar patent's) through the command line
+(issue 4): simulate a cross-bar experiment, calibrate it with ``--procedure
+staged-selection --condition-growth``, and check the
 calibrated robot against the truth on held-out placements.
 
 Truth is independent of the solver: ``kincal simulate --truth`` writes the true robot,
@@ -29,9 +30,10 @@ ENCODER_DEG = 0.001
 
 
 @pytest.fixture(scope="module")
-def patent(tmp_path_factory):
-    """simulate (training + held-out placements) -> calibrate --procedure patent, once."""
-    d = tmp_path_factory.mktemp("patent")
+def staged(tmp_path_factory):
+    """simulate (training + held-out placements) -> calibrate --procedure staged-selection,
+    once."""
+    d = tmp_path_factory.mktemp("staged")
     f = {k: d / v for k, v in (("cb", "cb.csv"), ("hold", "hold.csv"), ("truth", "truth.yaml"),
                                ("sim", "sim.json"), ("cal", "cal.yaml"), ("json", "r.json"),
                                ("html", "r.html"))}
@@ -39,7 +41,7 @@ def patent(tmp_path_factory):
            "--bar-length", f"{BAR_MM}mm", "--probe-length", f"{PROBE_MM}mm", "--encoder-noise",
            f"{ENCODER_DEG}deg", "--seed", 3, "-o", f["cb"], "--truth", f["truth"],
            "--holdout", f["hold"], "--json", f["sim"]]
-    cal = ["calibrate", "puma560", "--data", f["cb"], "--procedure", "patent",
+    cal = ["calibrate", "puma560", "--data", f["cb"], "--procedure", "staged-selection",
            "--condition-growth", "1.0", "-o", f["cal"], "--json", f["json"], "--report",
            f["html"]]
     for key, args in (("sim", sim), ("cal", cal)):
@@ -74,18 +76,18 @@ def rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(e))))
 
 
-def test_simulate_flags_reach_the_instrument(patent):
-    sim = json.loads(patent["sim"].read_text())
+def test_simulate_flags_reach_the_instrument(staged):
+    sim = json.loads(staged["sim"].read_text())
     assert sim["placements"] == PLACEMENTS and sim["measurements"] == 4 * PLACEMENTS
     assert sim["encoder_noise_rad"] == pytest.approx(math.radians(ENCODER_DEG), rel=1e-12)
     assert sim["instrument_options"]["bar_length_mm"] == BAR_MM
     assert sim["instrument_options"]["probe_length_mm"] == PROBE_MM
-    header = patent["cb"].read_text().splitlines()[0]
+    header = staged["cb"].read_text().splitlines()[0]
     assert "length_m=0.3" in header and "probe_length_m=0.1" in header
 
 
-def test_patent_selection_and_comparison_in_the_json(patent, capsys):
-    res = json.loads(patent["json"].read_text())
+def test_staged_selection_record_and_comparison_in_the_json(staged, capsys):
+    res = json.loads(staged["json"].read_text())
     info = res["patent"]
     kept, dropped = info["kept"], info["discarded"]
     print(f"condition-number selection kept {len(kept)} of {PLACEMENTS} placements")
@@ -105,13 +107,13 @@ def test_patent_selection_and_comparison_in_the_json(patent, capsys):
     assert comp["one_stage"]["estimated"] == comp["patent"]["estimated"] == \
         res["estimated_count"]
     assert comp["same_parameters"]["max_sigmas"] < 2.0
-    assert res["method"] == "patent" and res["inputs"]["procedure"] == "patent"
+    assert res["method"] == "patent" and res["inputs"]["procedure"] == "staged-selection"
 
 
-def test_calibrated_bar_lengths_on_held_out_placements_are_at_the_noise_level(patent):
-    nominal, truth, cal = (load_robot(x) for x in ("puma560", patent["truth"], patent["cal"]))
-    held = read_measurements(patent["hold"], nominal)[0]
-    train = read_measurements(patent["cb"], nominal)[0]
+def test_calibrated_bar_lengths_on_held_out_placements_are_at_the_noise_level(staged):
+    nominal, truth, cal = (load_robot(x) for x in ("puma560", staged["truth"], staged["cal"]))
+    held = read_measurements(staged["hold"], nominal)[0]
+    train = read_measurements(staged["cb"], nominal)[0]
     assert held.q.shape == train.q.shape and not np.allclose(held.q, train.q)  # new placements
     sigma_L = _length_sigma(truth, held, math.radians(ENCODER_DEG),
                             np.array([0.0, 0.0, PROBE_MM * 1e-3]))
@@ -129,30 +131,30 @@ def test_calibrated_bar_lengths_on_held_out_placements_are_at_the_noise_level(pa
     assert rms(L_nom.error) > 40 * sigma_L
 
 
-def test_report_has_the_patent_section_and_figures(patent):
-    text = patent["html"].read_text()
+def test_report_has_the_staged_selection_section_and_figures(staged):
+    text = staged["html"].read_text()
     assert "The patent&#x27;s procedure" in text or "The patent's procedure" in text
     assert "Data selection by the condition number" in text and "discarded" in text
     assert "Comparison with one-stage Levenberg-Marquardt" in text
     assert text.rstrip().endswith("</html>")
-    outputs = json.loads(patent["json"].read_text())["outputs"]
+    outputs = json.loads(staged["json"].read_text())["outputs"]
     for key in ("lengths_nominal", "lengths_calibrated", "lengths_calibrated_zoom"):
         png = Path(outputs[key])
-        assert png.parent == patent["html"].parent and png.name.startswith("r_lengths")
+        assert png.parent == staged["html"].parent and png.name.startswith("r_lengths")
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert text.count("data:image/png;base64,") >= 3 + 3   # report plots + the figures
 
 
 @pytest.mark.parametrize("args, fragment", [
     (["--condition-growth", "1.5"], "need --procedure patent"),
-    (["--procedure", "patent", "--method", "gauss-newton"], "the patent has its own"),
-    (["--procedure", "patent", "--condition-growth", "0.5"], "must be >= 1"),
-    (["--procedure", "nope"], "is not lm or patent"),
+    (["--procedure", "staged-selection", "--method", "gauss-newton"], "the patent has its own"),
+    (["--procedure", "staged-selection", "--condition-growth", "0.5"], "must be >= 1"),
+    (["--procedure", "nope"], "is not lm or staged-selection"),
 ])
-def test_bad_patent_options_are_one_line_and_write_nothing(patent, capsys, tmp_path, args,
-                                                           fragment):
+def test_bad_staged_selection_options_are_one_line_and_write_nothing(staged, capsys, tmp_path,
+                                                                     args, fragment):
     out = tmp_path / "c.yaml"
-    code, _, err = run(capsys, "calibrate", "puma560", "--data", patent["cb"], "-o", out,
+    code, _, err = run(capsys, "calibrate", "puma560", "--data", staged["cb"], "-o", out,
                        *args)
     assert code == 2 and len(err.strip().splitlines()) == 1 and fragment in err, err
     assert not out.exists()
