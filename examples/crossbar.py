@@ -1,4 +1,4 @@
-"""The cross-bar patent's procedure end to end, on a simulated PUMA 560.
+"""The staged-selection procedure end to end, on a simulated PUMA 560.
 
 A probe of length 100 mm on the flange is seated in the sockets A, B, C, D of a cross
 with |AC| = |BD| = 300 mm, AC perpendicular to BD, placed 20 times in the workspace;
@@ -6,11 +6,11 @@ the joint readings carry 0.001 deg of encoder noise.  The script
 
 1. calibrates with kincal's one-stage Levenberg-Marquardt (automatic identifiable set)
    and prints what the data cannot identify, by name;
-2. runs the patent's procedure (two stages: offsets and twists, then lengths), once
+2. runs the staged-selection procedure (two stages: offsets and twists, then lengths), once
    literally and cycled to convergence, and compares both with the one-stage solution
    on the same parameters;
-3. applies the patent's condition-number data selection;
-4. writes the patent's figures 4 and 5 (bar lengths from the joint readings with the
+3. applies the condition-number data selection;
+4. writes the bar-length figures (bar lengths from the joint readings with the
    nominal and with the calibrated model) and reports the errors on 10 held-out
    placements.
 
@@ -55,7 +55,7 @@ def main() -> None:
     literal = calibrate_staged_selection(nominal, [train], cycles=1)
     cycled = calibrate_staged_selection(nominal, [train])
     same = calibrate(nominal, [train], free=literal.estimated)
-    print("\n== the patent's two stages ==")
+    print("\n== the staged-selection procedure's two stages ==")
     print("stage 1:", ", ".join(literal.procedure_record.estimated[0][2]))
     print("stage 2:", ", ".join(literal.procedure_record.estimated[1][2]))
     for label, res in (("one pass (literal)", literal), ("cycled to convergence", cycled)):
@@ -72,8 +72,9 @@ def main() -> None:
 
     print("\n== bar lengths from the joint readings (RMS error) ==")
     for label, robot in (("nominal", nominal), ("one-stage LM", lm.robot),
-                         ("patent, one pass", literal.robot), ("patent, cycled", cycled.robot),
-                         ("patent, selected data", chosen.robot)):
+                         ("staged, one pass", literal.robot),
+                         ("staged, cycled", cycled.robot),
+                         ("staged, selected data", chosen.robot)):
         tr = length_summary(train, robot)["rms_length_error_m"] * 1e3
         va = length_summary(held, robot)["rms_length_error_m"] * 1e3
         print(f"{label:>24}: training {tr:8.4f} mm   held-out {va:8.4f} mm")

@@ -1,4 +1,4 @@
-"""The patent's figures 4 and 5: bar lengths from the joint readings, nominal vs calibrated."""
+"""The bar-length figures: bar lengths from the joint readings, nominal vs calibrated."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The staged-selection procedure (the cross-bar patent's) through the command line
+"""The staged-selection procedure (angles, then lengths) through the command line
 (issue 4): simulate a cross-bar experiment, calibrate it with ``--procedure
 staged-selection --condition-growth``, and check the
 calibrated robot against the truth on held-out placements.
@@ -88,7 +88,7 @@ def test_simulate_flags_reach_the_instrument(staged):
 
 def test_staged_selection_record_and_comparison_in_the_json(staged, capsys):
     res = json.loads(staged["json"].read_text())
-    info = res["patent"]
+    info = res["staged_selection"]
     kept, dropped = info["kept"], info["discarded"]
     print(f"condition-number selection kept {len(kept)} of {PLACEMENTS} placements")
     assert len(kept) + len(dropped) == PLACEMENTS and len(info["selection"]) == PLACEMENTS
@@ -103,11 +103,11 @@ def test_staged_selection_record_and_comparison_in_the_json(staged, capsys):
     assert train["n"] == 2 * len(kept)
     # the one-stage comparison: same data, same parameters, agreeing within their errors
     comp = info["comparison"]
-    assert {"same_parameters", "patent", "one_stage", "automatic"} <= set(comp)
-    assert comp["one_stage"]["estimated"] == comp["patent"]["estimated"] == \
+    assert {"same_parameters", "staged_selection", "one_stage", "automatic"} <= set(comp)
+    assert comp["one_stage"]["estimated"] == comp["staged_selection"]["estimated"] == \
         res["estimated_count"]
     assert comp["same_parameters"]["max_sigmas"] < 2.0
-    assert res["method"] == "patent" and res["inputs"]["procedure"] == "staged-selection"
+    assert res["method"] == "staged-selection" and res["inputs"]["procedure"] == "staged-selection"
 
 
 def test_calibrated_bar_lengths_on_held_out_placements_are_at_the_noise_level(staged):
@@ -133,7 +133,7 @@ def test_calibrated_bar_lengths_on_held_out_placements_are_at_the_noise_level(st
 
 def test_report_has_the_staged_selection_section_and_figures(staged):
     text = staged["html"].read_text()
-    assert "The patent&#x27;s procedure" in text or "The patent's procedure" in text
+    assert "The staged-selection procedure" in text or "The staged-selection procedure" in text
     assert "Data selection by the condition number" in text and "discarded" in text
     assert "Comparison with one-stage Levenberg-Marquardt" in text
     assert text.rstrip().endswith("</html>")
@@ -146,8 +146,9 @@ def test_report_has_the_staged_selection_section_and_figures(staged):
 
 
 @pytest.mark.parametrize("args, fragment", [
-    (["--condition-growth", "1.5"], "need --procedure patent"),
-    (["--procedure", "staged-selection", "--method", "gauss-newton"], "the patent has its own"),
+    (["--condition-growth", "1.5"], "need --procedure staged-selection"),
+    (["--procedure", "staged-selection", "--method", "gauss-newton"],
+     "the staged-selection procedure has its own"),
     (["--procedure", "staged-selection", "--condition-growth", "0.5"], "must be >= 1"),
     (["--procedure", "nope"], "is not lm or staged-selection"),
 ])

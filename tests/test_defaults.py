@@ -12,7 +12,7 @@ def test_default_values_are_unchanged() -> None:
     assert defaults.MAX_ITER == 100 and defaults.STAGE_MAX_ITER == 20
     assert defaults.STAGE_TOLERANCE_M == 1e-7
     assert defaults.FIVEBAR_MAX_ITER == 100 and defaults.FIVEBAR_TOL == 1e-10
-    assert defaults.max_iter_for("patent") == 20 and defaults.max_iter_for("lm") == 100
+    assert defaults.max_iter_for("staged-selection") == 20 and defaults.max_iter_for("lm") == 100
 
 
 def test_fivebar_calibration_reads_its_defaults_from_the_module() -> None:

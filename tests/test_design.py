@@ -171,7 +171,7 @@ def test_selection_reaches_the_exhaustive_optimum_on_small_problems() -> None:
             hits[crit] += bool(got >= best - 1e-9)
     print(f"exhaustive optimum reached (of {SMALL}):", hits)
     assert min(hits[c] for c in ("O1", "O2", "O3", "O4", "O5")) >= 8   # 2/3; 9-12 seen
-    assert hits["kappa"] >= 1            # pure greedy (the cross-bar patent's rule): no guarantee
+    assert hits["kappa"] >= 1            # pure greedy (staged selection's rule): no guarantee
 
 
 def test_min_distance_poses_are_distinct_and_errors(puma) -> None:

@@ -160,7 +160,7 @@ def small_files(tmp_path_factory) -> tuple:
 
 
 # every option of `kincal calibrate` a five-bar cannot use, with a value
-REFUSED = [("--urdf", "x.urdf"), ("--procedure", "patent"), ("--stages", "offsets,all"),
+REFUSED = [("--urdf", "x.urdf"), ("--procedure", "staged-selection"), ("--stages", "offsets,all"),
            ("--loss", "huber"), ("--loss-scale", "2"), ("--condition-growth", "2"),
            ("--cycles", "1"), ("--tolerance", "1um"), ("--prior", "none"),
            ("--joint-model", "hysteresis"), ("--cross-validate", "3"), ("--select", "auto"),

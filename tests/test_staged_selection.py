@@ -1,4 +1,4 @@
-"""The cross-bar patent's procedure: two stages, data selection by the condition number,
+"""The staged-selection procedure: two stages, data selection by the condition number,
 one dependent parameter per identification - compared with the one-stage solver.
 
 Truth: a simulated PUMA 560 seated by IK in cross placements with 0.001 deg encoder
@@ -49,7 +49,7 @@ def _rms_mm(block, robot) -> float:
 def test_two_stage_agrees_with_one_stage_within_uncertainty(data):
     nominal, train, held = data
     res = calibrate_staged_selection(nominal, [train], compare=True)
-    assert isinstance(res, CalibrationResult) and res.method == "patent" and res.converged
+    assert isinstance(res, CalibrationResult) and res.method == "staged-selection" and res.converged
     info = res.procedure_record
     stage1, stage2 = info.estimated[0][2], info.estimated[1][2]
     units = dict(zip(res.names, res.problem.units, strict=True))
@@ -78,7 +78,7 @@ def test_two_stage_agrees_with_one_stage_within_uncertainty(data):
     assert _rms_mm(held, res.robot) <= 1.1 * _rms_mm(held, lm.robot)
     json.dumps(res.to_dict())
     json.dumps(info.to_dict())
-    assert "patent procedure" in res.message and res.summary()
+    assert "staged-selection procedure" in res.message and res.summary()
 
 
 def test_condition_number_selection_keeps_fewer_placements(data):
@@ -99,7 +99,7 @@ def test_condition_number_selection_keeps_fewer_placements(data):
 
 
 def test_one_dependent_parameter_per_identification(data):
-    """The patent's rule: of dependent columns identify one, another in the next run.
+    """The staged-selection rule: of dependent columns identify one, another in the next run.
     The runs give alternatives: the data fix only their combination."""
     nominal, train, _ = data
     results, values = staged_selection_runs(nominal, [train], runs=2)

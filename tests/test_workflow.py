@@ -79,7 +79,7 @@ def test_write_outputs_writes_every_file_and_the_json_lists_them(flow, tmp_path)
     assert written == {"robot": str(paths["robot"]), "report": str(paths["report"])}
     doc = json.loads(paths["json"].read_text())
     assert doc["outputs"] == written and doc["inputs"] == {"robot": "puma560"}
-    assert "patent" not in doc and doc["metrics"]["validation"]["n"] == 30
+    assert "staged_selection" not in doc and doc["metrics"]["validation"]["n"] == 30
     cal = load_robot(paths["robot"])
     q = np.zeros((2, 6))
     np.testing.assert_allclose(cal.fk(q), flow.result.robot.fk(q), atol=1e-12)
@@ -141,10 +141,12 @@ def test_option_parsing():
 
 
 @pytest.mark.parametrize("options, fragment", [
-    ({"procedure": "patent", "loss": "huber"}, "the patent has its own two stages"),
-    ({"cycles": 2}, "need --procedure patent"),
-    ({"procedure": "patent", "cycles": 0}, "--cycles: must be >= 1"),
-    ({"procedure": "patent", "tolerance": -1e-6}, "--tolerance: must be > 0 (got -0.001 mm)"),
+    ({"procedure": "staged-selection", "loss": "huber"},
+     "the staged-selection procedure has its own two stages"),
+    ({"cycles": 2}, "need --procedure staged-selection"),
+    ({"procedure": "staged-selection", "cycles": 0}, "--cycles: must be >= 1"),
+    ({"procedure": "staged-selection", "tolerance": -1e-6},
+     "--tolerance: must be > 0 (got -0.001 mm)"),
     ({"method": "newton"}, "--method: 'newton' is not lm or gauss-newton"),
     ({"validation_frames": "same"}, "--validation-frames"),
 ])
@@ -152,4 +154,4 @@ def test_check_flow_options(options, fragment):
     with pytest.raises(KincalError) as info:
         check_flow_options(**options)
     assert fragment in str(info.value)
-    check_flow_options(procedure="patent", condition_growth=1.0, cycles=1, tolerance=1e-7)
+    check_flow_options(procedure="staged-selection", condition_growth=1.0, cycles=1, tolerance=1e-7)

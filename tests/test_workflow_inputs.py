@@ -1,9 +1,6 @@
 """The run's inputs as the report and the result JSON show them."""
 
-import pytest
 
-from kincal.cli.calibration import workflow_procedure
-from kincal.errors import KincalError
 from kincal.workflow.inputs import calibration_inputs
 
 
@@ -24,10 +21,3 @@ def test_staged_selection_adds_its_stages_and_options():
     assert got["condition growth"] == "1.5" and got["cycles"] == "until converged"
     assert got["tolerance"] == "0.0002 mm"
     assert got["model selection"].startswith("--select auto, 5-fold")
-
-
-def test_procedure_values_of_the_command_line():
-    assert workflow_procedure("lm") == "lm"
-    assert workflow_procedure("staged-selection") == "patent"
-    with pytest.raises(KincalError, match="'patent' is not lm or staged-selection"):
-        workflow_procedure("patent")

@@ -52,10 +52,10 @@ def test_text_and_bad_values_are_one_line_errors(prior, fragment) -> None:
         prior_spec(prior)
 
 
-def test_the_patent_refuses_a_typed_prior_as_it_refuses_the_option() -> None:
+def test_staged_selection_refuses_a_typed_prior_as_it_refuses_the_option() -> None:
     with pytest.raises(KincalError, match="--prior choose the one-stage solver"):
-        check_flow_options(procedure="patent", prior={"length": 1e-3})
-    check_flow_options(procedure="patent", prior="tolerances")       # the default: fine
+        check_flow_options(procedure="staged-selection", prior={"length": 1e-3})
+    check_flow_options(procedure="staged-selection", prior="tolerances")       # the default: fine
 
 
 def test_typed_prior_gives_the_estimate_of_its_text(sim) -> None:

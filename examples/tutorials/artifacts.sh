@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Calibration with artifacts instead of an instrument (docs/tutorials/artifacts.md):
-# a cross-bar (the patent's procedure), a ball-bar, and a two-socket artifact, each on a
+# a cross-bar (the staged-selection procedure), a ball-bar, and a two-socket artifact, each on a
 # simulated PUMA 560 with known errors whose joint readings are the only measurement.
 set -euo pipefail
 
@@ -18,11 +18,11 @@ sed -n '/Errors before/,/^cross_check.csv: artifact: sockets/p' cross.txt
 sed -n '/^identifiability/,/more (see/p' cross.txt
 # --8<-- [end:cross-calibrate]
 
-# --8<-- [start:patent]
+# --8<-- [start:staged-selection]
 kincal calibrate puma560 --data cross.csv --procedure staged-selection --condition-growth 1.0 \
-    -o patent_cal.yaml --json patent.json > patent.txt
-sed -n '/patent data selection/,/^robot/p' patent.txt
-# --8<-- [end:patent]
+    -o staged_cal.yaml --json staged.json > staged.txt
+sed -n '/staged-selection data selection/,/^robot/p' staged.txt
+# --8<-- [end:staged-selection]
 
 # --8<-- [start:ball-bar]
 kincal simulate puma560 -i ball-bar -o ballbar.csv --placements 30 --bar-length 200mm \

@@ -5,7 +5,7 @@ a default is decided once; this module imports nothing from kincal and sits in t
 tier.  Units are SI: lengths in metres.
 
 - ``MAX_ITER = 100``: iterations in all of the Levenberg-Marquardt / Gauss-Newton solver.
-- ``STAGE_MAX_ITER = 20``: iterations per stage of the staged (patent) procedure.
+- ``STAGE_MAX_ITER = 20``: iterations per stage of the staged-selection procedure.
 - ``STAGE_TOLERANCE_M = 1e-7`` [m]: a stage of the staged procedure stops when no
   residual moves by more than this.
 - ``FIVEBAR_MAX_ITER = 100`` and ``FIVEBAR_TOL = 1e-10``: the five-bar iteration stops
@@ -22,6 +22,6 @@ FIVEBAR_TOL: float = 1e-10
 
 
 def max_iter_for(procedure: str) -> int:
-    """The default iteration budget of ``procedure``: per stage for ``"patent"``, in all
+    """The default iteration budget of ``procedure``: per stage for ``"staged-selection"``, in all
     otherwise."""
-    return STAGE_MAX_ITER if procedure == "patent" else MAX_ITER
+    return STAGE_MAX_ITER if procedure == "staged-selection" else MAX_ITER

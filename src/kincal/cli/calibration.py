@@ -140,7 +140,8 @@ UrdfOpt = Annotated[str | None, typer.Option("--urdf", help="Also write the cali
                                              "robots: next to -o.")]
 ProcedureOpt = Annotated[str, typer.Option(
     "--procedure", help="lm: one-stage least squares (--method); staged-selection: the "
-    "cross-bar patent's procedure (angles, then lengths; optional data selection).")]
+    "two-stage procedure for artifact data (angles, then lengths; optional data "
+    "selection by the condition number).")]
 StagesOpt = Annotated[str | None, typer.Option("--stages", help="Comma-separated stages, e.g. "
                                                "'offsets,all' (encoder offsets first).")]
 MethodOpt = Annotated[str, typer.Option("--method", help="lm | gauss-newton (--procedure "
@@ -151,11 +152,11 @@ LossScaleOpt = Annotated[float, typer.Option("--loss-scale", help="Robust thresh
                                               "standard deviations.")]
 ConditionGrowthOpt = Annotated[float | None, typer.Option(
     "--condition-growth", metavar="FACTOR", help="--procedure staged-selection: the "
-    "patent's data selection: discard a placement if the condition number grows by more "
+    "data selection: discard a placement if the condition number grows by more "
     "than FACTOR (>= 1; default: keep all).")]
 CyclesOpt = Annotated[int | None, typer.Option(
     "--cycles", metavar="N", help="--procedure staged-selection: passes through the two "
-    "stages; 1 = the patent literally (default: until no point moves).")]
+    "stages; 1 = a single pass (default: until no point moves).")]
 ToleranceOpt = Annotated[str | None, typer.Option(
     "--tolerance", metavar="LENGTH", help="--procedure staged-selection: a stage stops "
     "when no predicted probe point moves more than this, with its unit (default 0.1um).")]
@@ -234,7 +235,7 @@ def calibrate_cmd(
     --config setup.yaml takes the robot, the files (each with its own reading options),
     the options and the outputs from a setup file (`kincal init` writes one).
 
-    --procedure staged-selection follows the cross-bar patent: angles (joint offsets,
+    --procedure staged-selection follows the staged-selection procedure: angles (joint offsets,
     twists), then lengths, with an optional condition-number data selection; the JSON and
     report add its record and a comparison with one-stage Levenberg-Marquardt on the same
     data."""
@@ -255,7 +256,6 @@ def calibrate_cmd(
     if not data:
         raise KincalError("`kincal calibrate` needs --data FILE (or data: in the setup file)")
     r = held_robot(ctx, load(robot, base_link, tip_link), hold)
-    flow_procedure = workflow_procedure(procedure)
     if is_fivebar(r):
         from kincal.cli.fivebar import calibrate_fivebar_command
 
@@ -265,7 +265,7 @@ def calibrate_cmd(
     from kincal.workflow.options import parse_prior_text
 
     prior_value = parse_prior_text(prior)            # the typed prior of the library
-    check_flow_options(procedure=flow_procedure, method=method, loss=loss,
+    check_flow_options(procedure=procedure, method=method, loss=loss,
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior_value)
@@ -289,12 +289,12 @@ def calibrate_cmd(
         models = [parse_joint_model(joint_model)] if joint_model else None
         masses = available_masses(robot, base_link, tip_link)
     truth_vals = truth_values(truth) if truth else None
-    bar_total = max_iter or max_iter_for(flow_procedure)
+    bar_total = max_iter or max_iter_for(procedure)
     with Progress(bar_total, json_out != "-") as bar, fold_engine(scheduler, workers) as eng:
         flow = run_flow(r, session.blocks, session.holdouts, free=free, fix=fix,
                         stages=parse_stages(stages), method=method, loss=loss,
                         loss_scale=loss_scale, max_iter=max_iter,
-                        validation_frames=validation_frames, procedure=flow_procedure,
+                        validation_frames=validation_frames, procedure=procedure,
                         condition_growth=condition_growth, cycles=cycles,
                         tolerance=tolerance, prior=prior_value,
                         cross_validate=cross_validate,
@@ -322,19 +322,6 @@ def calibrate_cmd(
         tail = (f"; no calibrated robot written ({', '.join(withheld)}; --force writes it)"
                 if withheld else "; written anyway (--force)" if force and output else "")
         raise CheckFailedError(flow.verdict.line() + tail)
-
-
-#: ``--procedure`` values -> the workflow's names of the procedures
-#: (:data:`kincal.workflow.options.PROCEDURES`).
-PROCEDURE_NAMES = {"lm": "lm", "staged-selection": "patent"}
-
-
-def workflow_procedure(procedure: str) -> str:
-    """The workflow's name of the ``--procedure`` value; a one-line error for another."""
-    if procedure not in PROCEDURE_NAMES:
-        raise KincalError(f"option --procedure: {procedure!r} is not "
-                          f"{' or '.join(PROCEDURE_NAMES)}")
-    return PROCEDURE_NAMES[procedure]
 
 
 def _urdf_output(spec: str, robot: Any, output: str | None, urdf: str | None) -> str | None:

@@ -198,7 +198,7 @@ class Progress:
         self.progress.remove_task(task)
 
     def __call__(self, rec: Any) -> None:
-        if rec.stage != self.stage:     # one bar, restarted per stage (the patent has many)
+        if rec.stage != self.stage:     # one bar, restarted per stage (the procedure has many)
             self.stage = rec.stage
             if self.task is None:
                 self.task = self.progress.add_task(f"stage {rec.stage}", total=self.total,
@@ -405,29 +405,31 @@ def print_weak(out: Console, weak: Sequence[Any]) -> None:
 
 
 def print_staged_selection(out: Console, info: Any) -> None:
-    """The staged-selection procedure's record (the cross-bar patent's): data selection,
+    """The staged-selection procedure's record (angles, then lengths): data selection,
     cycles, comparison with one-stage LM."""
 
     d = info.to_dict()
     n_all = len(d["kept"]) + len(d["discarded"])
     if d["condition_growth"] is not None:
         dropped = ", ".join(f"{x['placement']}" for x in d["discarded"]) or "none"
-        out.print(f"patent data selection (condition growth <= {d['condition_growth']:g}): "
+        out.print("staged-selection data selection (condition growth <= "
+                  f"{d['condition_growth']:g}): "
                   f"kept [bold]{len(d['kept'])} of {n_all}[/bold] placements; discarded: "
                   f"{escape(dropped)}")
     u = console_units()
     moved = d["cycle_corrections_m"][-1] if d["cycle_corrections_m"] else float("nan")
-    out.print(f"patent procedure: {d['cycles']} cycle(s) of {len(d['stages'])} stages, "
+    out.print(f"staged-selection procedure: {d['cycles']} cycle(s) of {len(d['stages'])} stages, "
               + ("converged" if d["converged"] else "[red]NOT converged[/red]")
               + f" (last cycle moved the points by {u.value(moved, 'm', 4)}; tolerance "
               f"{u.value(d['tolerance_m'], 'm', 4)})")
     comp = d.get("comparison")
     if not comp:
         return
-    runs = [("patent", comp["patent"]), ("one-stage LM, same parameters", comp["one_stage"]),
+    runs = [("staged selection", comp["staged_selection"]),
+            ("one-stage LM, same parameters", comp["one_stage"]),
             ("one-stage LM, automatic", comp["automatic"])]
     keys = sorted({k for _, s in runs for k in s if k.startswith("rms_")})
-    t = Table(title="Patent vs one-stage Levenberg-Marquardt (same data)")
+    t = Table(title="Staged selection vs one-stage Levenberg-Marquardt (same data)")
     t.add_column("solver")
     for c in ("estimated", "sigma0"):
         t.add_column(c, justify="right")

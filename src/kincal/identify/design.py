@@ -7,9 +7,9 @@ of the stacked scaled Jacobian, from which the indices O1-O5 and kappa follow
 (:mod:`kincal.identify.observability`).  Criteria and algorithms
 (:func:`select_poses`):
 
-* ``"kappa"`` - **greedy addition by the condition number** (the cross-bar patent): at every step
-  the candidate whose addition gives the smallest ``kappa(M + A_i^T A_i)``; no
-  exchange (the patent's rule).
+* ``"kappa"`` - **greedy addition by the condition number** (the
+  staged-selection procedure's rule): at every step the candidate whose addition gives the
+  smallest ``kappa(M + A_i^T A_i)``; no exchange.
 * ``"O1"`` - D-optimality, ``max det M``: greedy addition by the matrix determinant
   lemma ``det(M + A_i^T A_i) = det M det(I_r + A_i M^-1 A_i^T)`` (one Cholesky factor
   per step, an r x r determinant per candidate), then **DETMAX** (Mitchell 1974,

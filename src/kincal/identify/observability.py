@@ -16,7 +16,8 @@ O4    ``s_L^2 / s_1``                     Nahvi & Hollerbach (1996): noise ampli
 O5    ``1 / (1/s_1 + ... + 1/s_L)``       Sun & Hollerbach (2008): related to A-optimality
 ====  ==================================  ==========================================
 
-``kappa = s_1 / s_L = 1 / O2`` is the condition number of the cross-bar patent (smaller is better).
+``kappa = s_1 / s_L = 1 / O2`` is the condition number the staged-selection procedure uses
+(smaller is better).
 References: J.-H. Borm, C.-H. Menq, IJRR 10(1) 1991; M. R. Driels, U. S. Pathre, IEEE
 TRA 6(6) 1990; A. Nahvi, J. M. Hollerbach, V. Hayward, ICRA 1994; A. Nahvi, J. M.
 Hollerbach, ICRA 1996; Y. Sun, J. M. Hollerbach, ICRA 2008.
@@ -89,7 +90,7 @@ __all__ = ["CRITERIA", "INDICES", "ObservabilityIndices", "observability_indices
            "indices_from_eigenvalues", "criterion_score", "DesignProblem", "design_problem",
            "design_problem_from_blocks", "expected_errors", "scaling_matrix", "SCALINGS"]
 
-#: Selection criteria: the five indices and the condition number (the cross-bar patent).
+#: Selection criteria: the five indices and the condition number (the staged-selection procedure).
 CRITERIA = ("O1", "O2", "O3", "O4", "O5", "kappa")
 #: Names of the reported indices.
 INDICES = ("O1", "O2", "O3", "O4", "O5", "kappa")

@@ -1,7 +1,7 @@
 """Staged selection: condition-number-driven data selection, then staged linearised least
-squares, for artifact (cross-bar) data; the procedure of the cross-bar patent.
+squares, for artifact (cross-bar) data; the procedure of the staged-selection procedure.
 
-:func:`calibrate_staged_selection` follows the patent step by step and returns the same
+:func:`calibrate_staged_selection` follows the procedure step by step and returns the same
 :class:`~kincal.identify.solver.CalibrationResult` as :func:`~kincal.identify.solver.calibrate`
 (so reports and JSON work unchanged), with the procedure's own record in
 ``result.procedure_record`` (:class:`StagedSelectionRecord`).
@@ -20,17 +20,17 @@ squares, for artifact (cross-bar) data; the procedure of the cross-bar patent.
    model and repeats until the largest change of a predicted probe point ``dP`` is
    below ``tolerance`` [m] (or ``max_iter``).  Parameters outside the stage stay at
    their current values (nominal in the first pass).
-3. **Identifiability**, once, at the starting point (the patent analyses the form of
+3. **Identifiability**, once, at the starting point (the original procedure analyses the form of
    ``A``): all-zero columns are dropped, and of linearly dependent columns one is
    kept (:func:`~kincal.identify.identifiability.analyze`); the second stage keeps only
    columns independent of those the first stage chose, so the union is identifiable
    jointly and has a covariance.  The sets stay fixed afterwards (re-analysing at a
    moved point would let near-parallel axes look separable).  ``run = k`` keeps the
-   ``k``-th member of every group of dependent parameters instead of the first (the
-   patent's "several identifications recover all the dependent ones"): the runs give
+   ``k``-th member of every group of dependent parameters instead of the first (several
+   identifications recover all the dependent ones): the runs give
    *alternative* values that each explain the data alone; the data determine only
    their combination (:func:`staged_selection_runs` collects them).
-4. **Cycles.**  The patent does one pass (``cycles=1``).  A single pass is biased when
+4. **Cycles.**  The original procedure does one pass (``cycles=1``).  A single pass is biased when
    the first stage's angles absorb length errors held at nominal (joint offsets and
    link offsets of the same link are nearly collinear: canonical correlations of
    0.99+ between the two stages' columns are common).  By default (``cycles=None``)
@@ -188,7 +188,7 @@ class StagedSelectionRecord:
 
 # --------------------------------------------------------------------------- helpers
 def _points(prob: StackedProblem, theta: Array) -> Array:
-    """All predicted probe / tool points of the problem (M, 3) [m]: the patent's ``P``."""
+    """All predicted probe / tool points of the problem (M, 3) [m]: the procedure's ``P``."""
     robot, extras = prob.split(theta)
     out = []
     for b, e in zip(prob.blocks, extras, strict=True):
@@ -304,7 +304,7 @@ def _placement_rows(prob: StackedProblem) -> list[tuple[str, str, NDArray[np.int
 def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: float,
                       tol_rank: float | None = None, fixed: Sequence[str] = ()
                       ) -> tuple[list[MeasurementModel], list[PlacementChoice]]:
-    """The patent's data selection: drop placements that make ``cond(A)`` grow ``> growth``.
+    """The staged-selection data selection: drop placements that make ``cond(A)`` grow ``> growth``.
 
     Returns the blocks holding only the kept placements (blocks without placements
     unchanged) and the record of every step.
@@ -362,8 +362,8 @@ def select_placements(robot: Robot, blocks: Sequence[MeasurementModel], growth: 
 # --------------------------------------------------------------------------- procedure
 def _stage_sets(J0: Array, prob: StackedProblem, stage_cands: Sequence[Sequence[int]], run: int,
                 tol_rank: float | None) -> tuple[list[list[int]], list[int], list[list[str]]]:
-    """The estimated set of every stage, chosen once at the starting point (as the patent
-    analyses ``A`` once): each stage keeps the base set of its candidates given the
+    """The estimated set of every stage, chosen once at the starting point (as the original
+    procedure analyses ``A`` once): each stage keeps the base set of its candidates given the
     parameters earlier stages chose.  Returns ``(per stage, union, dependent groups)``
     (the groups only when ``run`` picks a member of each)."""
     stage_est: list[list[int]] = []
@@ -420,7 +420,7 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
                      run: int = 0, free: Sequence[str] | str | None = None,
                      fixed: Sequence[str] | str = (), tol_rank: float | None = None,
                      trust_sigma: bool = False, compare: bool = False) -> CalibrationResult:
-    """Calibrate with the patent's two-stage procedure (see the module docstring).
+    """Calibrate with the procedure's two-stage procedure (see the module docstring).
 
     Args:
         robot: the nominal robot.
@@ -433,7 +433,7 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
         condition_growth: the selection factor ``g`` (None: keep every placement).
         progress: called with every :class:`IterationRecord`.
         cycles: number of passes through the stages; None = until converged
-            (at most ``max_cycles``); 1 = the patent literally.
+            (at most ``max_cycles``); 1 = a single pass.
         max_iter: Gauss-Newton iterations per stage and cycle.
         run: which member of each dependent group to identify (0 = kincal's choice).
         free, fixed: candidate names / patterns as in :func:`~kincal.identify.solver.calibrate`.
@@ -443,8 +443,8 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
             :func:`one_stage_comparison` in ``result.procedure_record.comparison``.
 
     Returns:
-        A :class:`CalibrationResult` (``method="patent"``) with ``result.procedure_record`` a
-        :class:`StagedSelectionRecord`.
+        A :class:`CalibrationResult` (``method="staged-selection"``) with
+        ``result.procedure_record`` a :class:`StagedSelectionRecord`.
     """
     if isinstance(blocks, MeasurementModel):
         blocks = [blocks]
@@ -465,10 +465,10 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
         cand = [i for i in cand if i not in drop]
     specs = [list(s) for s in stages]
     if not specs:
-        raise KincalError("the patent procedure needs at least one stage")
+        raise KincalError("the staged-selection procedure needs at least one stage")
     stage_cands = [_select(prob, s, cand) for s in specs]
     labels = [_label(s) for s in specs]
-    # identifiability once, at the starting point (as the patent analyses A once)
+    # identifiability once, at the starting point (as the original procedure analyses A once)
     _, J0 = prob.residuals_and_jacobian(theta0)
     stage_est, all_est, groups = _stage_sets(J0, prob, stage_cands, run, tol_rank)
     proc = _Procedure(prob, list(zip(labels, stage_est, strict=True)), max_iter, progress)
@@ -488,9 +488,9 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
     est_names, sigma0, std, cov, corr = stats
     kept, discarded = _kept(prob, selection)
     n_cyc = len(cycle_moves)
-    how = "one pass (the patent)" if cycles == 1 else (
+    how = "one pass" if cycles == 1 else (
         f"{n_cyc} cycle(s)" + (" (Anderson-accelerated)" if cycles is None else ""))
-    messages.insert(0, (f"patent procedure: {how} of {len(specs)} stage(s)"
+    messages.insert(0, (f"staged-selection procedure: {how} of {len(specs)} stage(s)"
                         + (", converged" if converged else ", NOT converged")
                         + f" (last cycle moved the points by {cycle_moves[-1]:.3g} m)"))
     if selection:
@@ -508,7 +508,7 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
         correlation=corr, sigma0=sigma0, residuals=r, weights=np.ones_like(r), outliers=[],
         history=history, converged=bool(converged),
         iterations=sum(1 for h in history if h.iteration > 0), message="; ".join(messages),
-        stages=[(f"c{c}:{s}", n) for c, s, n in estimated[-len(specs):]], method="patent",
+        stages=[(f"c{c}:{s}", n) for c, s, n in estimated[-len(specs):]], method="staged-selection",
         loss="linear", procedure_record=info)
     if compare:
         info.comparison = one_stage_comparison(res)
@@ -516,12 +516,12 @@ def calibrate_staged_selection(robot: Robot, blocks: MeasurementModel | Sequence
 
 
 def one_stage_comparison(result: CalibrationResult) -> dict[str, Any]:
-    """The patent's result against one-stage Levenberg-Marquardt on the same (kept) data.
+    """The staged-selection result against one-stage Levenberg-Marquardt on the same (kept) data.
 
     Two one-stage runs: on the same parameters (``free=result.estimated``; the
     parameter-by-parameter comparison of :func:`compare_results`) and with kincal's
     automatic identifiable set.  Returns ``{"same_parameters": compare_results(...),
-    "patent": {...}, "one_stage": {...}, "automatic": {...}}`` where each summary holds
+    "staged_selection": {...}, "one_stage": {...}, "automatic": {...}}`` where each summary holds
     ``sigma0``, ``estimated`` (count) and the RMS physical errors (``rms_distance_m`` ...).
     """
     from kincal.identify.solver import calibrate
@@ -534,7 +534,7 @@ def one_stage_comparison(result: CalibrationResult) -> dict[str, Any]:
         return {"sigma0": float(r.sigma0), "estimated": len(r.estimated),
                 "converged": bool(r.converged), **r.rms()}
 
-    return {"same_parameters": compare_results(result, same), "patent": summary(result),
+    return {"same_parameters": compare_results(result, same), "staged_selection": summary(result),
             "one_stage": summary(same), "automatic": summary(auto)}
 
 
@@ -578,8 +578,8 @@ class _Procedure:
             self.corrections.append((cyc, label, it, move))
             self._record(tag, it, theta, r, float(np.max(np.abs(dx) / (1 + np.abs(theta[est])))))
             if not np.isfinite(move):
-                raise KincalError(f"the patent procedure diverged in stage {label!r} (cycle "
-                                  f"{cyc}); use the one-stage solver")
+                raise KincalError("the staged-selection procedure diverged in stage "
+                                  f"{label!r} (cycle {cyc}); use the one-stage solver")
             if move < tol:
                 return theta
         self.stages_ok = False
@@ -647,7 +647,7 @@ def _kept(prob: StackedProblem, selection: list[PlacementChoice]
 def staged_selection_runs(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
                 runs: int | None = None, **options: Any
                 ) -> tuple[list[CalibrationResult], dict[str, list[float]]]:
-    """Repeat :func:`calibrate_staged_selection` with ``run = 0, 1, ...`` (the patent's rule).
+    """Repeat :func:`calibrate_staged_selection` with ``run = 0, 1, ...``.
 
     Returns the results and, for every parameter of a dependent group, its value in
     each run where it was the identified member (NaN where it was held).  The values
@@ -668,7 +668,7 @@ def staged_selection_runs(robot: Robot, blocks: MeasurementModel | Sequence[Meas
 
 
 def compare_results(first: CalibrationResult, other: CalibrationResult) -> dict[str, Any]:
-    """Compare two calibrations parameter by parameter (e.g. the patent vs one-stage LM).
+    """Compare two calibrations parameter by parameter (e.g. the staged selection vs one-stage LM).
 
     For every parameter both estimated: the difference [m / rad] and the difference in
     units of the larger of the two standard errors.  Compare like with like: run the

@@ -1,5 +1,5 @@
 """Artifact lengths from the joint readings, before and after calibration (the cross-bar
-patent's figures 4 and 5).
+bar-length figures).
 
 For every placement of an artifact block the known lengths (``|AC|``, ``|BD|`` of the
 cross-bar, ``|AB|`` of a ball-bar, the socket distance of the two-socket tool) are
@@ -105,7 +105,7 @@ def save_length_error_figures(block: ArtifactMeasurement, nominal: Robot, calibr
                               extra_calibrated: ArrayLike | None = None,
                               prefix: str = "artifact") -> dict[str, str]:
     """Write the artifact's length errors under the nominal and the calibrated model as
-    PNG files (the cross-bar patent's figures 4 and 5).
+    PNG files (the bar-length figures).
 
     Both use the y range of the nominal one so they compare at a glance; the calibrated
     one is also written zoomed (``*_zoom.png``) to show the remaining errors.

@@ -323,7 +323,7 @@ def render_html(result: CalibrationView, comparisons: Sequence[ErrorComparison],
     """The report as one self-contained HTML document (images embedded).
 
     ``extra_sections`` are HTML fragments placed before the footer (e.g. the cross-bar
-    patent's selection and comparison tables); ``notice`` (plain text) is shown in red
+    staged-selection data selection and comparison tables); ``notice`` (plain text) is shown in red
     right under the title (e.g. a calibration that cannot be trusted).
     """
     from kincal.report import plots as rp

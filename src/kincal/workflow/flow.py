@@ -12,17 +12,17 @@ What ``kincal calibrate`` / ``validate`` / ``demo`` do, usable from Python::
 
 * :func:`read_blocks` - measurement files, one block each, clashing names renamed;
 * :func:`run_flow` - calibrate (``procedure="lm"``: :func:`~kincal.identify.solver.calibrate`;
-  ``"patent"``: :func:`~kincal.identify.staged_selection.calibrate_staged_selection`), then
-  the errors
+  ``"staged-selection"``:
+  :func:`~kincal.identify.staged_selection.calibrate_staged_selection`), then the errors
   before/after on the training and held-out data (:class:`~kincal.report.html.ErrorComparison`);
 * :func:`validate_blocks` - errors of a robot on held-out files;
 * :func:`write_outputs` - calibrated robot (YAML, URDF), result JSON, HTML report and,
-  for artifact data, the patent's figures 4 and 5, each rendered first and then written
+  for artifact data, the bar-length figures, each rendered first and then written
   atomically (a failure while rendering writes nothing).
 
-Option text is checked and parsed in :mod:`kincal.workflow.options` and the patent / artifact
-figure sections of the report are rendered in :mod:`kincal.workflow.report_sections`; both are
-re-exported here.
+Option text is checked and parsed in :mod:`kincal.workflow.options` and the staged-selection /
+artifact figure sections of the report are rendered in :mod:`kincal.workflow.report_sections`;
+both are re-exported here.
 
 Units are SI (m, rad) everywhere; the report shows mm and degrees.  Nothing here prints:
 progress goes to an optional callback, warnings into :attr:`FlowResult.warnings`.
@@ -58,7 +58,7 @@ from kincal.workflow.options import (
 from kincal.workflow.report_sections import (
     artifact_figures,
     figures_section_html,
-    patent_section_html,
+    staged_selection_section_html,
     trust_section_html,
 )
 from kincal.workflow.result import FlowResult
@@ -68,7 +68,7 @@ Array = NDArray[np.float64]
 __all__ = ["FlowResult", "read_blocks", "ignored_columns", "check_options_used",
            "parse_selection", "parse_stages", "parse_prior", "check_flow_options", "run_flow",
            "validate_blocks", "reregister", "errors_with", "block_values", "truth_values",
-           "extras_from_result", "render_outputs", "write_outputs", "patent_section_html",
+           "extras_from_result", "render_outputs", "write_outputs", "staged_selection_section_html",
            "figures_section_html", "PROCEDURES", "METHODS", "LOSSES", "STAGES"]
 
 
@@ -111,7 +111,7 @@ def errors_with(robot: Any, block: Any, extra: Array) -> dict[str, Array]:
 def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixed: list[str],
                procedure: str, progress: Callable[[Any], Any] | None,
                options: Mapping[str, Any]) -> Any:
-    if procedure == "patent":
+    if procedure == "staged-selection":
         from kincal.identify.staged_selection import calibrate_staged_selection
 
         extra = {"max_iter": options["max_iter"]} if options.get("max_iter") else {}
@@ -148,17 +148,16 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
         free, fix: ``--free`` / ``--fix`` patterns (names, ``*``, ``role:offset``).
         stages, method, loss, loss_scale: the one-stage solver's options
             (``procedure="lm"``).
-        max_iter: iterations (lm: in all, default 100; patent: per stage, default 20).
+        max_iter: iterations (lm: in all, default 100; staged-selection: per stage, default 20).
         validation_frames: ``auto`` | ``training`` | ``register`` (see below).
-        procedure: ``lm`` (the one-stage solver) or ``patent`` (the cross-bar patent's
-            two stages,
+        procedure: ``lm`` (the one-stage solver) or ``staged-selection`` (two stages,
             :func:`~kincal.identify.staged_selection.calibrate_staged_selection`, with its
             comparison against one-stage LM).
-        condition_growth: patent only: discard a placement when the condition number
+        condition_growth: staged-selection only: discard a placement when the condition number
             grows by more than this factor (None: keep every placement).
-        cycles: patent only: passes through the stages (1 = the patent literally;
+        cycles: staged-selection only: passes through the stages (1 = a single pass;
             None = until converged).
-        tolerance: patent only: stop when no predicted point moves more than this [m]
+        tolerance: staged-selection only: stop when no predicted point moves more than this [m]
             (default 1e-7 m).
         prior: typed (:data:`~kincal.workflow.options.Prior`; ``--prior`` text becomes
             one by :func:`~kincal.workflow.options.parse_prior_text`): None or
@@ -192,7 +191,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     *Before* = the nominal robot with the instruments registered to it (only the
     blocks' own parameters fitted: the "registration only" baseline); *after* = the
     calibrated robot with the frames estimated with it.  The training errors use the
-    blocks the solver used (``result.problem.blocks``: after the patent's selection,
+    blocks the solver used (``result.problem.blocks``: after the procedure's selection,
     only the kept placements).
 
     Held-out blocks, for both robots:
@@ -677,7 +676,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         contents[key] = png
     if report:
         units = dict(zip(res.names, res.problem.units, strict=True))
-        sections = ([patent_section_html(info, figures, units)] if info is not None else
+        sections = ([staged_selection_section_html(info, figures, units)] if info is not None else
                     [figures_section_html(figures)] if figures else [])
         sections = [trust_section_html(flow), *sections]
         contents["report"] = _render_report(res, flow.comparisons, inputs, truth, sections,
@@ -691,7 +690,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
     if json_out:
         more = dict(extra or {})
         if info is not None:
-            more["patent"] = info.to_dict()
+            more["staged_selection"] = info.to_dict()
         doc = result_json(res, flow.comparisons, {"inputs": inputs, **more})
         if flow.cross_validation is not None:
             doc["metrics"]["cross_validation"] = dict(flow.cross_validation)

@@ -39,7 +39,7 @@ __all__ = ["check_options_used", "parse_selection", "parse_stages", "parse_prior
 #: The prior of a calibration, typed (module docstring).
 Prior: TypeAlias = TolSpec | Mapping[str, float | None] | Literal["tolerances", "none"] | None
 
-PROCEDURES = ("lm", "patent")
+PROCEDURES = ("lm", "staged-selection")
 STAGES = STAGE_KEYWORDS
 
 
@@ -180,13 +180,14 @@ def check_flow_options(*, procedure: str = "lm", method: str = "lm", loss: str =
     _choice(method, "--method", METHODS)
     _choice(loss, "--loss", LOSSES)
     _choice(validation_frames, "--validation-frames", ("auto", "training", "register"))
-    if procedure == "patent":
+    if procedure == "staged-selection":
         if method != "lm" or loss != "linear" or stages or prior_given(prior):
             raise KincalError("--method, --loss, --stages and --prior choose the one-stage "
-                              "solver (--procedure lm); the patent has its own two stages")
+                              "solver (--procedure lm); the staged-selection procedure has its own "
+                              "two stages")
     elif condition_growth is not None or cycles is not None or tolerance is not None:
         raise KincalError("--condition-growth, --cycles and --tolerance need "
-                          "--procedure patent")
+                          "--procedure staged-selection")
     if condition_growth is not None and not condition_growth >= 1.0:
         raise KincalError(f"option --condition-growth: must be >= 1 (got {condition_growth:g})")
     if cycles is not None and cycles < 1:

@@ -1,9 +1,9 @@
-"""The calibration report's extra HTML sections: the patent's procedure and the
+"""The calibration report's extra HTML sections: the staged-selection procedure and the
 artifact figures.
 
-* :func:`artifact_figures` - the patent's figures 4 and 5 of every training artifact
+* :func:`artifact_figures` - the bar-length figures of every training artifact
   block, rendered in memory (PNG bytes and the path next to the report);
-* :func:`patent_section_html` - the patent's procedure: stages, kept and discarded
+* :func:`staged_selection_section_html` - the staged-selection procedure: stages, kept and discarded
   placements with their condition numbers, the comparison with one-stage LM;
 * :func:`figures_section_html` - figures 4 and 5 embedded as a section;
 * :func:`trust_section_html` - can the calibration be trusted: the verdict, the
@@ -27,12 +27,12 @@ from typing import Any
 from kincal.units import display_scale
 from kincal.workflow.result import FlowResult
 
-__all__ = ["artifact_figures", "patent_section_html", "figures_section_html",
+__all__ = ["artifact_figures", "staged_selection_section_html", "figures_section_html",
            "trust_section_html"]
 
 
 def artifact_figures(flow: FlowResult, report: str) -> dict[str, tuple[str, bytes]]:
-    """The patent's figures 4 and 5 of every training artifact block, rendered in memory:
+    """The bar-length figures of every training artifact block, rendered in memory:
     ``{key: (path next to the report, PNG bytes)}``."""
     from kincal.measure.artifacts.model import ArtifactMeasurement
 
@@ -71,9 +71,9 @@ def _rms_cells(summary: Mapping[str, Any], keys: Sequence[str]) -> str:
     return "".join(cells)
 
 
-def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | None = None,
+def staged_selection_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | None = None,
                         units: Mapping[str, str] | None = None) -> str:
-    """The report's patent section: the procedure, kept and discarded placements with
+    """The report's staged-selection section: the procedure, kept and discarded placements with
     their condition numbers, the comparison with one-stage LM and figures 4 and 5.
 
     Args:
@@ -84,9 +84,9 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
     """
     d = info.to_dict() if hasattr(info, "to_dict") else dict(info)
     e = html.escape
-    parts = ["<h2>The patent's procedure</h2>"]
+    parts = ["<h2>The staged-selection procedure</h2>"]
     how = "one pass" if d["cycles"] == 1 else f"{d['cycles']} cycles"
-    parts.append(f"<p>{how} through {len(d['stages'])} stage(s) (one pass = the patent "
+    parts.append(f"<p>{how} through {len(d['stages'])} stage(s) (one pass = the original procedure "
                  "literally; more: repeated until no point moves): "
                  + "; then ".join(e(f"{s['stage']} ({len(s['candidates'])} candidates)")
                                   for s in d["stages"])
@@ -117,7 +117,7 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
                      "rank deficient (every placement is kept until it is not).</p>")
     comp = d.get("comparison")
     if comp:
-        runs = [("patent", comp["patent"]), ("one-stage LM, same parameters",
+        runs = [("staged selection", comp["staged_selection"]), ("one-stage LM, same parameters",
                                               comp["one_stage"]),
                 ("one-stage LM, automatic parameters", comp["automatic"])]
         keys = sorted({k for _, s in runs for k in s if k.startswith("rms_")})
@@ -144,7 +144,7 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
                 rows.append(f"<tr><td class='l'>{e(r['name'])}</td><td>{r['a'] * f:.5f}</td>"
                             f"<td>{r['b'] * f:.5f}</td><td>{r['diff'] * f:.2e}</td>"
                             f"<td class='l'>{u}</td><td>{r['sigmas']:.3g}</td></tr>")
-            parts.append("<table><tr><th class='l'>parameter</th><th>patent</th>"
+            parts.append("<table><tr><th class='l'>parameter</th><th>staged selection</th>"
                          "<th>one-stage</th><th>difference</th><th class='l'>unit</th>"
                          f"<th>in std</th></tr>{''.join(rows)}</table>")
     if figures:
@@ -153,7 +153,7 @@ def patent_section_html(info: Any, figures: Mapping[str, tuple[str, bytes]] | No
 
 
 def figures_section_html(figures: Mapping[str, tuple[str, bytes]], heading: str = "h2") -> str:
-    """The patent's figures 4 and 5 (``{key: (file, PNG bytes)}``) as a report section."""
+    """The bar-length figures (``{key: (file, PNG bytes)}``) as a report section."""
     e = html.escape
     parts = [f"<{heading}>Artifact lengths from the joint readings</{heading}>"
              "<p class='small'>The length errors of the artifact seen through the nominal "

@@ -36,12 +36,12 @@ class FlowResult:
 
     Attributes:
         result: the :class:`~kincal.identify.solver.CalibrationResult` (``result.procedure_record``
-            for the patent procedure).
+            for the staged-selection procedure).
         comparisons: errors before/after, ``train`` then ``validation``.
         seconds: wall time of the calibration itself [s].
         warnings: sentences for people (e.g. an instrument that probably moved).
         nominal: the robot the calibration started from.
-        train: the training blocks used (the patent's selection keeps only some
+        train: the training blocks used (the procedure's selection keeps only some
             placements); ``before`` / ``after``: their block parameters fitted to the
             nominal robot / estimated with the calibrated one, by block name.
         cross_validation: with ``run_flow(cross_validate=K)``: ``{"folds": K, "seed":

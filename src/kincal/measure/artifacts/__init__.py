@@ -78,7 +78,7 @@ def _options(**extra: tuple[Any, str]) -> dict[str, tuple[Any, str]]:
 register(Instrument(
     name="cross-bar",
     description="probe seated in the sockets A, B, C, D of a cross, |AC| = |BD| = L, "
-                "AC perpendicular to BD (the cross-bar patent)",
+                "AC perpendicular to BD (the staged-selection procedure)",
     simulate=simulate_cross_bar, write=write_artifact, read=read_artifact,
     options=_options(bar_length_mm=(300.0, "arm length |AC| = |BD| [mm]"),
                      angle_std_deg=(0.0, "stated uncertainty of the right angle [deg]")),

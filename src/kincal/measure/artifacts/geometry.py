@@ -12,7 +12,7 @@ are joint readings, and the artifact contributes only what is known about it:
 Built-in artifacts (:meth:`ArtifactGeometry.cross_bar`, :meth:`~ArtifactGeometry.ball_bar`,
 :meth:`~ArtifactGeometry.two_socket`):
 
-* ``cross-bar`` (the cross-bar patent): sockets A, B, C, D at the ends of two arms crossing at
+* ``cross-bar``: sockets A, B, C, D at the ends of two arms crossing at
   their middles, ``|AC| = |BD| = L``, ``AC`` perpendicular to ``BD``;
 * ``ball-bar``: two sockets A, B at a known distance, usually probed once each per
   placement;
@@ -139,7 +139,7 @@ class ArtifactGeometry:
     @staticmethod
     def cross_bar(length: float, length_std: float = 0.0, angle_std: float = 0.0
                   ) -> ArtifactGeometry:
-        """The patent's cross: ``|AC| = |BD| = length`` [m], ``AC`` perpendicular to ``BD``.
+        """The cross: ``|AC| = |BD| = length`` [m], ``AC`` perpendicular to ``BD``.
 
         Layout: A, C on the x axis and B, D on the y axis at ``+-length/2``.
         """

@@ -99,7 +99,7 @@ def rotation_axes_rzyx(angles: Array) -> Array:
 
 @dataclass(frozen=True)
 class ConstraintValues:
-    """A constraint evaluated for every placement (for reports and the patent's figures).
+    """A constraint evaluated for every placement (for reports and the bar-length figures).
 
     Attributes:
         placement: (K,) placement label of each value.

@@ -2,7 +2,7 @@
 
 The residual is the cosine of the angle between the segments ``u = X_c - X_a`` and
 ``v = X_d - X_b`` (dimensionless; for a near right angle it equals the deviation from
-90 degrees in radians, ``cos(pi/2 - delta) ~ delta``), which is the patent's
+90 degrees in radians, ``cos(pi/2 - delta) ~ delta``), which is the procedure's
 ``AC . BD = 0`` divided by ``|AC| |BD|``:
 
     e = u . v / (|u| |v|)
