@@ -152,6 +152,9 @@ def test_free_fixed_stages_and_progress():
         calibrate(robot, [blk], free=["theta_ofset[2]"])
     with pytest.raises(KincalError, match="unknown method"):
         calibrate(robot, [blk], method="newton")
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(KincalError, match="loss_scale must be a positive finite"):
+            calibrate(robot, [blk], loss="huber", loss_scale=bad)
     assert match_names(["theta_offset[1]", "d[1]", "theta_offset[2]"], "theta_offset[*]") == [0, 2]
 
 

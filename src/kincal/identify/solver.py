@@ -464,8 +464,18 @@ def _wrapped_offsets(prob: StackedProblem, theta: Array) -> Array:
     return theta
 
 
-def _check_options(method: str, loss: str, noise_scale: float | None) -> None:
-    """Raise :class:`KincalError` for an unknown method or loss or a bad noise scale."""
+def _check_options(robot: object, method: str, loss: str, loss_scale: float,
+                   noise_scale: float | None) -> None:
+    """Raise :class:`KincalError` for a robot that is not serial, an unknown method or
+    loss, or a loss or noise scale that is not a positive finite number."""
+    if not isinstance(robot, Robot):
+        raise KincalError(f"calibrate takes a serial Robot, not a {type(robot).__name__}; a "
+                          "five-bar calibrates with kincal.parallel.file_calibration."
+                          "calibrate_fivebar_file or kincal.parallel.calibration.calibrate")
+    if not (isinstance(loss_scale, int | float) and np.isfinite(loss_scale)
+            and loss_scale > 0):
+        raise KincalError(f"loss_scale must be a positive finite number of standard "
+                          f"deviations, got {loss_scale!r}")
     if method not in METHODS:
         raise KincalError(f"unknown method {method!r}; use one of {', '.join(METHODS)}")
     if loss not in LOSSES:
@@ -504,6 +514,20 @@ def _candidates(prob: StackedProblem, free: Sequence[str] | str | None,
     specs: list[str | Sequence[str]] = list(stages) if stages else ["all"]
     return specs, [[i for i in _stage_candidates(spec, prob, cand) if i not in fixed_idx]
                    for spec in specs]
+
+
+def _settle_last_stage(session: _Session, out: _StageOutcome, label: str, messages: list[str],
+                       stage_status: list[tuple[str, StageStatus]]) -> int:
+    """Estimate the noise scale before the prior is weighed (:func:`_settle_noise_scale`)
+    and update the last stage's message and status in place; returns the extra iterations."""
+    before = out.iterations
+    settled = _settle_noise_scale(session, out, label)
+    messages[-1] = out.last.message
+    stage_status[-1] = (label, out.last.status)
+    if not settled:
+        messages.append(f"the noise scale did not settle in {MAX_NOISE_ITER} re-solves "
+                        f"(sigma0 = {session.scale:.4g})")
+    return out.iterations - before
 
 
 def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
@@ -565,11 +589,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         from its start without them (module docstring, "Identifiability at the
         solution").
     """
-    if not isinstance(robot, Robot):
-        raise KincalError(f"calibrate takes a serial Robot, not a {type(robot).__name__}; a "
-                          "five-bar calibrates with kincal.parallel.file_calibration."
-                          "calibrate_fivebar_file or kincal.parallel.calibration.calibrate")
-    _check_options(method, loss, noise_scale)
+    _check_options(robot, method, loss, loss_scale, noise_scale)
     prob, theta0, center, prior_s = _start(robot, blocks, prior, initial)
     estimate_noise = bool(prior_s) and noise_scale is None and not trust_sigma
     settings = StageSettings(method, RobustLoss.of(prob, loss, loss_scale), max_iter, tol_step,
@@ -598,15 +618,7 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
         stage_status.append((label, out.last.status))
     assert out is not None
     if estimate_noise and out.est:
-        # the noise scale before the prior is weighed
-        before = out.iterations
-        settled = _settle_noise_scale(session, out, stage_info[-1][0])
-        total_it += out.iterations - before
-        messages[-1] = out.last.message
-        stage_status[-1] = (stage_info[-1][0], out.last.status)
-        if not settled:
-            messages.append(f"the noise scale did not settle in {MAX_NOISE_ITER} re-solves "
-                            f"(sigma0 = {session.scale:.4g})")
+        total_it += _settle_last_stage(session, out, stage_info[-1][0], messages, stage_status)
     converged = all(status.converged for _, status in stage_status)
     stats = _statistics(session, out, trust_sigma, estimate_noise, tol_rank)
     messages += stats.messages

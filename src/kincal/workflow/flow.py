@@ -220,8 +220,6 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     selection = None
     warnings: list[str] = []
     if select == "auto":
-        if procedure != "lm":
-            raise KincalError("--select auto works with --procedure lm")
         selection, blocks, holdouts, tols = _select_model(
             robot, blocks, list(holdouts), tols, prior, folds, masses, joint_models, mapper,
             solver_options, warnings)
@@ -265,7 +263,7 @@ def _share_marker(robot: Any, blocks: list[Any], holdouts: Sequence[Any], shared
 
 
 def _selection_and_tolerances(robot: Any, blocks: Sequence[Any], free: str | None,
-                              fix: str | None, prior: str | None
+                              fix: str | None, prior: Prior
                               ) -> tuple[list[str] | None, list[str], Any]:
     """The free and fixed parameter names of ``--free``/``--fix`` and the tolerances
     (``--prior``) of the stacked problem."""
@@ -287,6 +285,8 @@ def _check_validation_options(procedure: str, cross_validate: int | None,
                               f"{cross_validate})")
     if select not in (None, "none", "auto"):
         raise KincalError(f"option --select: {select!r} is not auto or none")
+    if select == "auto" and procedure != "lm":
+        raise KincalError("--select auto works with --procedure lm")
 
 
 def _cross_validation_summary(robot: Any, blocks: Sequence[Any], selection: Any,

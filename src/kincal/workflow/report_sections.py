@@ -137,16 +137,16 @@ def staged_selection_section_html(info: Any, figures: Mapping[str, tuple[str, by
                      f"{same['max_sigmas']:.3g} standard errors"
                      + (f" ({e(same['worst'])})" if same["worst"] else "") + ".</p>")
         if same["rows"]:
-            rows = []
+            compared: list[str] = []
             for r in same["rows"]:
                 unit = (units or {}).get(r["name"], "")
                 f, u = display_scale(unit) if unit else (1.0, "SI")
-                rows.append(f"<tr><td class='l'>{e(r['name'])}</td><td>{r['a'] * f:.5f}</td>"
+                compared.append(f"<tr><td class='l'>{e(r['name'])}</td><td>{r['a'] * f:.5f}</td>"
                             f"<td>{r['b'] * f:.5f}</td><td>{r['diff'] * f:.2e}</td>"
                             f"<td class='l'>{u}</td><td>{r['sigmas']:.3g}</td></tr>")
             parts.append("<table><tr><th class='l'>parameter</th><th>staged selection</th>"
                          "<th>one-stage</th><th>difference</th><th class='l'>unit</th>"
-                         f"<th>in std</th></tr>{''.join(rows)}</table>")
+                         f"<th>in std</th></tr>{''.join(compared)}</table>")
     if figures:
         parts.append(figures_section_html(figures, heading="h3"))
     return "\n".join(parts)
