@@ -80,7 +80,7 @@ def cases() -> Iterator[tuple[str, Callable[[], Any]]]:
 
     from kincal.measure.registry import instruments, simulate_measurements
     from kincal.measure.simulate import perturb_robot
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 
     for name, n in (("puma560", 1000), ("puma560", 10000), ("panda", 1000), ("panda", 10000)):
         robot, block, _, _ = peer_problem(name, n, holdout=10)
@@ -95,7 +95,7 @@ def cases() -> Iterator[tuple[str, Callable[[], Any]]]:
            lambda: fit(robot, [block], stages=["offsets", "all"]))
     yield ("puma560 N=1000 gauss-newton",
            lambda: fit(robot, [block], method="gauss-newton"))
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     for inst in sorted(instruments()):
         if inst == "artifact":              # a custom artifact: no simulation without a layout
             continue

@@ -203,9 +203,9 @@ def peer_problem(name: str, n: int, holdout: int = 2000, seed: int = 0):
     """(nominal robot, training block, held-out q, true held-out positions (N, K, 3))."""
     from kincal.measure.instruments.position import simulate_positions
     from kincal.measure.simulate import perturb_robot, random_configurations
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 
-    robot = load_robot(name)
+    robot = load_serial_robot(name)
     markers = np.array(PROBLEMS[name][1])
     rng = np.random.default_rng(seed)
     true = perturb_robot(robot, rng)
@@ -354,9 +354,9 @@ def scaling_problem(n: int):
     beyond the data): (nominal robot, block)."""
     from kincal.measure.instruments.position import simulate_positions
     from kincal.measure.simulate import perturb_robot, random_configurations
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     true = perturb_robot(robot, np.random.default_rng(0))
     rng = np.random.default_rng(n)
     q = random_configurations(robot, n, rng)
@@ -427,9 +427,9 @@ def instrument_child(name: str, poses: int) -> None:
 
     from kincal.measure.registry import instruments, simulate_measurements
     from kincal.measure.simulate import perturb_robot
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(1)
     noise = {"m": 1e-5, "rad": 1e-5, "px": 0.1}[instruments()[name].noise_unit]
     blocks, _ = simulate_measurements(name, perturb_robot(nominal, rng), rng, poses, noise,

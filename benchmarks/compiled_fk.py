@@ -33,7 +33,7 @@ from timing import interleaved, machine  # noqa: E402
 
 from kincal.measure.simulate import random_configurations  # noqa: E402
 from kincal.robots.chain import elementary_matrix  # noqa: E402
-from kincal.robots.files import load_robot  # noqa: E402
+from kincal.robots.files import load_serial_robot  # noqa: E402
 
 _AXIS = {"Rx": 0, "Ry": 1, "Rz": 2, "Tx": 0, "Ty": 1, "Tz": 2}
 
@@ -140,7 +140,7 @@ def main() -> None:
     except ImportError:
         raise SystemExit("numba is not installed here: pip install numba") from None
     fk_libm, fk_scalars = kernels()
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     prefix, posts, axes, joint, scale, offset = compile_chain(robot)
     print(f"PUMA 560 forward kinematics, numba {numba.__version__}; {machine()}")
     print(f"{'N':>8}{'NumPy [ns]':>12}{'numba libm [ns]':>17}{'numba+NumPy trig [ns]':>23}"

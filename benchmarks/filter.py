@@ -28,7 +28,7 @@ from kincal.compensation.configuration import Configurator
 from kincal.compensation.programs.driver import filter_program
 from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.controller import controller_map
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import log_so3, matrix_to_rpy
 
 
@@ -44,7 +44,7 @@ def _configs(robot, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def krl_program(folder: Path, n: int, rng: np.random.Generator) -> Path:
-    nom = load_robot("kr6")
+    nom = load_serial_robot("kr6")
     conf = Configurator.of(nom, controller_map(nom))
     q = _configs(nom, n, rng)
     T = nom.fk(q)
@@ -67,7 +67,7 @@ def krl_program(folder: Path, n: int, rng: np.random.Generator) -> Path:
 
 
 def ur_program(folder: Path, n: int, rng: np.random.Generator) -> Path:
-    nom = load_robot("ur5")
+    nom = load_serial_robot("ur5")
     q = _configs(nom, n, rng)
     T = nom.fk(q)
     lines = ["def bench():"]
@@ -94,7 +94,7 @@ def main() -> None:
                 "URScript, UR5 (numerical IK)": ("ur5", ur_program(folder, args.targets, rng))}
         robots = {}
         for name, (robot, _) in runs.items():
-            nom = load_robot(robot)
+            nom = load_serial_robot(robot)
             robots[name] = (nom, perturb_robot(nom, np.random.default_rng(1)))
         t = interleaved({name: lambda path=path, name=name: filter_program(
             str(path), robots[name][1], robots[name][0]) for name, (_, path) in runs.items()},

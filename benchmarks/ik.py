@@ -43,7 +43,7 @@ try:
     from kincal.motion.ik import check_solutions, solve_ik
     from kincal.motion.ik_closed_form import ik_puma560
     from kincal.robots.dh import dh_links
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 except ImportError:  # pragma: no cover - a message instead of a traceback
     sys.exit("kincal is not installed in this environment: pip install -e /path/to/kincal")
 
@@ -146,7 +146,7 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="write the results as JSON here")
     args = ap.parse_args()
 
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(args.seed)
     lim = robot.joint_limits
     T = robot.fk(rng.uniform(lim[:, 0], lim[:, 1], size=(args.n, robot.n)))

@@ -40,7 +40,7 @@ from timing import interleaved, machine  # noqa: E402
 
 try:
     from kincal.robots.dh import dh_links, standard_to_modified
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
     from kincal.spatial import matrix_from_frame
 except ImportError:  # pragma: no cover - a message instead of a traceback
     sys.exit("kincal is not installed in this environment: pip install -e /path/to/kincal")
@@ -82,7 +82,7 @@ def _version(module_name: str) -> str:
 def kincal_puma(rtb_robot=None):
     """kincal's library PUMA 560; with RTB present, its DH values set to RTB's model
     (RTB puts the shoulder height d1 = 0.67183 m into the table, kincal's file has d1 = 0)."""
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     if rtb_robot is None:
         return robot
     values = {}

@@ -31,7 +31,7 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def problems() -> dict[str, tuple]:
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
     from kincal.robots.urdf import load_urdf, load_urdf_inertials
     from kincal.workflow.flow import read_blocks
 
@@ -40,7 +40,7 @@ def problems() -> dict[str, tuple]:
     t_blocks = read_blocks([DATA / "tiago_mocap" / "train_2021-11-30.csv"], tiago,
                            "x1=m,y1=m,z1=m", ["?2,?3,?4"])
     masses = load_urdf_inertials(urdf, tip_link="wrist_ft_tool_link")
-    moto = load_robot("motoman_right")
+    moto = load_serial_robot("motoman_right")
     m_blocks = read_blocks([DATA / "motoman_leica" / "right_arm_grid_6x6x6.csv"], moto)
     return {"TIAGo (37 postures)": (tiago, t_blocks, masses),
             "Motoman (212 poses)": (moto, m_blocks, None)}

@@ -27,7 +27,7 @@ from kincal.identify.tolerances import resolve_tolerances
 from kincal.measure.base import stack
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = 2e-5
 INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]
@@ -52,7 +52,7 @@ def box(robot, n, rng, inside=True, shrink=1.0):
 
 @pytest.fixture(scope="module")
 def setup():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(41)
     q_train = box(nominal, 30, rng)
     q_in, q_out = box(nominal, 25, rng, shrink=0.7), box(nominal, 25, rng, inside=False)

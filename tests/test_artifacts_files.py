@@ -29,14 +29,14 @@ from kincal.measure.registry import (
     write_measurements,
 )
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 @pytest.mark.parametrize("instrument,options", [

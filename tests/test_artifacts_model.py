@@ -21,12 +21,12 @@ from kincal.measure.artifacts.simulate import simulate_artifact
 from kincal.measure.base import stack
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 PROBES = [Probe.length(0.1, True), Probe.vector([0.01, -0.02, 0.12], True), Probe.tool(),

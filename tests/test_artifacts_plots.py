@@ -12,13 +12,13 @@ from kincal.report.artifact_plots import (
     plot_lengths,
     save_length_error_figures,
 )
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 
 def test_figures_4_and_5(tmp_path):
     import matplotlib.image as mpimg
 
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(3)
     true = perturb_robot(nominal, rng)
     b, _ = simulate_artifact(true, ArtifactGeometry.cross_bar(0.3), 12, rng,

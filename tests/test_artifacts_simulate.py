@@ -18,7 +18,7 @@ from kincal.measure.artifacts import ArtifactGeometry, ArtifactMeasurement, Prob
 from kincal.measure.artifacts.simulate import simulate_artifact
 from kincal.measure.registry import get_instrument, simulate_measurements
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = np.radians(0.001)
 SEEDS = 200
@@ -26,7 +26,7 @@ SEEDS = 200
 
 @pytest.fixture(scope="module")
 def experiment():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(11)
     true = perturb_robot(nominal, rng)
     cross = ArtifactGeometry.cross_bar(0.3)
@@ -44,7 +44,7 @@ def _noisy(block: ArtifactMeasurement, q_true: np.ndarray, nominal, rng) -> Arti
 
 
 def test_seating_is_exact_and_the_registry_passes_options_through():
-    nominal = load_robot("kr6")
+    nominal = load_serial_robot("kr6")
     rng = np.random.default_rng(2)
     true = perturb_robot(nominal, rng)
     inst = get_instrument("cross-bar")

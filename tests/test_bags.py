@@ -14,7 +14,7 @@ from cli_helpers import run
 
 from kincal.measure.bags import StillOptions, find_postures, read_bag_streams
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 rosbags = pytest.importorskip("rosbags", reason="the 'ros' extra (rosbags) is not installed")
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
@@ -116,7 +116,7 @@ def write_bag(path, kind: str, names, jt, jq, mt, mp, as_tf: bool = False):
 
 @pytest.fixture(scope="module")
 def puma_session():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     truth = perturb_robot(nominal, np.random.default_rng(11))
     rng = np.random.default_rng(12)
     postures = random_configurations(nominal, 40, rng)

@@ -26,9 +26,9 @@ from kincal.measure.registry import (
     simulate_measurements,
     write_measurements,
 )
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
-PUMA = load_robot("puma560")
+PUMA = load_serial_robot("puma560")
 
 
 @pytest.fixture(scope="module")

@@ -17,14 +17,14 @@ import kincal.robots.workspace as workspace_module
 from kincal.measure.base import stack
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.workspace import ChainWorkspace
 
 INSTRUMENT = [1.5, -0.4, 0.3, 0.2, -0.1, 0.05]
 
 
 def test_a_shared_workspace_changes_no_number_and_holds_no_result():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(3)
     qa, qb = random_configurations(robot, 700, rng), random_configurations(robot, 700, rng)
     ws = ChainWorkspace()
@@ -44,7 +44,7 @@ def test_a_shared_workspace_changes_no_number_and_holds_no_result():
 
 
 def test_a_workspace_stops_growing_and_problems_do_not_share_one():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     true = perturb_robot(robot, rng)
     q = random_configurations(robot, 2000, rng)
@@ -64,7 +64,7 @@ def test_a_workspace_stops_growing_and_problems_do_not_share_one():
 
 
 def test_two_threads_with_their_own_problems_give_the_serial_numbers():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(7)
     true = perturb_robot(robot, rng)
     q = random_configurations(robot, 6000, rng)

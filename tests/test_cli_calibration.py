@@ -21,7 +21,7 @@ from cli_helpers import invoke, run
 
 from kincal.errors import MeasurementFileError
 from kincal.measure.registry import instruments, read_measurements
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 if not DATA.is_dir():
@@ -64,8 +64,8 @@ def test_simulate_calibrate_recovers_the_truth(flow):
     """The written calibrated YAML predicts the measured point like the truth YAML does,
     on held-out configurations, up to the rigid frame the data cannot see (the robot's
     base and joint-1 zero are absorbed by the unknown tracker frame)."""
-    truth, cal, nominal = (load_robot(flow[k]) if k != "nom" else load_robot("puma560")
-                           for k in ("truth", "cal", "nom"))
+    truth, cal, nominal = (load_serial_robot(flow[k]) if k != "nom"
+                           else load_serial_robot("puma560") for k in ("truth", "cal", "nom"))
     sim = json.loads(flow["sim"].read_text())
     res = json.loads(flow["res"].read_text())
     est = {p["name"]: p["estimate"] for p in res["parameters"]}
@@ -189,7 +189,7 @@ def test_moved_instrument_is_flagged_and_reregistered(flow, capsys, tmp_path):
     from kincal.measure.registry import write_measurements
     from kincal.spatial import matrix_from_frame
 
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     (h,) = read_measurements(flow["hold"], nominal)
     M = matrix_from_frame(np.array([0.3, -0.1, 0.05, math.radians(25), math.radians(3), 0.0]))
     moved_block = type(h)(h.q, h.positions @ M[:3, :3].T + M[:3, 3], h.sigma, h.name)
@@ -327,8 +327,8 @@ def test_console_script_exit_code(tmp_path):
 
 
 def test_compensate_command(flow, capsys, tmp_path):
-    cal = load_robot(flow["cal"])
-    nominal = load_robot("puma560")
+    cal = load_serial_robot(flow["cal"])
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(2)
     lim = nominal.joint_limits
     q = rng.uniform(lim[:, 0] * 0.4, lim[:, 1] * 0.4, (60, 6))
@@ -405,7 +405,7 @@ def test_simulate_works_for_every_registered_instrument(capsys, tmp_path, instru
         assert code == 2 and len(err.strip().splitlines()) == 1 and not out.exists()
         return
     assert code == 0, err
-    blocks = read_measurements(out, load_robot("puma560"))
+    blocks = read_measurements(out, load_serial_robot("puma560"))
     assert blocks and blocks[0].q.shape[1] == 6
 
 
@@ -432,7 +432,7 @@ def test_urdf_robot_real_data_writes_calibrated_urdf(capsys, tmp_path):
     assert urdf.is_file()
     from kincal.robots.urdf import load_urdf
 
-    y = load_robot(out)
+    y = load_serial_robot(out)
     nominal = load_urdf(d / "tiago_48_schunk.urdf", tip_link="wrist_ft_tool_link")
     q = read_measurements(d / "validation_2021-11-26.csv", nominal,
                           {"x?": "m", "y?": "m", "z?": "m"}, ignore=["?2", "?3", "?4"])[0].q
@@ -492,10 +492,10 @@ def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
     csv = tmp_path / "bare.csv"
     csv.write_text("# kincal measurements: instrument=position; name=t\n"
                    "q1,q2,q3,q4,q5,q6,x_mm,y_mm,z_mm\n0.1,0.2,0.3,0.4,0.5,0.6,1,2,3\n")
-    block = read_measurements(csv, load_robot(from_urdf))[0]
+    block = read_measurements(csv, load_serial_robot(from_urdf))[0]
     np.testing.assert_allclose(block.q, [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
     with pytest.raises(MeasurementFileError, match="have no unit"):
-        read_measurements(csv, load_robot("puma560"))
+        read_measurements(csv, load_serial_robot("puma560"))
     # bad output names: one line, nothing written
     code, _, err = run(capsys, "export", "puma560", "-o", tmp_path / "puma.txt")
     assert code == 2 and "name it .yaml, .yml or .urdf" in err

@@ -14,7 +14,7 @@ from test_compliance import perturbed_puma
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.joints.hysteresis import approach_directions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = 20e-6                                                    # m per coordinate
 H_TRUE = np.array([-1.5e-3, -4e-3, -2.5e-3, -6e-3, -3e-3, -8e-3])  # rad, the play (lag)
@@ -32,7 +32,7 @@ def _session(path, true, q, rng):
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("play")
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(21)
     true = perturbed_puma(nominal, rng)
     _session(d / "train.csv", true, random_configurations(nominal, 80, rng), rng)

@@ -12,7 +12,7 @@ import pytest
 from cli_helpers import run
 
 from kincal.robots.dh import DHLink, from_dh
-from kincal.robots.files import library_names, load_robot, write_robot_yaml
+from kincal.robots.files import library_names, load_serial_robot, write_robot_yaml
 
 Q = [0.1, -0.4, 0.7, 1.2, -0.5, 2.0]
 Q_TEXT = ",".join(str(v) for v in Q)
@@ -46,7 +46,7 @@ def test_robots_lists_the_library(monkeypatch, capsys):
 def test_show_lists_joints_and_parameters(monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "show", "puma560")
     assert code == 0, err
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     for name in robot.param_names + robot.joint_names:
         assert name in out
     rows = {ln.split("│")[1].strip(): ln for ln in out.splitlines() if ln.count("│") >= 4}
@@ -63,7 +63,7 @@ def test_show_json_to_stdout_is_pure_json(monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "show", "puma560", "--json", "-")
     assert code == 0, err
     data = json.loads(out)                      # no table before the JSON
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     assert data["name"] == "puma560"
     assert [p["name"] for p in data["parameters"]] == list(robot.param_names)
     np.testing.assert_array_equal([p["value"] for p in data["parameters"]], robot.param_values)
@@ -75,13 +75,13 @@ def test_fk_json_equals_api(monkeypatch, capsys):
     data = json.loads(out)                      # stdout holds only the JSON
     T = np.array(data["T"])
     assert T.shape == (4, 4)
-    np.testing.assert_array_equal(T, load_robot("puma560").fk(Q))
+    np.testing.assert_array_equal(T, load_serial_robot("puma560").fk(Q))
 
 
 def test_fk_table_output(monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "fk", "puma560", "--q", Q_TEXT)
     assert code == 0, err
-    T = load_robot("puma560").fk(Q)
+    T = load_serial_robot("puma560").fk(Q)
     assert f"{T[0, 3] * 1e3:.4f}" in out and "position [mm]" in out
     code, out, err = run_cli(monkeypatch, capsys, "fk", "puma560", "--q", Q_TEXT, "--si")
     assert f"{T[0, 3]:.7f}" in out and "position [m]" in out
@@ -109,7 +109,7 @@ def test_jacobian_tool_frame_json(monkeypatch, capsys, prismatic_file):
     J = np.array(data["J"])
     assert J.shape == (6, 6) and data["frame"] == "tool"
     assert data["columns"] == ["q1", "q2", "q3", "q4", "q5", "q6"]
-    np.testing.assert_array_equal(J, load_robot("puma560").jacobian(Q, frame="tool"))
+    np.testing.assert_array_equal(J, load_serial_robot("puma560").jacobian(Q, frame="tool"))
     path, robot = prismatic_file
     code, out, err = run_cli(monkeypatch, capsys, "jacobian", str(path), "--q", "0.3,0.1,0.2",
                              "--json", "-")
@@ -145,7 +145,7 @@ def test_real_processes():
                                                     timeout=120), jobs)
     assert ok.returncode == 0, ok.stderr
     np.testing.assert_array_equal(np.array(json.loads(ok.stdout)["T"]),
-                                  load_robot("puma560").fk(Q))
+                                  load_serial_robot("puma560").fk(Q))
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert bad.stderr.strip() == ("error: option --q: expected 6 comma-separated values, "
                                   "got 3")

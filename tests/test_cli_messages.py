@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from cli_helpers import invoke, run
 
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 
 def test_artifact_labels_are_read_not_reported_as_ignored(tmp_path, capsys):
@@ -101,7 +101,7 @@ def test_plan_standard_errors_in_the_console_units(tmp_path, capsys):
 
 
 def test_compensate_writes_in_the_targets_units(tmp_path, capsys):
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q = np.array([[0.1, 0.5, -0.3, 0.2, 0.4, 0.1]])
     p = robot.fk(q)[0, :3, 3] * 1e3
     (tmp_path / "t.csv").write_text("x_mm,y_mm,z_mm\n" + ",".join(f"{v:.9f}" for v in p)

@@ -14,14 +14,14 @@ from kincal.cli import app
 from kincal.errors import KincalError
 from kincal.identify.design import random_candidates, within_limits, write_poses
 from kincal.measure.files import read_table
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 def test_plan_writes_poses_report_and_json(puma, tmp_path) -> None:

@@ -21,7 +21,7 @@ import pytest
 from cli_helpers import invoke, run
 
 from kincal.measure.registry import read_measurements
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 PLACEMENTS = 12
 BAR_MM, PROBE_MM = 300.0, 100.0
@@ -111,7 +111,8 @@ def test_staged_selection_record_and_comparison_in_the_json(staged, capsys):
 
 
 def test_calibrated_bar_lengths_on_held_out_placements_are_at_the_noise_level(staged):
-    nominal, truth, cal = (load_robot(x) for x in ("puma560", staged["truth"], staged["cal"]))
+    nominal, truth, cal = (load_serial_robot(x)
+                           for x in ("puma560", staged["truth"], staged["cal"]))
     held = read_measurements(staged["hold"], nominal)[0]
     train = read_measurements(staged["cb"], nominal)[0]
     assert held.q.shape == train.q.shape and not np.allclose(held.q, train.q)  # new placements

@@ -24,7 +24,7 @@ from kincal.motion.clik import (
 )
 from kincal.motion.ik_closed_form import ik_spherical_rrp
 from kincal.motion.trajectory import CartesianMotion, LinePath, line_motion, quintic
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import pose_error
 
 runner = CliRunner()
@@ -120,7 +120,7 @@ def test_rk4_is_more_accurate_than_euler():
 
 @pytest.mark.parametrize("orientation", ["axis_angle", "zyz", "rpy"])
 def test_pose_task_on_puma(orientation):
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q0 = np.array([0.2, 0.9, -0.6, 0.3, 0.8, 0.1])
     q1 = q0 + np.array([0.2, -0.1, 0.15, 0.2, -0.2, 0.3])
     motion = line_motion(robot.fk(q0), robot.fk(q1), "quintic", duration=1.0)

@@ -13,13 +13,13 @@ import pytest
 from kincal.compensation.compensate import compensate, require_all
 from kincal.errors import KincalError, UnreachableError
 from kincal.motion.ik import solve_ik
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import log_so3
 
 
 @pytest.fixture(scope="module")
 def robots():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(11)
     lin = np.array([u == "m" for u in nominal.param_units])
     delta = np.where(lin, rng.normal(0, 1e-3, nominal.num_params),
@@ -96,7 +96,7 @@ def test_unreachable_target_is_one_line_naming_it(robots):
 
 def test_mismatched_robots_and_shapes(robots):
     nominal, calibrated, _ = robots
-    other = load_robot("ur5")
+    other = load_serial_robot("ur5")
     with pytest.raises(KincalError, match="has joints"):
         compensate(calibrated, np.eye(4), nominal=other)
     with pytest.raises(KincalError, match="position targets must have shape"):

@@ -15,7 +15,7 @@ from kincal.measure.instruments.position import PositionMeasurement, simulate_po
 from kincal.measure.joints.compliance import JointCompliance
 from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.chain import ChainBuilder
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.gravity import PointMass, gravity_torques
 
 INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]          # x y z rz ry rx
@@ -53,7 +53,7 @@ def _masses(robot):
 @pytest.mark.parametrize("which", ["puma", "stanford", "flipped"])
 @pytest.mark.parametrize("kind", ["position", "pose"])
 def test_jacobian_matches_central_differences(which, kind):
-    robot = {"puma": lambda: load_robot("puma560"), "stanford": stanford,
+    robot = {"puma": lambda: load_serial_robot("puma560"), "stanford": stanford,
              "flipped": flipped}[which]()
     rng = np.random.default_rng(1)
     q = random_configurations(robot, 9, rng)
@@ -150,7 +150,7 @@ def perturbed_puma(nominal, rng):
 
 
 def test_noise_free_recovery_of_known_compliances():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(7)
     true = perturbed_puma(nominal, rng)
     k_true = K_TRUE
@@ -172,7 +172,7 @@ def test_noise_free_recovery_of_known_compliances():
 def test_unloaded_joints_are_unobservable_by_name():
     """Joint 1 turns about gravity and joint 6 carries its mass on its axis: no load, so
     their compliances do not change any measurement."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(8)
     q = random_configurations(nominal, 40, rng)
     inner, tau = _simulate(nominal, nominal, q, np.zeros(6), PUMA_MASSES, rng)
@@ -211,7 +211,7 @@ class _Pairs(MeasurementModel):
 
 
 def test_clear_errors():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(4)
     q = random_configurations(robot, 12, rng)
     inner = simulate_positions(robot, q, rng, 0.0, INSTRUMENT)

@@ -13,7 +13,7 @@ import yaml
 from cli_helpers import run
 
 from kincal.errors import KincalError
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.hold import hold_joints
 from kincal.workflow.config import (
     CALIBRATION_KEYS,
@@ -214,7 +214,7 @@ def test_output_equal_to_an_input_is_refused(sim, capsys):
 
 # --------------------------------------------------------------------------- held joints
 def test_a_held_joint_is_a_constant_of_the_chain():
-    r = load_robot("puma560")
+    r = load_serial_robot("puma560")
     h = hold_joints(r, {"q4": 0.3})
     q = np.random.default_rng(1).uniform(-1, 1, (20, 6))
     q[:, 3] = 0.3

@@ -44,12 +44,12 @@ from kincal.measure.base import stack
 from kincal.measure.files import read_table
 from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 def synthetic(N: int, r: int, L: int, seed: int) -> DesignProblem:

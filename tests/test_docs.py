@@ -72,6 +72,6 @@ def test_sphinx_roles_read_as_code_on_the_site() -> None:
     sys.modules[spec.name] = hook                  # its dataclasses look their module up
     spec.loader.exec_module(hook)
     html = ("A :class:<code>~kincal.robots.chain.Robot</code> from :func:"
-            "<code>kincal.robots.files.load_robot</code>; :mod:<code>kincal.io</code>.")
+            "<code>kincal.robots.files.load_serial_robot</code>; :mod:<code>kincal.io</code>.")
     assert hook.sphinx_roles(html) == ("A <code>Robot</code> from <code>kincal.robots.files"
-                                       ".load_robot</code>; <code>kincal.io</code>.")
+                                       ".load_serial_robot</code>; <code>kincal.io</code>.")

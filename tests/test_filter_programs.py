@@ -30,7 +30,7 @@ from kincal.errors import KincalError
 from kincal.measure.simulate import perturb_robot
 from kincal.motion.ik_wrist import ik_spherical_wrist
 from kincal.robots.controller import controller_map
-from kincal.robots.files import load_robot, write_robot_yaml
+from kincal.robots.files import load_serial_robot, write_robot_yaml
 from kincal.spatial import inverse, log_so3, rotx, roty, rotz
 
 DATA = Path(__file__).parent / "data" / "programs"
@@ -58,11 +58,11 @@ def calibrated(tmp_path_factory):
     folder = tmp_path_factory.mktemp("robots")
     out = {}
     for _, name, _, _ in CASES:
-        nom = load_robot(name)
+        nom = load_serial_robot(name)
         cal = perturb_robot(nom, np.random.default_rng(7)).with_name(f"{name}_cal")
         path = folder / f"{name}_cal.yaml"
         write_robot_yaml(cal, path)
-        out[name] = (nom, load_robot(str(path)), str(path))
+        out[name] = (nom, load_serial_robot(str(path)), str(path))
     return out
 
 
@@ -232,7 +232,7 @@ def test_number_formats_round_trip(sign, whole, frac, lead, exp, exp_sign, exp_d
 # --------------------------------------------------------------------------- branches
 def test_kuka_status_and_turn_choose_the_branch():
     """All 8 solutions of one pose: the S/T of each picks exactly that solution."""
-    nom = load_robot("kr6")
+    nom = load_serial_robot("kr6")
     cmap = controller_map(nom)
     conf = Configurator.of(nom, cmap)
     q0 = np.radians([10, -70, 100, 30, 40, -20])
@@ -255,7 +255,7 @@ def test_singularity_warnings_name_the_right_targets_after_a_branch_is_refused()
     """A calibrated A5 offset of +1 deg: the target at A5 = 0.5 deg flips the wrist (its
     configuration is refused), the one at 1.5 deg lands at 0.5 deg (near the wrist
     singularity), the one at 40 deg is far from every singularity."""
-    nom = load_robot("kr6")
+    nom = load_serial_robot("kr6")
     cal = nom.with_params({"theta_offset[5]": nom.params()["theta_offset[5]"]
                            + math.radians(1.0)})
     conf = Configurator.of(nom, controller_map(nom))
@@ -279,10 +279,10 @@ def test_reference_poses_of_the_built_in_robots():
              ("irb120", [0, 0, 0, 0, 0, 0], [374.0, 0.0, 630.0]),       # IRB 120 calibration
              ("m10ia", [0, 0, 0, 0, 0, 0], [890.0, 0.0, 800.0])]        # M-10iA zero
     for name, axes, p in cases:
-        r = load_robot(name)
+        r = load_serial_robot(name)
         q = controller_map(r).to_model(np.array(axes, float))
         assert np.allclose(r.fk(q)[:3, 3] * 1e3, p, atol=1e-9), name
-    ur = load_robot("ur5")                    # UR5 zero: arm stretched along -x
+    ur = load_serial_robot("ur5")                    # UR5 zero: arm stretched along -x
     assert np.allclose(ur.fk(np.zeros(6))[:3, 3] * 1e3, [-817.25, -191.45, -5.491], atol=1e-9)
 
 
@@ -305,7 +305,7 @@ def test_fanuc_j2_j3_coupling_matches_a_urdf_style_chain():
     b.transform("Rx", None, math.pi)
     b.frame("tool")
     ref = b.build()
-    m = load_robot("m10ia")
+    m = load_serial_robot("m10ia")
     J = np.random.default_rng(0).uniform(-1.5, 1.5, (50, 6))
     Jr = J.copy()
     Jr[:, 2] = J[:, 1] + J[:, 2]
@@ -426,7 +426,7 @@ def test_plan_writes_a_joint_move_program_the_readers_read_back(case, tmp_path, 
     from kincal.compensation.programs.driver import _ops
 
     keys = _ops(dialect).joint_keys
-    nom = load_robot(robot)
+    nom = load_serial_robot(robot)
     q_read = np.array([controller_map(nom, "ur" if dialect == "urscript" else None)
                        .to_model(t.values(keys)) for t in prog.targets])
     digits = {"krl": 4, "rapid": 4, "urscript": 6, "fanuc-ls": 3}[dialect]
@@ -444,7 +444,7 @@ def test_predicted_accuracy_and_the_calibrated_region(tmp_path):
     from kincal.identify.solver import calibrate
     from kincal.measure.instruments.position import simulate_positions
 
-    nom = load_robot("ur5")
+    nom = load_serial_robot("ur5")
     truth = perturb_robot(nom, np.random.default_rng(3))
     rng = np.random.default_rng(4)
     q = rng.uniform(-0.6, 0.6, (40, 6)) + np.array([0.1, -1.2, 1.5, -1.9, -1.57, 0.3])
@@ -483,7 +483,7 @@ def test_filter_reads_the_older_accuracy_model(tmp_path):
     from kincal.identify.solver import calibrate
     from kincal.measure.instruments.position import simulate_positions
 
-    nom = load_robot("ur5")
+    nom = load_serial_robot("ur5")
     truth = perturb_robot(nom, np.random.default_rng(3))
     rng = np.random.default_rng(4)
     q = rng.uniform(-0.6, 0.6, (40, 6)) + np.array([0.1, -1.2, 1.5, -1.9, -1.57, 0.3])
@@ -505,7 +505,7 @@ def test_filter_reads_the_older_accuracy_model(tmp_path):
 
     assert accuracy_from_result(rj, res.robot).parameters == tuple(old["parameters"])
     with pytest.raises(KincalError, match="for another robot"):
-        accuracy_from_result(rj, load_robot("puma560"))
+        accuracy_from_result(rj, load_serial_robot("puma560"))
 
 
 def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys):
@@ -532,8 +532,8 @@ def test_filter_result_json_gives_predicted_accuracy_per_target(tmp_path, capsys
     rows = json.loads((tmp_path / "f.json").read_text())["targets"]
     stds = [r["predicted_std_mm"] for r in rows if r["status"] == "filtered"]
     assert stds and all(s > 0 for s in stds)
-    model = accuracy_from_result(rj, load_robot(str(cal)))
-    std, outside = tcp_accuracy(model, load_robot(str(cal)),
+    model = accuracy_from_result(rj, load_serial_robot(str(cal)))
+    std, outside = tcp_accuracy(model, load_serial_robot(str(cal)),
                                 np.radians([[5.0, -80, 100, 10, 40, -20]]),
                                 np.array([[0.01, 0, 0.15]]))
     assert std[0] > 0

@@ -307,9 +307,9 @@ def test_exported_robot_files_are_what_kincal_calibrate_writes(fleet, tmp_path, 
     r = fleet.robots[0]
     latest = fleet.root / r["serial"] / r["dates"][-1] / "tracker.csv"
     assert invoke("calibrate", "puma560", "--data", latest, "-o", tmp_path / "cal.yaml") == 0
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 
-    mine = load_robot(tmp_path / "robots" / f"{r['serial']}.yaml")
-    theirs = load_robot(tmp_path / "cal.yaml")
+    mine = load_serial_robot(tmp_path / "robots" / f"{r['serial']}.yaml")
+    theirs = load_serial_robot(tmp_path / "cal.yaml")
     assert mine.param_names == theirs.param_names
     np.testing.assert_allclose(mine.param_values, theirs.param_values, rtol=0, atol=1e-12)

@@ -14,7 +14,7 @@ from cli_helpers import run
 
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.workflow.flow import run_flow
 
 PANDA = Path(__file__).resolve().parents[2] / "shared" / "data" / "panda_two_socket"
@@ -57,7 +57,7 @@ def test_an_offset_gone_round_is_wrapped_and_refused(tmp_path, capsys):
 def test_offsets_are_reported_in_one_turn():
     """A nominal offset a full turn away converges to the same robot, reported in
     (-pi, pi]."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(3)
     q = random_configurations(nominal, 40, rng)
     truth = nominal.with_params({"theta_offset[3]": 0.01})
@@ -69,7 +69,7 @@ def test_offsets_are_reported_in_one_turn():
 
 
 def test_an_offset_beyond_its_tolerance_is_a_loud_warning():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     q = random_configurations(nominal, 50, rng)
     truth = nominal.with_params({"theta_offset[3]": math.radians(2.0)})  # 4 tolerances
@@ -87,7 +87,7 @@ def test_offsets_are_judged_once_a_warning_then_a_refusal():
     tolerance; beyond the bound the same words and advice refuse the calibration."""
     from kincal.identify.checks import OFFSET_ADVICE
 
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     q = random_configurations(nominal, 50, rng)
     for deg, trusted in ((2.0, True), (8.0, False)):

@@ -18,7 +18,7 @@ import pytest
 
 from kincal.errors import KincalError, RobotFileError
 from kincal.robots.chain import ChainBuilder
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.gravity import PointMass, gravity_torques
 from kincal.robots.urdf import load_urdf, load_urdf_inertials, parse_urdf_inertials
 
@@ -235,7 +235,7 @@ PUMA_TABLE = [(0, 0, np.pi / 2), (0, 0.4318, 0), (0.15005, 0.0203, -np.pi / 2),
 def test_puma_torques_against_textbook_dh():
     """Synthetic masses on the PUMA 560 (com in the frame just after each joint's
     rotation ``Rz(theta + q)``), a tilted base and gravity along -z of the world."""
-    robot = load_robot("puma560").with_params({"base.z": 0.672, "base.rx": 0.2,
+    robot = load_serial_robot("puma560").with_params({"base.z": 0.672, "base.rx": 0.2,
                                                "base.ry": -0.1})
     masses = [PointMass(0, 13.0, (0.0, 0.0, 0.3)), PointMass(1, 17.4, (0.2, 0.0, 0.1)),
               PointMass(2, 4.8, (0.02, 0.01, 0.2)), PointMass(3, 0.8, (0.0, 0.05, 0.4)),
@@ -284,7 +284,7 @@ def test_sign_convention_pendulum_and_slide():
 
 
 def test_bad_masses_and_gravity():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q = np.zeros((2, 6))
     with pytest.raises(KincalError, match="joint 6 is not a joint"):
         gravity_torques(robot, q, [PointMass(6, 1.0, (0, 0, 0))])

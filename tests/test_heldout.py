@@ -25,7 +25,7 @@ from test_compliance import perturbed_puma
 
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot, write_robot_yaml
+from kincal.robots.files import load_serial_robot, write_robot_yaml
 from kincal.spatial import matrix_from_frame
 
 NOISE = 2e-5
@@ -43,7 +43,7 @@ def in_box(robot, n, rng, width=0.3):
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("held")
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(51)
     true = perturbed_puma(nominal, rng)
     q_train = in_box(nominal, 40, rng)
@@ -182,7 +182,7 @@ def test_compensate_predicts_and_falls_back_to_nominal(files, calibrated, capsys
     noise, smaller than its uncertainty, so the calibrated model is predicted no better
     than the nominal one and --fallback nominal sends the targets uncompensated; the
     perturbed robot's calibration is predicted better everywhere in its box."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(9)
     q_t = in_box(nominal, 8, rng, 0.2)
     targets = tmp_path / "t.csv"

@@ -22,7 +22,7 @@ from kincal.measure.instruments.position import PositionMeasurement, simulate_po
 from kincal.measure.joints.compliance import JointCompliance
 from kincal.measure.joints.hysteresis import JointHysteresis, approach_directions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.gravity import gravity_torques
 
 #: A play on every PUMA joint [rad]: the link lags its motor by |h| (h < 0).
@@ -72,7 +72,7 @@ def _simulate(true, nominal, q, h, rng, noise=0.0, k=None):
 
 @pytest.mark.parametrize("nested", [False, True])
 def test_jacobian_matches_central_differences(nested):
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(3)
     q = _sequence(robot, 11, rng)
     inner = _simulate(robot, robot, q, H_TRUE, rng)
@@ -94,7 +94,7 @@ def test_jacobian_matches_central_differences(nested):
 
 
 def test_effective_configurations_and_subsets():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     q = _sequence(robot, 9, rng)
     inner = _simulate(robot, robot, q, H_TRUE, rng)
@@ -117,7 +117,7 @@ def test_effective_configurations_and_subsets():
 
 
 def test_noise_free_recovery_of_known_play_with_geometry_and_compliance():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(11)
     true = perturbed_puma(nominal, rng)
     k_true = K_TRUE
@@ -139,7 +139,7 @@ def test_noise_free_recovery_of_known_play_with_geometry_and_compliance():
 
 def test_noisy_recovery_within_the_reported_uncertainty():
     """50 noisy sessions: the RMS error of each h over the reported std is near 1."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     noise = 50e-6
     ratios = []
     for seed in range(50):
@@ -157,7 +157,7 @@ def test_noisy_recovery_within_the_reported_uncertainty():
 
 def test_a_joint_always_approached_from_one_side_is_named_not_guessed():
     """If joint 3 always arrives moving up, its play is a constant: its offset."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(12)
     q = _sequence(nominal, 40, rng)
     d = approach_directions(q)
@@ -172,7 +172,7 @@ def test_a_joint_always_approached_from_one_side_is_named_not_guessed():
 
 
 def test_clear_errors():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(4)
     q = _sequence(robot, 6, rng)
     inner = _simulate(robot, robot, q, np.zeros(6), rng)

@@ -13,13 +13,13 @@ from kincal.measure.instruments.pose import simulate_poses
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import random_configurations
 from kincal.robots.dh import dh_links, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 TOOL = [0.05, 0.03, 0.1, 0, 0, 0]      # tool point away from the wrist centre
 
 
 def puma(hayati: bool = False):
-    links = dh_links(load_robot("puma560"))
+    links = dh_links(load_serial_robot("puma560"))
     if hayati:
         links[1] = replace(links[1], beta=0.0)       # Hayati's beta on the parallel pair 2-3
     return from_dh(links, name="puma_hayati" if hayati else "puma560", tool=TOOL)

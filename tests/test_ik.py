@@ -20,7 +20,7 @@ from kincal.motion.ik import (
 )
 from kincal.motion.ik_closed_form import ik_puma560, ik_scara, ik_spherical_rrp
 from kincal.robots.dh import DHLink, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import pose_error, xyzrpy_to_matrix
 
 TOL = 1e-9
@@ -33,7 +33,7 @@ def _wrapped_distance(a: np.ndarray, b: np.ndarray, revolute: np.ndarray) -> np.
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +169,7 @@ def _puma_links(puma):
 
 
 def test_position_only_spherical_arm_matches_closed_form():
-    robot = load_robot("spherical_rrp")
+    robot = load_serial_robot("spherical_rrp")
     rng = np.random.default_rng(3)
     q = np.column_stack([rng.uniform(-3, 3, 2000), rng.uniform(-3, 3, 2000),
                          rng.uniform(0.05, 1.0, 2000)])
@@ -186,7 +186,7 @@ def test_position_only_spherical_arm_matches_closed_form():
 
 
 def test_position_target_inside_the_spherical_arms_hole_fails():
-    robot = load_robot("spherical_rrp")
+    robot = load_serial_robot("spherical_rrp")
     # rho = 0.5 m < d2 = 1 m: no joint values reach it
     sol = solve_ik(robot, np.array([[0.5, 0.0, 0.2]]), mask="position", restarts=2)
     assert not sol.success[0] and sol.reason[0]
@@ -194,7 +194,7 @@ def test_position_target_inside_the_spherical_arms_hole_fails():
 
 
 def test_scara_pose_ik_matches_closed_form_and_tilt_fails():
-    robot = load_robot("scara")
+    robot = load_serial_robot("scara")
     rng = np.random.default_rng(4)
     lim = robot.joint_limits
     q = np.column_stack([rng.uniform(lim[0, 0], lim[0, 1], 500),

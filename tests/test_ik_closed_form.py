@@ -16,7 +16,7 @@ from kincal.motion.ik_closed_form import (
     ik_spherical_rrp,
 )
 from kincal.robots.dh import DHLink, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import pose_error
 
 SQ2 = math.sqrt(2.0)
@@ -29,7 +29,7 @@ def _spherical_arm():
 
 
 def test_puma_all_eight_branches_reach_the_pose():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(0)
     q = rng.uniform(-3, 3, size=(2000, 6))
     T = robot.fk(q)
@@ -65,7 +65,7 @@ def test_puma_general_geometry_with_base_tool_and_offsets():
 
 
 def test_puma_wrist_singularity_still_reaches_the_pose():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q = np.array([[0.3, 1.0, -1.2, 0.7, 0.0, -0.4], [0.3, 1.0, -1.2, 0.7, np.pi, -0.4]])
     T = robot.fk(q)
     sol = ik_puma560(robot, T)
@@ -74,7 +74,7 @@ def test_puma_wrist_singularity_still_reaches_the_pose():
 
 
 def test_puma_unreachable_and_limits_flags():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     T = np.tile(np.eye(4), (2, 1, 1))
     T[0, :3, 3] = [1.5, 0.0, 0.0]
     T[1] = robot.fk(np.radians([10, 30, -40, 20, 50, 60]))
@@ -102,7 +102,7 @@ def test_spherical_arm_endpoints_by_closed_form():
 
 
 def test_spherical_arm_formula_matches_the_library_robot():
-    lib = load_robot("spherical_rrp")
+    lib = load_serial_robot("spherical_rrp")
     q = np.random.default_rng(2).uniform(-2, 2, size=(200, 3))
     c1, s1, c2, s2 = np.cos(q[:, 0]), np.sin(q[:, 0]), np.cos(q[:, 1]), np.sin(q[:, 1])
     d2, d3 = 1.0, q[:, 2]
@@ -125,7 +125,7 @@ def test_spherical_rrp_branches_and_hole():
 
 
 def test_scara_branches_reach_the_pose():
-    robot = load_robot("scara")
+    robot = load_serial_robot("scara")
     rng = np.random.default_rng(4)
     q = np.column_stack([rng.uniform(-2.5, 2.5, (1000, 2)), rng.uniform(0, 0.2, 1000),
                          rng.uniform(-3, 3, 1000)])
@@ -144,7 +144,7 @@ def test_scara_branches_reach_the_pose():
 
 
 def test_scara_tilted_or_far_poses_are_unreachable():
-    robot = load_robot("scara")
+    robot = load_serial_robot("scara")
     T = robot.fk(np.array([[0.2, 0.3, 0.1, 0.4]] * 2))
     T[0, :3, :3] = T[0, :3, :3] @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
     T[1, 0, 3] = 2.0
@@ -152,10 +152,10 @@ def test_scara_tilted_or_far_poses_are_unreachable():
 
 
 def test_dispatch_and_wrong_family():
-    assert closed_form_ik(load_robot("puma560"), np.eye(4)).q.shape == (1, 8, 6)
-    assert closed_form_ik(load_robot("scara"), load_robot("scara").fk(np.zeros(4))).q.shape \
-        == (1, 2, 4)
+    assert closed_form_ik(load_serial_robot("puma560"), np.eye(4)).q.shape == (1, 8, 6)
+    scara = load_serial_robot("scara")
+    assert closed_form_ik(scara, scara.fk(np.zeros(4))).q.shape == (1, 2, 4)
     with pytest.raises(KincalError, match="no closed-form IK"):
-        closed_form_ik(load_robot("ur5"), np.eye(4))
+        closed_form_ik(load_serial_robot("ur5"), np.eye(4))
     with pytest.raises(KincalError, match="PUMA-560"):
-        ik_puma560(load_robot("stanford"), np.eye(4))
+        ik_puma560(load_serial_robot("stanford"), np.eye(4))

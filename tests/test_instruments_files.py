@@ -16,9 +16,9 @@ from kincal.measure.registry import (
     simulate_measurements,
     write_measurements,
 )
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
-ROBOT = load_robot("puma560")
+ROBOT = load_serial_robot("puma560")
 
 CASES = {
     "range": ("range", {"stations": 3}),

@@ -18,10 +18,10 @@ from kincal.measure.instruments import (
 )
 from kincal.measure.instruments.common import to_local, to_world
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import matrix_from_frame
 
-ROBOT = perturb_robot(load_robot("puma560"), np.random.default_rng(3), length_std=0.01,
+ROBOT = perturb_robot(load_serial_robot("puma560"), np.random.default_rng(3), length_std=0.01,
                       angle_std=0.02, base_std=(0.05, 0.1), tool_std=(0.05, 0.1))
 RNG = np.random.default_rng(42)
 N = 12

@@ -27,9 +27,9 @@ from kincal.identify.solver import calibrate
 from kincal.measure.base import StackedProblem, stack
 from kincal.measure.simulate import perturb_robot
 from kincal.robots.chain import Robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
-NOMINAL = load_robot("puma560")
+NOMINAL = load_serial_robot("puma560")
 
 
 @dataclass

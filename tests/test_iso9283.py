@@ -24,7 +24,7 @@ from kincal.identify.iso9283 import (
     pose_figures,
 )
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot, write_robot_yaml
+from kincal.robots.files import load_serial_robot, write_robot_yaml
 from kincal.spatial import rotx
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "motoman_leica"
@@ -112,7 +112,7 @@ def test_plan_and_validate_on_a_simulated_robot(tmp_path, capsys):
     q = np.radians(np.array([[float(v) for v in r] for r in rows[1:]])) \
         if "deg" in rows[0][0] else np.array([[float(v) for v in r] for r in rows[1:]])
     assert len(q) == 50
-    nominal = load_robot("kr6")
+    nominal = load_serial_robot("kr6")
     assert np.allclose(nominal.fk(q[:5])[:, :3, 3], [doc["positions_m"][n] for n in CYCLE],
                        atol=1e-9)
     truth = perturb_robot(nominal, np.random.default_rng(1))

@@ -30,7 +30,7 @@ from kincal.robots.dh import standard_to_modified
 from kincal.robots.files import (
     library_dir,
     library_names,
-    load_robot,
+    load_serial_robot,
     read_robot_yaml,
     robot_from_dict,
     write_robot_yaml,
@@ -164,7 +164,7 @@ def framed(name: str):
         for k, v in zip(FRAME_KEYS, np.r_[rng.uniform(-0.5, 0.5, 3), rng.uniform(-1, 1, 3)],
                         strict=True):
             vals[f"{prefix}.{k}"] = v
-    return load_robot(name).with_params(vals)
+    return load_serial_robot(name).with_params(vals)
 
 
 def _max_err(A: np.ndarray, B: np.ndarray) -> float:
@@ -183,7 +183,7 @@ def test_file_documents_its_numbers(name):
     for key in ("description", "source", "units", "convention"):
         assert str(doc.get(key, "")).strip(), f"{name}: missing {key}"
     assert doc["units"]["length"] in LENGTH and doc["units"]["angle"] in ANGLE
-    robot = load_robot(name)
+    robot = load_serial_robot(name)
     for key in ("description", "source", "notes"):
         assert robot.meta.get(key) == (str(doc[key]).strip() if key in doc else None)
     assert [j.name for j in robot.joints] == [r["name"] for r in doc["joints"]]
@@ -204,7 +204,7 @@ def test_fk_equals_hand_computation(name):
         pytest.skip(f"no hand computation for convention {doc['convention']}")
     rng = _rng(name)
     q = random_q(doc, rng, 25)
-    robot = load_robot(name)
+    robot = load_serial_robot(name)
     assert _max_err(robot.fk(q), hand_fk(doc, q)) <= FK_TOL
     assert _max_err(robot.fk(q[0]), hand_fk(doc, q[:1])[0]) <= FK_TOL
 
@@ -227,7 +227,7 @@ def test_spherical_arm_spherical_arm_closed_form():
     doc = _doc("spherical_rrp")
     d2 = doc["joints"][1]["d"] * LENGTH[doc["units"]["length"]]
     assert d2 == 1.0
-    robot = load_robot("spherical_rrp")
+    robot = load_serial_robot("spherical_rrp")
     assert [j.kind for j in robot.joints] == ["revolute", "revolute", "prismatic"]
     q = random_q(doc, _rng("spherical"), 50)
     r2 = math.sqrt(2.0)
@@ -266,7 +266,7 @@ def test_irb120_equals_ros_industrial_urdf():
     axes = [(0, 0, 1), (0, 1, 0), (0, 1, 0), (1, 0, 0), (0, 1, 0), (1, 0, 0)]
     limits = np.radians([[-165, 165], [-110, 110], [-110, 70], [-160, 160], [-120, 120],
                          [-400, 400]])
-    robot = load_robot("irb120")
+    robot = load_serial_robot("irb120")
     np.testing.assert_allclose(robot.joint_limits, limits, rtol=1e-15)
     q = random_q(_doc("irb120"), _rng("irb120 urdf"), 25)
     q = np.vstack([np.zeros(6), q])
@@ -283,7 +283,7 @@ def test_kr6_equals_ros_industrial_urdf():
     axes = [(0, 0, -1), (0, 1, 0), (0, 1, 0), (-1, 0, 0), (0, 1, 0), (-1, 0, 0)]
     limits = np.radians([[-170, 170], [-190, 45], [-120, 156], [-185, 185], [-120, 120],
                          [-350, 350]])
-    robot = load_robot("kr6")
+    robot = load_serial_robot("kr6")
     np.testing.assert_allclose(robot.joint_limits, limits, rtol=1e-15)
     q = random_q(_doc("kr6"), _rng("kr6 urdf"), 25)
     q = np.vstack([np.zeros(6), np.radians([0, -90, 90, 0, 0, 0]), q])
@@ -309,7 +309,7 @@ MOTOMAN = {
 @pytest.mark.parametrize("name", sorted(MOTOMAN))
 def test_motoman_equals_dataset_dh_with_reflector_link(name):
     table, (ra, rd, ralpha, rtheta) = MOTOMAN[name]
-    robot = load_robot(name)
+    robot = load_serial_robot(name)
     assert robot.joint_names == ("E", "S", "L", "U", "R", "B", "T")
     q = _rng(name).uniform(-math.pi, math.pi, (25, 7))
     T = np.broadcast_to(np.eye(4), (25, 4, 4))
@@ -321,13 +321,13 @@ def test_motoman_equals_dataset_dh_with_reflector_link(name):
 
 def test_panda_flange_at_zero():
     # q = 0: x = a4 + a5 + a7 = 0.088 m, z = d1 + d3 + d5 - flange = 0.926 m, flange facing down.
-    T = load_robot("panda").fk(np.zeros(7))
+    T = load_serial_robot("panda").fk(np.zeros(7))
     assert _max_err(T, np.array([[1, 0, 0, 0.088], [0, -1, 0, 0], [0, 0, -1, 0.926],
                                  [0, 0, 0, 1.0]])) <= FK_TOL
 
 
 def test_hayati_puma_is_the_puma_plus_a_beta():
-    puma, hay = load_robot("puma560"), load_robot("puma560_hayati")
+    puma, hay = load_serial_robot("puma560"), load_serial_robot("puma560_hayati")
     assert hay.meta["convention"] == "hayati"
     assert hay.param_values[hay.param_index("beta[2]")] == 0.0
     assert [n for n in hay.param_names if n not in puma.param_names] == ["beta[2]"]
@@ -494,7 +494,7 @@ def test_ets_form_agrees(name):
 @pytest.mark.parametrize("name", SERIAL)
 def test_yaml_round_trip(name, tmp_path):
     q = random_q(_doc(name), _rng(name, 7), 25)
-    for robot in (load_robot(name), framed(name)):
+    for robot in (load_serial_robot(name), framed(name)):
         path = tmp_path / f"{name}.yaml"
         write_robot_yaml(robot, path)
         back = read_robot_yaml(path)
@@ -516,5 +516,5 @@ def test_cli_lists_every_library_robot():
 def test_cli_show(name):
     result = CliRunner().invoke(app, ["show", name], env={"COLUMNS": "200"})
     assert result.exit_code == 0, result.output
-    robot = load_robot(name)
+    robot = load_serial_robot(name)
     assert all(p in result.output for p in robot.param_names)

@@ -14,7 +14,7 @@ from kincal.identify.status import StageStatus
 from kincal.measure.base import stack
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 
 class Counting:
@@ -41,7 +41,7 @@ class Counting:
 def problem():
     """A puma560 seen by a position tracker from 30 poses of a perturbed robot."""
     rng = np.random.default_rng(11)
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     true = perturb_robot(nominal, rng)
     q = random_configurations(nominal, 30, rng)
     prob, theta0 = stack(nominal, [simulate_positions(true, q, rng, 1e-5)])

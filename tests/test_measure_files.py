@@ -24,7 +24,7 @@ from kincal.measure.registry import (
     simulate_measurements,
     write_measurements,
 )
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 if not DATA.is_dir():
@@ -33,7 +33,7 @@ if not DATA.is_dir():
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 def _write(tmp_path: Path, text: str, name: str = "m.csv") -> Path:
@@ -196,7 +196,7 @@ def test_real_motoman_leica_file_reads_as_is():
     path = DATA / "motoman_leica" / "right_arm_grid_6x6x6.csv"
     if not path.is_file():
         pytest.skip("shared data not available")
-    robot = load_robot("motoman_right")
+    robot = load_serial_robot("motoman_right")
     (b,) = read_measurements(path, robot)
     ref = _csv_columns(path)
     assert b.q.shape == (212, 7) and b.provenance.table.ignored == ["pose_id"]

@@ -19,7 +19,7 @@ from kincal.measure.instruments.pose import PoseMeasurement, simulate_poses
 from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import DHLink, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.workspace import ChainWorkspace
 from kincal.spatial import (
     exp_so3,
@@ -33,12 +33,13 @@ INSTRUMENT = [1.4, -0.6, 0.3, 2.1, -0.3, 0.2]          # x y z rz ry rx
 
 
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 def stanford():
     """Stanford arm (RRPRRR) in standard DH, with a prismatic third joint."""
-    return load_robot("stanford").with_params({"tool.x": 0.02, "tool.y": -0.01, "tool.z": 0.08})
+    return load_serial_robot("stanford").with_params({"tool.x": 0.02, "tool.y": -0.01,
+                                                      "tool.z": 0.08})
 
 
 def central_differences(prob, theta, h=1e-6):
@@ -228,10 +229,11 @@ def test_bad_inputs_are_one_line_errors():
     with pytest.raises(KincalError, match="poses"):
         PoseMeasurement(q, np.zeros((3, 3, 3)))
     with pytest.raises(KincalError, match="6 joints"):
-        stack(load_robot("puma560"), [PositionMeasurement(np.zeros((3, 5)), np.zeros((3, 3)))])
+        stack(load_serial_robot("puma560"),
+              [PositionMeasurement(np.zeros((3, 5)), np.zeros((3, 3)))])
     b = PositionMeasurement(q, np.zeros((3, 3)))
     with pytest.raises(KincalError, match="both named"):
-        stack(load_robot("puma560"), [b, b])
+        stack(load_serial_robot("puma560"), [b, b])
 
 
 def test_random_configurations_and_perturbation():

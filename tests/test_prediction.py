@@ -29,14 +29,14 @@ from kincal.identify.solver import calibrate
 from kincal.measure.instruments.pose import simulate_poses
 from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = 2e-5
 
 
 @pytest.fixture(scope="module")
 def puma():
-    return load_robot("puma560")
+    return load_serial_robot("puma560")
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 from cli_helpers import run
 
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.urdf import load_urdf
 from kincal.workflow.flow import read_blocks, run_flow
 
@@ -80,7 +80,7 @@ def check_split(name, robot, train, held):
 
 
 def test_motoman_workspace_split(tmp_path):
-    robot = load_robot("motoman_right")
+    robot = load_serial_robot("motoman_right")
     split([DATA / "motoman_leica" / "right_arm_grid_6x6x6.csv"], "S_rad",
           tmp_path / "low.csv", tmp_path / "high.csv")
     train = read_blocks([tmp_path / "low.csv"], robot)

@@ -20,7 +20,7 @@ from kincal.report.html import (
 )
 from kincal.report.metrics import ErrorComparison, error_metrics, merge_errors, result_json
 from kincal.report.plots import display_scale, parameter_history
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -42,7 +42,7 @@ def test_error_metrics_by_hand():
 
 @pytest.fixture(scope="module")
 def small_result():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(4)
     true = perturb_robot(nominal, rng)
     blocks, truth = simulate_measurements("position", true, rng, 40, 1e-5)

@@ -15,7 +15,7 @@ from kincal.measure.simulate import perturb_robot
 from kincal.report import plots
 from kincal.report.html import render_html
 from kincal.report.metrics import ErrorComparison
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 #: Content width of the report in a 1280 px window: body max-width 1200 px minus 2 em
 #: of padding.
@@ -26,7 +26,7 @@ MIN_PX = 11.0
 @pytest.fixture(scope="module")
 def free_result():
     """A calibration with --free: the offsets only (everything else left out by choice)."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(8)
     true = perturb_robot(nominal, rng)
     blocks, _ = simulate_measurements("position", true, rng, 30, 1e-5)
@@ -130,7 +130,7 @@ def test_names_from_input_files_are_escaped(tmp_path):
     """A block named in a file's tag line cannot inject HTML into the report."""
     from kincal.workflow.flow import read_blocks, render_outputs, run_flow
 
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(2)
     blocks, _ = simulate_measurements("position", perturb_robot(nominal, rng), rng, 30,
                                       1e-5, {"name": "tracker"})

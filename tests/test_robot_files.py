@@ -21,7 +21,7 @@ from kincal.robots.chain import ChainBuilder, Robot
 from kincal.robots.dh import DHLink, from_dh
 from kincal.robots.files import (
     library_dir,
-    load_robot,
+    load_serial_robot,
     read_robot_yaml,
     robot_from_dict,
     robot_to_dict,
@@ -68,7 +68,7 @@ ROUND_TRIP = {
     "modified_dh": lambda: _dh_robot("modified"),
     "hayati": lambda: _dh_robot("standard", beta=True),
     "ets": _ets_robot,
-    "puma560": lambda: load_robot("puma560"),
+    "puma560": lambda: load_serial_robot("puma560"),
 }
 
 
@@ -112,7 +112,7 @@ def test_units_are_converted_at_the_border(tmp_path):
     a, b = robot_from_dict(si, "si.yaml"), robot_from_dict(mm, "mm.yaml")
     np.testing.assert_allclose(a.param_values, b.param_values, rtol=1e-15, atol=1e-17)
     np.testing.assert_allclose(a.joint_limits, b.joint_limits, rtol=1e-15)
-    lib = load_robot("puma560")
+    lib = load_serial_robot("puma560")
     assert lib.params()["a[2]"] == 0.4318 and lib.params()["alpha[1]"] == PI / 2
     np.testing.assert_allclose(lib.joint_limits[0], np.deg2rad([-160, 160]), rtol=1e-15)
 
@@ -317,9 +317,9 @@ def test_yaml_error_reports_line_and_column(tmp_path):
 
 def test_missing_file_and_unknown_robot(tmp_path):
     with pytest.raises(RobotFileError, match="no such robot file"):
-        load_robot(tmp_path / "nothere.yaml")
+        load_serial_robot(tmp_path / "nothere.yaml")
     with pytest.raises(RobotFileError, match="unknown robot 'puma561'.*puma560"):
-        load_robot("puma561")
+        load_serial_robot("puma561")
 
 
 # --------------------------------------------------------------------------- properties

@@ -35,14 +35,14 @@ from kincal.measure.base import stack
 from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.joints.hysteresis import approach_directions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 CANDS = candidates(False, scales=(1.0, None))
 
 
 @pytest.fixture(scope="module")
 def sim():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(31)
     true = perturbed_puma(nominal, rng)
     q = random_configurations(nominal, 50, rng)

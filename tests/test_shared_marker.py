@@ -19,7 +19,7 @@ from test_compliance import perturbed_puma
 
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = 2e-5
 MARKER = np.array([[0.06, -0.02, 0.11]])
@@ -29,7 +29,7 @@ PANDA = Path(__file__).resolve().parents[2] / "shared" / "data" / "panda_two_soc
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("shared")
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(61)
     true = perturbed_puma(nominal, rng)
     for name, frame in (("a", [1.4, -0.6, 0.3, 0.2, -0.3, 2.1]),
@@ -69,8 +69,8 @@ def test_two_files_one_reflector(files, capsys):
         assert p["estimated"] and abs(p["estimate"] - MARKER[0, k]) < 5e-3, p
     # the point lives in the robot now (its tool frame, or the last link's d, a, theta
     # offset that absorb it): the calibrated robot file carries the reflector
-    cal = load_robot(files / "c1.yaml")
-    nominal = load_robot("puma560")
+    cal = load_serial_robot(files / "c1.yaml")
+    nominal = load_serial_robot("puma560")
     q = random_configurations(nominal, 5, np.random.default_rng(1))
     T_flange_nom = nominal.fk(q)
     P_cal = cal.fk(q)[:, :3, 3]
@@ -136,7 +136,7 @@ def test_tool_point_block_keeps_the_inner_fast_path():
     from kincal.measure.instruments.position import PositionMeasurement
     from kincal.workflow.shared import ToolPointBlock
 
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     q = random_configurations(robot, 25, rng)
     y = simulate_positions(robot, q, rng, NOISE, [1.0, 0.2, 0.3, 0.1, -0.2, 0.4]).positions

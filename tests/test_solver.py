@@ -16,7 +16,7 @@ from kincal.measure.instruments.pose import simulate_poses
 from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import dh_links, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 INSTRUMENT = [1.5, 0.4, -0.2, 2.0, -0.15, 0.1]
 MARKER = [0.03, -0.02, 0.06]
@@ -24,12 +24,13 @@ TARGET = [0.01, 0.02, 0.05, 0.3, -0.1, 0.2]
 
 
 def puma():
-    return from_dh(dh_links(load_robot("puma560")), name="puma560", tool=[0.0, 0.0, 0.08, 0, 0, 0])
+    return from_dh(dh_links(load_serial_robot("puma560")), name="puma560",
+                   tool=[0.0, 0.0, 0.08, 0, 0, 0])
 
 
 def stanford():
     """The library Stanford arm (RRPRRR, prismatic third joint) with a tool offset."""
-    return load_robot("stanford").with_params({"tool.z": 0.05})
+    return load_serial_robot("stanford").with_params({"tool.z": 0.05})
 
 
 def make_block(true, q, rng, kind, noise=0.0):
@@ -380,7 +381,7 @@ def cross_bar():
     from kincal.measure.artifacts import ArtifactGeometry
     from kincal.measure.artifacts.simulate import simulate_artifact
 
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(21)
     true = perturb_robot(nominal, rng)
     cross = ArtifactGeometry.cross_bar(0.3)

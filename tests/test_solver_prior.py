@@ -26,9 +26,9 @@ from kincal.identify.solver import calibrate
 from kincal.measure.base import MeasurementModel, ParamSpec
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
-ROBOT = load_robot("puma560")
+ROBOT = load_serial_robot("puma560")
 SIGMA = 0.01
 
 
@@ -296,7 +296,7 @@ def test_prior_tolerances_is_what_the_command_line_uses_by_default() -> None:
     from kincal.measure.base import stack
 
     rng = np.random.default_rng(3)
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     truth = perturb_robot(robot, rng)
     q = random_configurations(robot, 40, rng)
     data = simulate_positions(truth, q, rng, noise_std=1e-5)

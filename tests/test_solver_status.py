@@ -16,7 +16,7 @@ from kincal.identify.stopping import (
 )
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 
 def test_every_status_has_a_message_and_the_sign_says_converged():
@@ -57,7 +57,7 @@ def test_no_further_decrease():
 @pytest.mark.parametrize("method", ["lm", "gauss-newton"])
 def test_calibration_carries_stage_statuses(method):
     rng = np.random.default_rng(5)
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q = random_configurations(robot, 30, rng)
     blk = simulate_positions(perturb_robot(robot, rng), q, rng, 1e-5,
                              [1.5, 0.4, -0.2, 0.1, -0.15, 2.0], [0.03, -0.02, 0.06])

@@ -23,14 +23,14 @@ from kincal.identify.staged_selection import (
 from kincal.measure.artifacts import ArtifactGeometry, Probe
 from kincal.measure.artifacts.simulate import simulate_artifact
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = np.radians(0.001)
 
 
 @pytest.fixture(scope="module")
 def data():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     true = perturb_robot(nominal, rng)
     cross = ArtifactGeometry.cross_bar(0.3)

@@ -29,7 +29,7 @@ from kincal.motion.trajectory import (
     trapezoidal,
     via_trajectory,
 )
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import log_so3, pose_error, xyzrpy_to_matrix
 
 runner = CliRunner()
@@ -210,7 +210,7 @@ def test_arc_through_three_points():
 
 @pytest.fixture(scope="module")
 def puma_line():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q0 = np.array([0.2, 0.9, -0.6, 0.3, 0.8, 0.1])
     T0 = robot.fk(q0)
     T1 = robot.fk(q0 + np.array([0.3, -0.2, 0.2, 0.3, -0.3, 0.4]))
@@ -240,7 +240,7 @@ def test_cartesian_line_joint_rates(puma_line):
 
 
 def test_cartesian_via_and_unreachable_line():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     q0 = np.array([0.2, 0.9, -0.6, 0.3, 0.8, 0.1])
     T0 = robot.fk(q0)
     poses = [T0, T0 @ xyzrpy_to_matrix([0.05, 0, 0, 0, 0, 0]),

@@ -27,7 +27,7 @@ from kincal.identify.tolerances import (
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.registry import write_measurements
 from kincal.measure.simulate import perturb_robot, random_configurations
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 NOISE = 1e-5
 
@@ -36,7 +36,7 @@ def narrow_joint_data(joint: int = 4, span_deg: float = 1.0, n: int = 40, seed: 
                       noise: float = NOISE):
     """Nominal PUMA, a perturbed truth and tracker data in which ``joint`` (0-based)
     moves over ``span_deg`` only; every other joint over its range."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(seed)
     truth = perturb_robot(nominal, rng, length_std=5e-4, angle_std=math.radians(0.05),
                           offset_std=math.radians(0.1))
@@ -46,7 +46,7 @@ def narrow_joint_data(joint: int = 4, span_deg: float = 1.0, n: int = 40, seed: 
 
 
 def test_default_tolerances_by_role_and_unit():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     t = resolve_tolerances(robot.param_names, robot.param_units, robot.param_roles)
     assert t.sigma["a[2]"] == 1e-3 and t.sigma["d[4]"] == 1e-3
     assert t.sigma["alpha[1]"] == pytest.approx(math.radians(0.1))
@@ -58,7 +58,7 @@ def test_default_tolerances_by_role_and_unit():
 
 
 def test_robot_file_and_prior_override_later_wins():
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     args = (robot.param_names, robot.param_units, robot.param_roles)
     t = resolve_tolerances(*args, {"length": "0.5mm", "d[4]": "2mm", "role:offset": "none"},
                            "a[*]=0.2mm,scale=3", robot_source="arm.yaml")
@@ -84,7 +84,7 @@ def test_robot_file_and_prior_override_later_wins():
     ("role:wheel=1mm", "no parameter has role 'wheel'"),
 ])
 def test_bad_tolerance_entries_are_one_line(text, message):
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     with pytest.raises(KincalError) as err:
         resolve_tolerances(robot.param_names, robot.param_units, robot.param_roles, None, text)
     assert message in str(err.value) and str(err.value).startswith("option --prior: ")
@@ -144,12 +144,12 @@ def test_robot_file_tolerances_section(tmp_path):
     from kincal.errors import RobotFileError
     from kincal.robots.files import robot_yaml_text
 
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     text = robot_yaml_text(robot).replace("units:", "tolerances: {length: 0.2mm, 'd[4]': "
                                           "none}\nunits:", 1)
     f = tmp_path / "arm.yaml"
     f.write_text(text)
-    arm = load_robot(f)
+    arm = load_serial_robot(f)
     assert arm.meta["tolerances"] == {"length": "0.2mm", "d[4]": "none"}
     assert "tolerances:" in robot_yaml_text(arm)
     t = resolve_tolerances(arm.param_names, arm.param_units, arm.param_roles,
@@ -157,7 +157,7 @@ def test_robot_file_tolerances_section(tmp_path):
     assert t.sigma["a[2]"] == pytest.approx(2e-4) and "d[4]" not in t.sigma
     f.write_text(text.replace("0.2mm", "0.2"))
     with pytest.raises(RobotFileError, match="field 'tolerances.length' needs a unit"):
-        load_robot(f)
+        load_serial_robot(f)
 
 
 def test_the_default_prior_holds_the_weak_parameters_and_names_the_joint():

@@ -23,7 +23,7 @@ from kincal.measure.base import stack
 from kincal.measure.instruments.position import simulate_positions
 from kincal.measure.simulate import perturb_robot, random_configurations
 from kincal.robots.dh import dh_links, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 
 SEEDS = 200            # >= 50; 200 keeps the chance fluctuation of the worst ratio small
 NOISE = 2e-5           # m per coordinate
@@ -45,7 +45,7 @@ def test_covariance_helpers():
 @pytest.fixture(scope="module")
 def monte_carlo():
     rng = np.random.default_rng(2024)
-    robot = from_dh(dh_links(load_robot("puma560")), name="puma560",
+    robot = from_dh(dh_links(load_serial_robot("puma560")), name="puma560",
                     tool=[0.0, 0.0, 0.08, 0, 0, 0])
     q = random_configurations(robot, 30, rng)
     q_val = random_configurations(robot, 30, rng)
@@ -119,7 +119,7 @@ def test_predicted_position_std_of_a_tool_point(monte_carlo):
 
 def test_validation_protocols():
     rng = np.random.default_rng(5)
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     true = perturb_robot(robot, rng)
     q = random_configurations(robot, 40, rng)
     train = simulate_positions(true, q, rng, 1e-5, INSTRUMENT, MARKER)

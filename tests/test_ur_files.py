@@ -19,7 +19,7 @@ import yaml
 from cli_helpers import run
 
 from kincal.errors import RobotFileError
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.ur import (
     joint_frames,
     kinematics_yaml,
@@ -77,7 +77,7 @@ def dh_from_axes(robot, nominal):
 @pytest.fixture(scope="module")
 def true_ur5e(tmp_path_factory):
     """(nominal, truth, path of its calibration.conf)."""
-    nom = load_robot("ur5e")
+    nom = load_serial_robot("ur5e")
     folder = tmp_path_factory.mktemp("ur")
     kin = folder / "nominal_kinematics.yaml"
     kin.write_text(kinematics_yaml(nom, nom))
@@ -139,7 +139,7 @@ def test_nominal_kinematics_yaml_is_ur_descriptions(name, tmp_path):
     wrist_3 y = d6) and reproduces the DH model."""
     from kincal.robots.dh import dh_links
 
-    nom = load_robot(name)
+    nom = load_serial_robot(name)
     L = dh_links(nom)
     doc = yaml.safe_load(kinematics_yaml(nom, nom))["kinematics"]
     assert doc["shoulder"]["z"] == pytest.approx(L[0].d, abs=1e-15)
@@ -159,8 +159,8 @@ def test_published_ur_numbers_at_zero():
     for name in UR:
         from kincal.robots.dh import dh_links
 
-        L = dh_links(load_robot(name))
-        p = load_robot(name).fk(np.zeros(6))[:3, 3]
+        L = dh_links(load_serial_robot(name))
+        p = load_serial_robot(name).fk(np.zeros(6))[:3, 3]
         assert np.allclose(p, [L[1].a + L[2].a, -(L[3].d + L[5].d), L[0].d - L[4].d],
                            atol=1e-15)
 
@@ -169,7 +169,7 @@ def test_bad_calibration_conf_names_the_line(tmp_path):
     f = tmp_path / "calibration.conf"
     f.write_text("[mounting]\ndelta_theta = [ 0, 0, 0, 0, 0]\n")
     with pytest.raises(RobotFileError, match=r"calibration.conf: line 2: delta_theta needs 6"):
-        read_calibration_conf(f, load_robot("ur5"))
+        read_calibration_conf(f, load_serial_robot("ur5"))
 
 
 def test_import_ur_command(true_ur5e, tmp_path, capsys):
@@ -179,13 +179,13 @@ def test_import_ur_command(true_ur5e, tmp_path, capsys):
                             "--kinematics", kin)
     assert code == 0, err
     assert "round trip" in stdout
-    robot = load_robot(str(out))
+    robot = load_serial_robot(str(out))
     q = np.random.default_rng(4).uniform(-3, 3, (50, 6))
     assert np.abs(robot.fk(q) - truth.fk(q))[:, :3, 3].max() < 1e-9
     code, stdout, err = run(capsys, "import", "ur", kin, "--nominal", "ur5e",
                             "-o", tmp_path / "from_yaml.yaml")
     assert code == 0, err
-    back = load_robot(str(tmp_path / "from_yaml.yaml"))
+    back = load_serial_robot(str(tmp_path / "from_yaml.yaml"))
     assert np.abs(back.fk(q) - truth.fk(q))[:, :3, 3].max() < 1e-9
 
 

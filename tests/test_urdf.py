@@ -21,7 +21,7 @@ import pytest
 
 from kincal.errors import KincalError, RobotFileError
 from kincal.robots.dh import DHLink, from_dh
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.robots.urdf import (
     load_urdf,
     parse_urdf,
@@ -468,10 +468,10 @@ def test_yaml_pointing_to_urdf(tmp_path):
     (tmp_path / "arm.yaml").write_text(
         f"name: my_arm\nconvention: urdf\nfile: {ARM}\ntip_link: tool0\n"
         "source: test fixture\n")
-    robot = load_robot(tmp_path / "arm.yaml")
+    robot = load_serial_robot(tmp_path / "arm.yaml")
     assert robot.name == "my_arm" and robot.meta["tip_link"] == "tool0"
     assert robot.n == 5
-    assert load_robot(ARM, tip_link="tool0").num_params == robot.num_params
+    assert load_serial_robot(ARM, tip_link="tool0").num_params == robot.num_params
 
 
 # --------------------------------------------------------------------------- errors

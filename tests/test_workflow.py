@@ -15,7 +15,7 @@ import pytest
 from kincal.errors import KincalError
 from kincal.measure.registry import simulate_measurements, write_measurements
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.workflow.flow import (
     _render_report,
     block_values,
@@ -34,7 +34,7 @@ NOISE = 1e-5   # m per coordinate
 @pytest.fixture(scope="module")
 def sim():
     """PUMA 560 + errors measured by a simulated tracker: training and held-out blocks."""
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(11)
     true = perturb_robot(nominal, rng, length_std=5e-4, angle_std=math.radians(0.05),
                          offset_std=math.radians(0.1))
@@ -80,7 +80,7 @@ def test_write_outputs_writes_every_file_and_the_json_lists_them(flow, tmp_path)
     doc = json.loads(paths["json"].read_text())
     assert doc["outputs"] == written and doc["inputs"] == {"robot": "puma560"}
     assert "staged_selection" not in doc and doc["metrics"]["validation"]["n"] == 30
-    cal = load_robot(paths["robot"])
+    cal = load_serial_robot(paths["robot"])
     q = np.zeros((2, 6))
     np.testing.assert_allclose(cal.fk(q), flow.result.robot.fk(q), atol=1e-12)
     assert paths["report"].read_text().rstrip().endswith("</html>")

@@ -17,14 +17,14 @@ from kincal.errors import KincalError
 from kincal.identify.tolerances import TolSpec
 from kincal.measure.registry import simulate_measurements
 from kincal.measure.simulate import perturb_robot
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.workflow.flow import check_flow_options, run_flow, tolerances_of
 from kincal.workflow.options import parse_prior_text, prior_given, prior_spec
 
 
 @pytest.fixture(scope="module")
 def sim():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(5)
     true = perturb_robot(nominal, rng, length_std=5e-4, angle_std=math.radians(0.05),
                          offset_std=math.radians(0.1))

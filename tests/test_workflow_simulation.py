@@ -7,7 +7,7 @@ import math
 import numpy as np
 from cli_helpers import run
 
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.workflow.simulation import applied_noise, simulate_experiment
 
 
@@ -17,7 +17,7 @@ def test_the_library_call_gives_the_command_s_document(tmp_path, capsys):
                        "4", "--holdout", tmp_path / "h.csv", "--holdout-poses", "5",
                        "--json", js)
     assert code == 0, err
-    sim = simulate_experiment(load_robot("puma560"), "position", poses=12, noise=1e-5,
+    sim = simulate_experiment(load_serial_robot("puma560"), "position", poses=12, noise=1e-5,
                               seed=4, holdout_poses=5)
     doc = json.loads(json.dumps(sim.to_dict(output=str(out), holdout=str(tmp_path / "h.csv"))))
     cli = json.loads(js.read_text())
@@ -26,7 +26,7 @@ def test_the_library_call_gives_the_command_s_document(tmp_path, capsys):
 
 
 def test_same_seed_same_numbers_and_perturb_limits_the_errors():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     a = simulate_experiment(nominal, "position", poses=6, noise=1e-5, seed=1)
     b = simulate_experiment(nominal, "position", poses=6, noise=1e-5, seed=1)
     assert np.array_equal(a.true.param_values, b.true.param_values)

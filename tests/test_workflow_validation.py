@@ -3,7 +3,7 @@ measurements to the noise, the nominal robot does not, and the document says so.
 
 import json
 
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.workflow.simulation import simulate_experiment
 from kincal.workflow.validation import validate_on_files
 
@@ -11,7 +11,7 @@ NOISE = 1e-5
 
 
 def test_the_true_robot_validates_at_the_noise_and_the_nominal_does_not():
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     sim = simulate_experiment(nominal, "position", poses=40, noise=NOISE, seed=2)
     val = validate_on_files(sim.true, sim.blocks, before=nominal)
     assert val.robot == "puma560" and val.compared_before and val.accuracy is None

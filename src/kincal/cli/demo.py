@@ -43,7 +43,7 @@ def demo(
     from kincal.measure.base import Provenance
     from kincal.measure.registry import get_instrument, simulate_measurements, write_measurements
     from kincal.measure.simulate import perturb_robot
-    from kincal.robots.files import load_robot, robot_yaml_text
+    from kincal.robots.files import load_serial_robot, robot_yaml_text
     from kincal.workflow.flow import block_values, run_flow, write_outputs
 
     t0 = time.perf_counter()
@@ -51,7 +51,7 @@ def demo(
     sd = quantity(noise, "length", "--noise", minimum=0.0) or 0.0
     cu = use_si(si)
     out = out_console(json_out)
-    nominal = load_robot("puma560")
+    nominal = load_serial_robot("puma560")
     rng = np.random.default_rng(seed)
     true = perturb_robot(nominal, rng, length_std=5e-4, angle_std=math.radians(0.05),
                          offset_std=math.radians(0.1))

@@ -110,7 +110,7 @@ class Robot:
     """An immutable serial robot: elementary transforms, named parameters, joints.
 
     Build robots with the front ends (:func:`kincal.robots.dh.from_dh`,
-    :func:`kincal.robots.urdf.load_urdf`, :func:`kincal.robots.files.load_robot`) or
+    :func:`kincal.robots.urdf.load_urdf`, :func:`kincal.robots.files.load_serial_robot`) or
     with :class:`ChainBuilder`.  ``robot.with_params(...)`` returns a new robot.
 
     The kernel's interface (everything else in this module is private):

@@ -393,7 +393,7 @@ def robot_kind(spec: str | os.PathLike[str]) -> str:
     return "fivebar" if isinstance(data, Mapping) and data.get("kind") == "fivebar" else "serial"
 
 
-def load_robot(spec: str | os.PathLike[str], base_link: str | None = None,
+def load_serial_robot(spec: str | os.PathLike[str], base_link: str | None = None,
                tip_link: str | None = None) -> Any:
     """Load a robot from a library name, a YAML robot file or a URDF file.
 

@@ -2,10 +2,10 @@
 
 What ``kincal calibrate`` / ``validate`` / ``demo`` do, usable from Python::
 
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
     from kincal.workflow.flow import read_blocks, run_flow, write_outputs
 
-    robot = load_robot("puma560")
+    robot = load_serial_robot("puma560")
     blocks = read_blocks(["train.csv"], robot)
     flow = run_flow(robot, blocks, read_blocks(["held.csv"], robot))
     write_outputs(flow, "calibrated.yaml", json_out="result.json", report="report.html")
@@ -536,9 +536,9 @@ def validate_blocks(robot: Any, blocks: Sequence[Any], before: Any = None,
 
 def truth_values(path: str | Path) -> dict[str, float]:
     """True parameter values from a robot file (and instrument truth from its notes)."""
-    from kincal.robots.files import load_robot
+    from kincal.robots.files import load_serial_robot
 
-    t = load_robot(path)
+    t = load_serial_robot(path)
     vals = {n: float(v) for n, v in zip(t.param_names, t.param_values, strict=True)}
     note = str(getattr(t, "meta", {}).get("notes", ""))
     if "instrument truth:" in note:

@@ -1,6 +1,6 @@
 """One loader for every kind of robot a command or a notebook may name.
 
-:func:`kincal.robots.files.load_robot` reads serial robots (built-in names, YAML
+:func:`kincal.robots.files.load_serial_robot` reads serial robots (built-in names, YAML
 robot files, URDF files); :func:`kincal.parallel.files.load_fivebar` reads five-bar
 parallel robots.  :func:`load_any_robot` looks at the file's ``kind`` and hands it
 to the right one, so that ``kincal show fivebar`` and ``kincal show puma560`` work
@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
-from kincal.robots.files import load_robot, robot_kind
+from kincal.robots.files import load_serial_robot, robot_kind
 
 if TYPE_CHECKING:
     from kincal.parallel.fivebar import FiveBar
@@ -34,5 +34,5 @@ def load_any_robot(spec: str | os.PathLike[str], base_link: str | None = None,
         from kincal.parallel.files import load_fivebar  # only for five-bars: fast start
 
         return load_fivebar(spec)
-    robot: Robot = load_robot(spec, base_link=base_link, tip_link=tip_link)
+    robot: Robot = load_serial_robot(spec, base_link=base_link, tip_link=tip_link)
     return robot
