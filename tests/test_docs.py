@@ -75,3 +75,23 @@ def test_sphinx_roles_read_as_code_on_the_site() -> None:
             "<code>kincal.robots.files.load_serial_robot</code>; :mod:<code>kincal.io</code>.")
     assert hook.sphinx_roles(html) == ("A <code>Robot</code> from <code>kincal.robots.files"
                                        ".load_serial_robot</code>; <code>kincal.io</code>.")
+
+
+def test_every_function_the_pages_name_exists() -> None:
+    """A page that names a function (`` `name(...)` ``) names one kincal has: a renamed or
+    removed function (e.g. a setup-merging helper that a refactoring replaced) must not
+    stay in the prose. Mathematical notation, Python's and other libraries' functions are
+    listed."""
+    root = Path(__file__).resolve().parents[1]
+    source = "\n".join(p.read_text(encoding="utf-8")
+                       for p in (root / "src" / "kincal").rglob("*.py"))
+    not_ours = {"sqrt", "least_squares", "Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "exp", "log", "help"}
+    missing = []
+    for page in sorted((root / "docs").rglob("*.md")):
+        for m in re.finditer(r"`(?:[A-Za-z_]\w*\.)*([A-Za-z_]\w*)\(", page.read_text("utf-8")):
+            name = m.group(1)
+            if name in not_ours:
+                continue
+            if not re.search(rf"^\s*(?:def|class) {name}\b|^{name}\b\s*[:=]", source, re.M):
+                missing.append(f"{page.relative_to(root)}: {name}")
+    assert not missing, "pages name functions kincal does not have:\n" + "\n".join(missing)

@@ -1,12 +1,13 @@
-"""Every tutorial script runs, so a broken tutorial fails here before the docs build.
+"""Every tutorial script runs, and every page shows what it prints today.
 
-The documentation site (docs/, built by ``mkdocs build --strict`` in ``.ci/run``) shows
-each tutorial's commands from a script under ``examples/tutorials/`` and its real
-output, produced by running the script (docs/hooks/kincal_pages.py). This module runs the
-same scripts the same way. A script on the real data sets exits with the hook's skip
-status when ``$KINCAL_DATA`` has none; its committed recording is then what the site
-shows, and here, where the data are present, the recording must equal a fresh run
-(apart from timings).
+The documentation pages (docs/) hold each tutorial's commands, copied from a script under
+``examples/tutorials/``, and its real output, in generated regions
+(docs/hooks/kincal_pages.py), so they read the same on GitHub and on the site. This module
+runs the same scripts the same way and fails when a page's region differs from the
+script's lines or from what it printed (apart from timings): run
+``python docs/hooks/kincal_pages.py update``. A script on the real data sets exits with
+the hook's skip status when the data are absent; its committed recording is then what the
+pages show, and here, where the data are present, the recording must equal a fresh run.
 """
 
 from __future__ import annotations
@@ -30,8 +31,6 @@ _spec.loader.exec_module(pages)
 
 SCRIPTS = sorted(p.relative_to(ROOT).as_posix() for p in TUTORIALS.iterdir()
                  if p.suffix in (".sh", ".py"))
-#: Timings and durations, which differ from run to run: "(0.03 s)", "5.4 s", "[1.5 s]".
-_TIME = re.compile(r"\d+(?:\.\d+)?(?:e-?\d+)? ?(?:s|ms|µs)\b")
 
 
 def _page_directives() -> list[tuple[str, str, str | None]]:
@@ -43,9 +42,7 @@ def _page_directives() -> list[tuple[str, str, str | None]]:
     return found
 
 
-def normalised(text: str) -> str:
-    """The output without its timings."""
-    return _TIME.sub("<time>", text)
+normalised = pages.normalised
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -66,6 +63,26 @@ def test_tutorial_script_runs(script: str) -> None:
         assert normalised(recorded.output) == normalised(run.output), (
             f"{script}: the recorded output differs from a fresh run on the data; record it "
             f"again: python docs/hooks/kincal_pages.py record {script}")
+    for page in sorted(DOCS.rglob("*.md")):
+        text = page.read_text(encoding="utf-8")
+        if script not in pages.scripts_of(text):
+            continue
+        stale = pages.stale_regions(text, {script: run}.__getitem__, only=script)
+        assert not stale, (f"{page.relative_to(ROOT)}: shown output or code differs from "
+                           f"what {script} gives today ({', '.join(stale)}); run: python "
+                           "docs/hooks/kincal_pages.py update")
+
+
+def test_every_page_region_is_generated() -> None:
+    """No include or run comment without its generated region (GitHub shows regions only),
+    and every code region is the script's lines as they are."""
+    for page in sorted(DOCS.rglob("*.md")):
+        text = page.read_text(encoding="utf-8")
+        assert pages.upgraded(text) == text, (
+            f"{page.relative_to(ROOT)}: an include or run comment without its region; run: "
+            "python docs/hooks/kincal_pages.py update")
+        assert not pages._OLD_INCLUDE.search(text), (f"{page.relative_to(ROOT)}: an include "
+                                                     "GitHub cannot show")
 
 
 def test_every_script_is_on_a_page_and_every_page_step_exists() -> None:

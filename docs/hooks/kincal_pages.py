@@ -1,22 +1,35 @@
-"""MkDocs hook: pages generated from the code itself, so the site cannot drift from it.
+"""MkDocs hook: pages whose commands and output come from the code itself, so the site
+cannot drift from it, and that read the same on GitHub.
 
-* ``<!-- kincal:cli-reference -->`` becomes the reference of every ``kincal`` command,
-  read from the command objects (names, arguments, options, defaults, help);
-* ``<!-- kincal:run PATH -->`` runs the example script ``PATH`` (relative to the
-  repository root, ``.sh`` or ``.py``) in a fresh temporary folder and inserts what it
-  printed (stdout and stderr, in terminal order); ``<!-- kincal:run PATH:STEP -->``
-  inserts only what the lines between ``# --8<-- [start:STEP]`` and
-  ``# --8<-- [end:STEP]`` of the script printed (the same markers the page's
-  ``--8<-- "PATH:STEP"`` uses to show those lines). A script that fails stops the build.
-* ``<!-- kincal:file PATH:NAME -->`` shows the figure ``NAME`` (``.png``, ``.svg``) that
-  the script wrote in its folder, or links the page (``.html``, e.g. a report); the
-  file is copied into the site under ``generated/``.
+A page holds generated regions, each between an opening comment and
+``<!-- kincal:end -->``, with the generated Markdown in between (so the page shows real
+commands and real output wherever it is read):
 
-Scripts on the real data sets read them from ``$KINCAL_DATA`` and exit with
-:data:`SKIP` (77) when the data are absent. The page then shows the output recorded in
-``PATH`` with the suffix ``.recorded.txt`` (committed next to the script), in a box that
-says it is recorded and when; ``tests/test_tutorials.py`` checks that the recorded
-output is what a fresh run prints wherever the data are present. Record it again with
+* ``<!-- kincal:code PATH:STEP -->``: the lines between ``# --8<-- [start:STEP]`` and
+  ``# --8<-- [end:STEP]`` of the example script ``PATH`` (relative to the repository
+  root, ``.sh`` or ``.py``), or the whole file without ``:STEP``;
+* ``<!-- kincal:run PATH:STEP -->``: what those lines printed (stdout and stderr, in
+  terminal order) when the script ran in a fresh temporary folder that looks like the
+  repository root: ``examples/`` is a copy of the repository's and ``../shared/data`` the
+  data sets (``$KINCAL_DATA``), so every command of a page runs as printed from the
+  root of a clone.
+
+``python docs/hooks/kincal_pages.py update`` runs the scripts and rewrites every region
+(it also turns the older ``--8<--`` includes and bare ``kincal:run`` comments into
+regions). The build runs every script again and **fails when a page's region differs**
+from what the code prints today (timings aside), naming the page and the update command;
+``tests/test_tutorials.py`` makes the same check, so no number on a page can go stale.
+
+Two more directives are expanded at build time only: ``<!-- kincal:cli-reference -->``
+becomes the reference of every ``kincal`` command, read from the command objects, and
+``<!-- kincal:file PATH:NAME -->`` shows the figure ``NAME`` (``.png``, ``.svg``) that the
+script wrote, or links the page (``.html``), copied into the site under ``generated/``.
+
+Scripts on the real data sets exit with :data:`SKIP` (77) when the data are absent. The
+page then shows the output recorded in ``PATH`` with the suffix ``.recorded.txt``
+(committed next to the script), saying that it is recorded and when;
+``tests/test_tutorials.py`` checks that the recorded output is what a fresh run prints
+wherever the data are present. Record it again with
 ``python docs/hooks/kincal_pages.py record PATH``.
 
 Every script of the site is started in parallel (two at a time) when the build begins.
@@ -27,6 +40,7 @@ from __future__ import annotations
 import datetime
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -93,13 +107,26 @@ def _instrumented(script: Path) -> str:
 
 
 def environment() -> dict[str, str]:
-    """What the scripts run with: the data folder (``$KINCAL_DATA``), the repository's
-    ``examples/`` (``$KINCAL_EXAMPLES``: the files a tutorial starts from), a 100-column
-    plain terminal, one BLAS thread."""
+    """What the scripts run with: the data folder (``$KINCAL_DATA``, default the data sets
+    beside the clone; a script sees it as ``../shared/data``), a 100-column plain terminal,
+    one BLAS thread."""
     return dict(os.environ, KINCAL_DATA=os.environ.get("KINCAL_DATA", str(DATA)),
-                KINCAL_EXAMPLES=str(ROOT / "examples"),
                 COLUMNS="100", NO_COLOR="1", TERM="dumb", PYTHONUNBUFFERED="1",
                 PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+
+
+def _repository_like(tmp: Path, env: dict[str, str]) -> Path:
+    """A working folder in ``tmp`` that looks like the root of a clone: ``examples/`` (a
+    copy, so that outputs a setup file names land in the copy) and ``../shared/data``
+    (a link to the data sets)."""
+    work = tmp / "work"
+    work.mkdir()
+    shutil.copytree(ROOT / "examples", work / "examples",
+                    ignore=shutil.ignore_patterns("__pycache__", "out"))
+    (tmp / "shared").mkdir()
+    (tmp / "shared" / "data").symlink_to(Path(env["KINCAL_DATA"]).resolve(),
+                                         target_is_directory=True)
+    return work
 
 
 def execute(rel: str, env: dict[str, str] | None = None) -> Run:
@@ -114,14 +141,14 @@ def execute(rel: str, env: dict[str, str] | None = None) -> Run:
         path.write_text(code, encoding="utf-8")
         cmd = (["bash", str(path)] if script.suffix == ".sh"
                else [sys.executable, str(path)])
-        work = Path(tmp) / "work"
-        work.mkdir()
+        work = _repository_like(Path(tmp), env or environment())
         res = subprocess.run(cmd, cwd=work, env=env or environment(), stdout=subprocess.PIPE,
                              stderr=subprocess.STDOUT, text=True, errors="replace",
                              timeout=900)
         files = {p.relative_to(work).as_posix(): p.read_bytes() for p in sorted(work.rglob("*"))
                  if p.suffix in _KEEP and p.is_file() and not p.is_symlink()
-                 and len(p.relative_to(work).parts) <= 2}
+                 and len(p.relative_to(work).parts) <= 2
+                 and p.relative_to(work).parts[0] != "examples"}
     output = "\n".join(line.rstrip() for line in res.stdout.replace(tmp, ".").splitlines())
     return Run(rel, res.returncode, output, time.perf_counter() - t0, files=files)
 
@@ -164,6 +191,132 @@ def record(rel: str) -> Path:
     path = recording(rel)
     path.write_text(header + "\n" + run.output, encoding="utf-8")
     return path
+
+
+# -- generated regions of a page ----------------------------------------------------------
+
+_REGION = re.compile(r"<!-- kincal:(run|code) (\S+?)(?::([\w-]+))? -->\n"
+                     r"((?:(?!<!-- kincal:).)*?)<!-- kincal:end -->\n?", re.S)
+#: The older forms: a fenced ``--8<--`` include and a bare ``kincal:run`` comment.
+_OLD_INCLUDE = re.compile(r"```\w*\n--8<-- \"(\S+?)(?::([\w-]+))?\"\n```\n?")
+_OLD_RUN = re.compile(r"<!-- kincal:run (\S+?)(?::([\w-]+))? -->\n?")
+_END = "<!-- kincal:end -->"
+_ANY_MARKER = re.compile(r"^\s*# --8<-- \[(?:start|end):[\w-]+\]\s*$")
+_LANGUAGES = {".sh": "bash", ".py": "python", ".yaml": "yaml", ".yml": "yaml"}
+#: Timings and durations, which differ from run to run: "(0.03 s)", "5.4 s", "[1.5 s]".
+_TIME = re.compile(r"\d+(?:\.\d+)?(?:e-?\d+)? ?(?:s|ms|µs)\b")
+
+
+def normalised(text: str) -> str:
+    """Text without its timings (what may differ between two runs of one script)."""
+    return _TIME.sub("<time>", text)
+
+
+def script_lines(rel: str, step: str | None) -> str:
+    """The lines of ``rel`` between the markers of ``step`` (the whole file for None)."""
+    lines = (ROOT / rel).read_text(encoding="utf-8").splitlines()
+    if step is None:        # the whole file, without the step markers
+        return "\n".join(line for line in lines if not _ANY_MARKER.match(line)).strip("\n")
+    inside, out, seen = False, [], False
+    for line in lines:
+        m = _START.match(line)
+        if m and m.group(2) == step:
+            inside, seen = True, True
+            continue
+        if inside and re.match(rf"^\s*# --8<-- \[end:{re.escape(step)}\]\s*$", line):
+            inside = False
+            continue
+        if inside:
+            out.append(line)
+    if not seen:
+        raise KeyError(f"{rel}: no step '{step}' (no '# --8<-- [start:{step}]')")
+    return "\n".join(out).strip("\n")
+
+
+def code_body(rel: str, step: str | None) -> str:
+    """A code region's Markdown: the script's lines in a fenced block."""
+    lang = _LANGUAGES.get(Path(rel).suffix, "")
+    return f"```{lang}\n{script_lines(rel, step)}\n```\n"
+
+
+def run_body(run: Run, step: str | None) -> str:
+    """A run region's Markdown: what the step printed, and where recorded, when."""
+    block = "```text\n" + run.step(step) + "\n```\n"
+    if not run.recorded:
+        return block
+    return (f"*Output {run.recorded} "
+            f"(`{Path(run.script).with_suffix('.recorded.txt').as_posix()}`; the tests "
+            f"check it against a fresh run wherever the data are).*\n\n{block}")
+
+
+def shown_run(rel: str, run_of: Any) -> Run:
+    """The run a page shows: the recording of a real-data script (the same wherever the
+    page is generated, with or without the data), else ``run_of(rel)``."""
+    return read_recording(rel) if recording(rel).is_file() else run_of(rel)
+
+
+def _region(kind: str, rel: str, step: str | None, body: str) -> str:
+    head = f"<!-- kincal:{kind} {rel}{':' + step if step else ''} -->"
+    return f"{head}\n{body}{_END}\n"
+
+
+def upgraded(markdown: str) -> str:
+    """A page with the older include / run forms turned into (empty) regions."""
+    markdown = _OLD_INCLUDE.sub(lambda m: _region("code", m.group(1), m.group(2), ""),
+                                markdown)
+    spans = [(m.start(), m.end()) for m in _REGION.finditer(markdown)]
+
+    def bare(m: re.Match[str]) -> str:
+        if any(a <= m.start() < b for a, b in spans):
+            return m.group(0)
+        return _region("run", m.group(1), m.group(2), "")
+    return _OLD_RUN.sub(bare, markdown)
+
+
+def regenerated(markdown: str, run_of: Any) -> str:
+    """The page with every region's body generated again (``run_of(rel)`` gives a Run)."""
+    def body(m: re.Match[str]) -> str:
+        kind, rel, step = m.group(1), m.group(2), m.group(3)
+        text = (code_body(rel, step) if kind == "code"
+                else run_body(shown_run(rel, run_of), step))
+        return _region(kind, rel, step, text)
+    return _REGION.sub(body, upgraded(markdown))
+
+
+def stale_regions(markdown: str, run_of: Any, only: str | None = None) -> list[str]:
+    """The regions of a page whose shown text differs from what the code gives today
+    (``only``: the run regions of that script only, besides every code region)."""
+    stale = []
+    for m in _REGION.finditer(markdown):
+        kind, rel, step, shown = m.group(1), m.group(2), m.group(3), m.group(4)
+        if kind == "run" and only is not None and rel != only:
+            continue
+        today = (code_body(rel, step) if kind == "code"
+                 else run_body(shown_run(rel, run_of), step))
+        if normalised(shown) != normalised(today):
+            stale.append(f"{kind} {rel}{':' + step if step else ''}")
+    return stale
+
+
+def update(pages: list[Path]) -> list[Path]:
+    """Run the scripts of ``pages`` (two at a time) and rewrite their regions; returns the
+    pages that changed."""
+    original = {page: page.read_text(encoding="utf-8") for page in pages}
+    texts = {page: upgraded(text) for page, text in original.items()}
+    wanted = list(dict.fromkeys(m.group(2) for text in texts.values()
+                                for m in _REGION.finditer(text)
+                                if m.group(1) == "run" and not recording(m.group(2)).is_file()))
+    with ThreadPoolExecutor(max_workers=int(os.environ.get("KINCAL_DOCS_JOBS", "2"))) as pool:
+        runs = dict(zip(wanted, pool.map(run_example, wanted), strict=True))
+    changed = []
+    for page, text in texts.items():
+        new = regenerated(text, runs.__getitem__)
+        if new != original[page]:
+            if page.read_text(encoding="utf-8") != original[page]:
+                raise SystemExit(f"{page}: changed while the scripts ran; run the update again")
+            page.write_text(new, encoding="utf-8")
+            changed.append(page)
+    return changed
 
 
 # -- the CLI reference ---------------------------------------------------------------------
@@ -252,19 +405,6 @@ def _result(rel: str) -> Run:
     return _FUTURES[rel].result()
 
 
-def _render(match: re.Match[str]) -> str:
-    run = _result(match.group(1))
-    block = "```text\n" + run.step(match.group(2)) + "\n```"
-    if not run.recorded:
-        return block
-    body = "\n".join("    " + line if line else "" for line in block.splitlines())
-    return (f'!!! note "Recorded output"\n    The real data were not found when this page '
-            f"was built, so this is the output {run.recorded} "
-            f"(`{Path(run.script).with_suffix('.recorded.txt').as_posix()}`; "
-            f"`tests/test_tutorials.py` checks it against a fresh run where the data are).\n\n"
-            f"{body}")
-
-
 def generated_path(rel: str, name: str) -> str:
     """Where a file written by script ``rel`` lands in the site."""
     return f"generated/{Path(rel).stem}/{name}"
@@ -310,7 +450,13 @@ def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
     if "<!-- kincal:cli-reference -->" in markdown:
         markdown = markdown.replace("<!-- kincal:cli-reference -->", cli_reference())
     markdown = _FILE.sub(lambda m: _render_file(m, page), markdown)
-    return _RUN.sub(_render, markdown)
+    stale = stale_regions(upgraded(markdown), _result)
+    if stale or _OLD_INCLUDE.search(markdown) or upgraded(markdown) != markdown:
+        raise RuntimeError(
+            f"{page.file.src_uri}: the shown output or code is stale or not generated "
+            f"({', '.join(stale) or 'an include or run comment without its region'}); "
+            "run: python docs/hooks/kincal_pages.py update")
+    return regenerated(markdown, _result)
 
 
 def on_post_build(config: Any) -> None:
@@ -329,7 +475,16 @@ def on_post_build(config: Any) -> None:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 3 or sys.argv[1] != "record":
-        raise SystemExit("usage: python docs/hooks/kincal_pages.py record SCRIPT...")
-    for rel in sys.argv[2:]:
-        print(f"recorded -> {record(rel).relative_to(ROOT)}")
+    _USAGE = ("usage: python docs/hooks/kincal_pages.py record SCRIPT... | update [PAGE...]")
+    if len(sys.argv) < 2 or sys.argv[1] not in ("record", "update"):
+        raise SystemExit(_USAGE)
+    if sys.argv[1] == "record":
+        if len(sys.argv) < 3:
+            raise SystemExit(_USAGE)
+        for rel in sys.argv[2:]:
+            print(f"recorded -> {record(rel).relative_to(ROOT)}")
+    else:
+        chosen = ([Path(a).resolve() for a in sys.argv[2:]] if len(sys.argv) > 2
+                  else sorted((ROOT / "docs").rglob("*.md")))
+        for page in update(chosen):
+            print(f"updated {page.relative_to(ROOT)}")

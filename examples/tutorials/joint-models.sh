@@ -1,18 +1,14 @@
 #!/usr/bin/env bash
 # Non-geometric joint models on the real TIAGo (docs/tutorials/joint-models.md): joint
 # hysteresis (backlash) and gravity compliance, compared by cross-validation on the
-# training day and checked on another day. Needs the TIAGo data set in $KINCAL_DATA
-# (default ../shared/data); exits with status 77 (skipped) without it.
+# training day and checked on another day. Needs the TIAGo data set in
+# ../shared/data; exits with status 77 (skipped) without it.
 set -euo pipefail
-DATA="${KINCAL_DATA:-../shared/data}"
-[ -d "$DATA/tiago_mocap" ] || { echo "skipped: no $DATA/tiago_mocap" >&2; exit 77; }
-ln -s "$DATA" data
-# examples/setups/tiago_mocap.yaml points at ../shared/data: here it is data/
-sed 's#\.\./\.\./\.\./shared/data/#data/#' \
-    "${KINCAL_EXAMPLES:-examples}/setups/tiago_mocap.yaml" > tiago_mocap.yaml
+# Every command runs as printed from the root of a clone with the data sets in ../shared/data.
+[ -d ../shared/data/tiago_mocap ] || { echo "skipped: no ../shared/data/tiago_mocap" >&2; exit 77; }
 
 # --8<-- [start:fit]
-kincal calibrate --config tiago_mocap.yaml --json tiago.json > tiago.txt
+kincal calibrate --config examples/setups/tiago_mocap.yaml --json tiago.json > tiago.txt
 grep -E "^converged" tiago.txt
 python3 - <<'PY'
 import json
@@ -25,11 +21,11 @@ sed -n '/Held-out files/,/^ before/p' tiago.txt
 # --8<-- [end:fit]
 
 # --8<-- [start:compare]
-sed '/^  joint_model:/d' tiago_mocap.yaml > geometric.yaml
-kincal calibrate --config geometric.yaml --cross-validate 10 -o g.yaml --json g.json \
+sed '/^  joint_model:/d' examples/setups/tiago_mocap.yaml > examples/setups/tiago_geometric.yaml
+kincal calibrate --config examples/setups/tiago_geometric.yaml --cross-validate 10 -o g.yaml --json g.json \
     --report g.html --urdf g.urdf | grep -A 1 "cross-validation"
-kincal calibrate --config tiago_mocap.yaml --joint-model hysteresis --cross-validate 10 \
+kincal calibrate --config examples/setups/tiago_mocap.yaml --joint-model hysteresis --cross-validate 10 \
     -o h.yaml --json h.json --report h.html --urdf h.urdf | grep -A 1 "cross-validation"
-kincal calibrate --config tiago_mocap.yaml --cross-validate 10 \
+kincal calibrate --config examples/setups/tiago_mocap.yaml --cross-validate 10 \
     -o hc.yaml --json hc.json --report hc.html --urdf hc.urdf | grep -A 1 "cross-validation"
 # --8<-- [end:compare]

@@ -3,7 +3,6 @@
 # with known errors is calibrated on simulated tracker data, then its weld program is
 # filtered so that a controller with the nominal model puts the real robot on target.
 set -euo pipefail
-FILES="${KINCAL_EXAMPLES:-examples}/tutorials/files"   # the program and its frames
 
 # --8<-- [start:calibrate]
 kincal simulate kr6 -o train.csv --truth truth.yaml -n 60 --noise 0.01mm --seed 1
@@ -12,7 +11,8 @@ tail -n 1 calibrate.txt
 # --8<-- [end:calibrate]
 
 # --8<-- [start:filter]
-cp "$FILES"/weld_seam.src "$FILES"/weld_seam.dat "$FILES"/krl_frames.yaml .
+cp examples/tutorials/files/weld_seam.src examples/tutorials/files/weld_seam.dat \
+    examples/tutorials/files/krl_frames.yaml .
 kincal filter weld_seam.src --robot kr6_cal.yaml --nominal kr6 --frames krl_frames.yaml \
     --result result.json -o filtered/weld_seam.src --csv targets.csv
 # --8<-- [end:filter]

@@ -2,10 +2,9 @@
 # A UR controller's calibration in ROS and in kincal, and calibrated URDFs that review
 # cleanly (docs/tutorials/ur-calibration.md).
 set -euo pipefail
-FILES="${KINCAL_EXAMPLES:-examples}/tutorials/files"   # calibration.conf, arm.urdf
 
 # --8<-- [start:import]
-cp "$FILES/calibration.conf" .
+cp "examples/tutorials/files/calibration.conf" .
 kincal import ur calibration.conf --nominal ur5e -o ur5e_cal.yaml --kinematics ur5e_kinematics.yaml
 # --8<-- [end:import]
 
@@ -21,7 +20,7 @@ kincal ur-kinematics refined.yaml --nominal ur5e -o kinematics.yaml
 # --8<-- [end:refine]
 
 # --8<-- [start:urdf]
-cp "$FILES/arm.urdf" .
+cp "examples/tutorials/files/arm.urdf" .
 kincal simulate arm.urdf --tip-link tool0 -o arm.csv -n 60 --noise 0.01mm --seed 2 > /dev/null
 kincal calibrate arm.urdf --tip-link tool0 --data arm.csv -o arm_cal.yaml \
     --urdf arm_calibrated.urdf > calibrate.txt
