@@ -17,7 +17,8 @@ row came from:
 4. **Joint fit** with :func:`~kincal.identify.solver.calibrate`: the robot's tool frame
    becomes the camera (``tool <- tool X``), the board pose is the block's
    ``{name}.target.*``; estimated: ``tool.*``, the board pose and any robot parameters
-   named in ``free`` that the images identify; minimised: the whitened reprojection
+   named in ``free`` that the images identify (of a dependent group the hand-eye and the
+   board are kept, e.g. ``tool.rz`` rather than the last joint's offset); minimised: the whitened reprojection
    errors ``(uv_pred - uv_obs) / sigma`` [1].
 5. **Quality**: the hand-eye's standard errors from the fit's covariance,
    ``sigma_p = sqrt(trace Cov(tool.x, y, z))`` [m] and ``sigma_r = sqrt(trace(J Cov J^T))``
@@ -167,7 +168,7 @@ def fit_hand_camera(robot: Robot, block: HandCameraMeasurement, images: Sequence
     target_names = tr.parameters().names
     initial = dict(zip(target_names, frame_from_matrix(start.Z).tolist(), strict=True))
     res = calibrate(robot0, [tr], free=[*TOOL, f"{block.name}.target.*", *free],
-                    initial=initial)
+                    initial=initial, prefer=[*TOOL, f"{block.name}.target.*"])
     missing = [n for n in TOOL if n not in res.estimated]
     if missing:
         raise KincalError(f"the images cannot identify the hand-eye ({', '.join(missing)} "
