@@ -3,8 +3,8 @@
 Every image of a folder is searched for the board (:mod:`kincal.measure.camera_board`)
 with OpenCV (the optional extra ``kincal[camera]``, imported only here and only when an
 image is read): ChArUco corners by ``cv2.aruco.CharucoDetector``, chessboard corners by
-``cv2.findChessboardCorners``, both refined by ``cv2.cornerSubPix`` (window a quarter of
-the smallest corner spacing, at most 11 px).  An image is dropped, with its reason, when it
+``cv2.findChessboardCorners``, both refined by ``cv2.cornerSubPix`` (window kept off the
+ChArUco markers, see :func:`_refine`).  An image is dropped, with its reason, when it
 cannot be read, the board is not found, or fewer than ``min_corners`` corners are seen.
 
 Two folder layouts:
@@ -194,10 +194,18 @@ def _sources(folder: Path) -> list[tuple[str, Path, Path | None]]:
     return [(p.name, p, None) for p in files]
 
 
-def _refine(cv2: Any, gray: Any, uv: Array) -> Array:
+def _refine(cv2: Any, gray: Any, uv: Array, board: Board) -> Array:
+    """``cv2.cornerSubPix`` with a half-window of a quarter of the smallest corner
+    spacing, and on a ChArUco board 0.8 of the gap between a corner and the markers
+    (``(square - marker) / 2``: a window reaching a marker's edge pulls the corner),
+    2 to 11 px."""
     d = np.linalg.norm(uv[:, None] - uv[None], axis=2)
     d[d == 0] = np.inf
-    win = int(np.clip(0.25 * float(d.min()), 2, 11))
+    spacing = float(d.min())
+    half = 0.25 * spacing
+    if board.kind == "charuco":
+        half = min(half, 0.8 * spacing * (board.square - board.marker) / (2 * board.square))
+    win = int(np.clip(half, 2, 11))
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
     pts = uv.reshape(-1, 1, 2).astype(np.float32)
     out = cv2.cornerSubPix(gray, pts, (win, win), (-1, -1), crit)
@@ -213,12 +221,14 @@ def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], 
         if ids is None or len(ids) == 0:
             return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
         uv = np.asarray(corners, dtype=float).reshape(-1, 2)
-        return np.asarray(ids, dtype=np.int64).reshape(-1), _refine(cv2, gray, uv)
-    found, corners = cv2.findChessboardCorners(gray, (board.columns - 1, board.rows - 1))
+        return np.asarray(ids, dtype=np.int64).reshape(-1), _refine(cv2, gray, uv, board)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE + cv2.CALIB_CB_FAST_CHECK
+    found, corners = cv2.findChessboardCorners(gray, (board.columns - 1, board.rows - 1),
+                                               flags=flags)
     if not found:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
     uv = np.asarray(corners, dtype=float).reshape(-1, 2)
-    return np.arange(len(uv), dtype=np.int64), _refine(cv2, gray, uv)
+    return np.arange(len(uv), dtype=np.int64), _refine(cv2, gray, uv, board)
 
 
 def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] | None = None,
