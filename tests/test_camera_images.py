@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cli_helpers import run
+
 from kincal.errors import KincalError
 from kincal.measure.camera_board import Board, board_pose, read_board
 

@@ -18,8 +18,8 @@ row came from:
    becomes the camera (``tool <- tool X``), the board pose is the block's
    ``{name}.target.*``; estimated: ``tool.*``, the board pose and any robot parameters
    named in ``free`` that the images identify (of a dependent group the hand-eye and the
-   board are kept, e.g. ``tool.rz`` rather than the last joint's offset); minimised: the whitened reprojection
-   errors ``(uv_pred - uv_obs) / sigma`` [1].
+   board are kept, e.g. ``tool.rz`` rather than the last joint's offset); minimised: the
+   whitened reprojection errors ``(uv_pred - uv_obs) / sigma`` [1].
 5. **Quality**: the hand-eye's standard errors from the fit's covariance,
    ``sigma_p = sqrt(trace Cov(tool.x, y, z))`` [m] and ``sigma_r = sqrt(trace(J Cov J^T))``
    [rad], ``J`` the derivative of the rotation vector by ``(rz, ry, rx)``: the expected
