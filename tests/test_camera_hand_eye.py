@@ -171,3 +171,37 @@ def test_exp_log_helpers_used_by_the_truth() -> None:
     # the truth's rotation is what matrix_from_frame says (guards the simulation itself)
     R = exp_so3(np.array([0.1, -0.2, 0.3]))
     assert np.allclose(log_so3(R), [0.1, -0.2, 0.3])
+
+
+def _write(path, block, labels) -> None:
+    from kincal.measure.camera_images import (
+        Detection,
+        ImageSet,
+        Intrinsics,
+        write_image_measurements,
+    )
+
+    lab = np.array(labels)
+    dets = [Detection(n, np.arange(BOARD.num_corners), block.obs[lab == n],
+                      block.q[np.flatnonzero(lab == n)[0]]) for n in sorted(set(labels))]
+    write_image_measurements(path, ImageSet(dets, [], SIZE), BOARD, Intrinsics(*K), 0.3)
+
+
+def test_cli_refuses_in_one_line_and_writes_the_robot(tmp_path, capsys) -> None:
+    from cli_helpers import run
+
+    robot = load_robot("panda")
+    block, labels, _ = simulate(robot, 8, 0.3, np.random.default_rng(2), only_joint=6)
+    _write(tmp_path / "bad.csv", block, labels)
+    code, out, err = run(capsys, "hand-eye", "panda", "--data", tmp_path / "bad.csv")
+    assert code == 2 and err.count("\n") == 1 and "rotations too small" in err
+    assert "flange's z axis" in err
+    block, labels, _ = simulate(robot, 12, 0.3, np.random.default_rng(4))
+    _write(tmp_path / "good.csv", block, labels)
+    code, out, err = run(capsys, "hand-eye", "panda", "--data", tmp_path / "good.csv", "-o",
+                         tmp_path / "cam.yaml")
+    assert code == 0, err
+    assert "expected error of the hand-eye" in out and "held out" in out
+    tool = load_robot(str(tmp_path / "cam.yaml")).frame_parameters("tool")
+    flange = matrix_from_frame(robot.frame_parameters("tool"))
+    assert np.linalg.norm((flange @ X_TRUE)[:3, 3] - matrix_from_frame(tool)[:3, 3]) < 2e-3

@@ -151,7 +151,7 @@ def test_real_franka_set_import_and_hand_eye(tmp_path: Path, capsys) -> None:
                          FRANKA / "config" / "calibration_board_parameters.yaml", "--robot",
                          "panda", "-o", data)
     assert code == 0, err
-    code, out, err = run(capsys, "hand-eye", data, "--robot", "panda", "--free",
+    code, out, err = run(capsys, "hand-eye", "panda", "--data", data, "--free",
                          "theta_offset*", "--json", tmp_path / "fit.json")
     assert code == 0, err
     fit = json.loads((tmp_path / "fit.json").read_text())

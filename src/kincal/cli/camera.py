@@ -3,7 +3,7 @@
 * ``kincal import images FOLDER --board board.yaml [--joints joints.csv] -o data.csv``:
   detect the board in every image, write the hand-camera measurement file
   (:mod:`kincal.measure.camera_images`; needs ``kincal[camera]``);
-* ``kincal hand-eye DATA --robot ROBOT``: closed-form start, joint fit, expected error,
+* ``kincal hand-eye ROBOT --data DATA``: closed-form start, joint fit, expected error,
   held-out images (:mod:`kincal.identify.hand_eye_fit`; plain NumPy).
 """
 
@@ -37,8 +37,8 @@ def import_images(
                           ] = None,
     min_corners: Annotated[int, typer.Option("--min-corners", min=4, help="Drop an image "
                                              "with fewer corners.")] = 6,
-    sigma: Annotated[float, typer.Option("--sigma", min=1e-6, help="Stated corner standard "
-                                         "deviation [px].")] = 0.5,
+    sigma: Annotated[str, typer.Option("--sigma", help="Stated corner standard deviation "
+                                       "(e.g. 0.5px).")] = "0.5px",
     robot: Annotated[str | None, typer.Option("--robot", help="Robot whose joint names head "
                                               "the joint columns.")] = None,
     json_out: JsonOpt = None,
@@ -55,6 +55,7 @@ def import_images(
         require_opencv,
         write_image_measurements,
     )
+    from kincal.units import parse_quantity
 
     out = out_console(json_out)
     check_outputs({"-o": output, "--json": json_out},
@@ -66,7 +67,9 @@ def import_images(
     given = read_intrinsics(intrinsics) if intrinsics else None
     images = detect_images(folder, b, table, min_corners)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
-    block = write_image_measurements(output, images, b, intr, sigma, r)
+    block = write_image_measurements(output, images, b, intr,
+                                     parse_quantity(sigma, "pixel", "--sigma", positive=True),
+                                     r)
     out.print(f"{escape(Path(folder).name)}: {len(images.detections)} images with the "
               f"board, {block.q.shape[0]} corners; {len(images.dropped)} dropped")
     for name, reason in images.dropped:
@@ -104,18 +107,17 @@ def _fit_json(fit: Any, data: str) -> dict[str, Any]:
 
 @app.command("hand-eye")
 def hand_eye_command(
-    data: Annotated[str, typer.Argument(help="Camera measurement CSV from `kincal import "
-                                        "images` (mount=hand).")],
-    robot: Annotated[str, typer.Option("--robot", help="The nominal robot (built-in name or "
-                                       "robot file); its tool frame is the camera's flange.")],
+    robot: Annotated[str, typer.Argument(help="The nominal robot (built-in name or robot "
+                                         "file); its tool frame is the camera's flange.")],
+    data: Annotated[str, typer.Option("--data", "-d", help="Camera measurement CSV from "
+                                      "`kincal import images` (mount=hand).")],
     holdout: Annotated[float, typer.Option("--holdout", help="Fraction of the images kept "
                                            "aside to check the fit.")] = 0.25,
     free: Annotated[list[str] | None, typer.Option("--free", help="Robot parameters (names "
                                                    "or patterns) fitted with the hand-eye.")
                     ] = None,
-    min_rotation: Annotated[float, typer.Option("--min-rotation", help="Refuse when the "
-                                                "flange turns less about two axes [deg].")
-                            ] = 5.0,
+    min_rotation: Annotated[str, typer.Option("--min-rotation", help="Refuse when the "
+                                              "flange turns less about two axes.")] = "5deg",
     output: Annotated[str | None, typer.Option("-o", "--output", help="Write the calibrated "
                                                "robot, the camera as its tool frame.")] = None,
     json_out: JsonOpt = None,
@@ -130,16 +132,18 @@ def hand_eye_command(
     from kincal.measure.instruments.camera import HandCameraMeasurement, read_camera
     from kincal.robots.files import robot_yaml_text
     from kincal.spatial import frame_from_matrix
+    from kincal.units import parse_quantity
 
     out = out_console(json_out)
-    check_outputs({"-o": output, "--json": json_out}, {"DATA": [data], "--robot": [robot]})
+    check_outputs({"-o": output, "--json": json_out}, {"--data": [data], "ROBOT": [robot]})
     r = serial(load(robot), "hand-eye")
     blocks = read_camera(data, r)
     if not isinstance(blocks[0], HandCameraMeasurement):
         raise KincalError("not a hand-camera file (mount=hand); `kincal import images` "
                           "writes one", source=data)
     fit = fit_hand_camera(r, blocks[0], read_image_labels(data), holdout, free or (),
-                          min_rotation)
+                          np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
+                                                    minimum=0.0)))
     rot = ", ".join(f"{v:.1f}" for v in fit.rotation_deg)
     out.print(f"{len(fit.training)} training images, {len(fit.held_out)} held out"
               + (f" ({', '.join(fit.held_out)})" if fit.held_out else "")
