@@ -49,7 +49,7 @@ Array = NDArray[np.float64]
 
 TOOL = tuple(f"tool.{f}" for f in ("x", "y", "z", "rz", "ry", "rx"))
 
-__all__ = ["HandEyeFit", "split_images", "fit_hand_camera"]
+__all__ = ["HandEyeFit", "split_images", "fit_hand_camera", "closed_form_leave_one_out"]
 
 
 def split_images(labels: Sequence[str], holdout: float) -> tuple[list[str], list[str]]:
@@ -191,3 +191,31 @@ def fit_hand_camera(robot: Robot, block: HandCameraMeasurement, images: Sequence
         lab = labels[rows]
         out.held_per_image = {n: float(np.sqrt(np.mean(e[lab == n] ** 2))) for n in held}
     return out
+
+
+def closed_form_leave_one_out(robot_poses: Array, points: Sequence[Array],
+                              uv: Sequence[Array], intrinsics: Sequence[float],
+                              mount: str = "hand") -> tuple[HandEye, Array]:
+    """The closed form on every image, and each image predicted by the closed form of the
+    others: for a few images (an eye-to-hand set with flange poses and no joints).
+
+    Image ``i``'s board pose is predicted as ``B_i = X^-1 A_i^-1 Z`` (eye-in-hand) or
+    ``X^-1 A_i Z`` (eye-to-hand) from the solution without image ``i``, its corners
+    ``points[i]`` (n, 3) [m] projected with the pinhole ``intrinsics`` and compared with
+    the undistorted pixels ``uv[i]`` (n, 2).  Returns the solution on all images and the
+    held-out RMS reprojection error of every image [px].
+    """
+    A = np.asarray(robot_poses, dtype=float)
+    K = np.asarray(intrinsics, dtype=float)
+    B = np.array([board_pose(p, u, K)[0] for p, u in zip(points, uv, strict=True)])
+    every = hand_eye(A, B, mount)
+    rms = np.zeros(len(A))
+    for i in range(len(A)):
+        keep = np.arange(len(A)) != i
+        he = hand_eye(A[keep], B[keep], mount)
+        Ai = A[i] if mount == "fixed" else inverse(A[i])
+        Bi = inverse(he.X) @ Ai @ he.Z
+        x = points[i] @ Bi[:3, :3].T + Bi[:3, 3]
+        pred = np.column_stack([K[0] * x[:, 0] / x[:, 2] + K[2], K[1] * x[:, 1] / x[:, 2] + K[3]])
+        rms[i] = float(np.sqrt(np.mean(np.sum((pred - uv[i]) ** 2, axis=1))))
+    return every, rms

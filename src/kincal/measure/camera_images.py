@@ -232,8 +232,10 @@ def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], 
 
 
 def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] | None = None,
-                  min_corners: int = 6) -> ImageSet:
-    """Detect ``board`` in every image of ``folder`` (module docstring for the layouts)."""
+                  min_corners: int = 6, require_joints: bool = True) -> ImageSet:
+    """Detect ``board`` in every image of ``folder`` (module docstring for the layouts);
+    ``require_joints=False``: images without joint values get an empty ``q`` (for robot
+    poses given otherwise, e.g. flange poses of an eye-to-hand set)."""
     cv2 = require_opencv()
     if board.kind == "charuco" and not hasattr(cv2.aruco, board.dictionary):
         raise KincalError(f"dictionary {board.dictionary!r} is not one of OpenCV's")
@@ -250,6 +252,8 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
                                               str(data)))
         if joints is not None:
             q = joints.get(label, joints.get(image.name))
+        if q is None and not require_joints:
+            q = np.zeros(0)
         if q is None:
             raise KincalError(f"no joint values for image {label!r} (--joints: a row with "
                               f"image={label})", source=str(folder))
