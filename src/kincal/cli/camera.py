@@ -120,6 +120,9 @@ def hand_eye_command(
                                               "flange turns less about two axes.")] = "5deg",
     output: Annotated[str | None, typer.Option("-o", "--output", help="Write the calibrated "
                                                "robot, the camera as its tool frame.")] = None,
+    loo: Annotated[bool, typer.Option("--leave-one-out", help="Also fit once per image with "
+                                      "that image held out: its error, and the spread of the "
+                                      "hand-eye (jackknife).")] = False,
     json_out: JsonOpt = None,
 ) -> None:
     """Hand-eye of a camera on the flange: order-free closed-form start, joint fit of the
@@ -141,9 +144,9 @@ def hand_eye_command(
     if not isinstance(blocks[0], HandCameraMeasurement):
         raise KincalError("not a hand-camera file (mount=hand); `kincal import images` "
                           "writes one", source=data)
-    fit = fit_hand_camera(r, blocks[0], read_image_labels(data), holdout, free or (),
-                          np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
-                                                    minimum=0.0)))
+    min_deg = float(np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
+                                              minimum=0.0)))
+    fit = fit_hand_camera(r, blocks[0], read_image_labels(data), holdout, free or (), min_deg)
     rot = ", ".join(f"{v:.1f}" for v in fit.rotation_deg)
     out.print(f"{len(fit.training)} training images, {len(fit.held_out)} held out"
               + (f" ({', '.join(fit.held_out)})" if fit.held_out else "")
@@ -168,8 +171,23 @@ def hand_eye_command(
     held = (f"held out {fit.held_rms_px:.2f} px = {fit.held_rms_3d * 1e3:.2f} mm at the board"
             if fit.held_out else "no held-out images")
     out.print(f"reprojection RMS: training {fit.train_rms_px:.2f} px; {held}")
+    doc = _fit_json(fit, data)
+    if loo:
+        from kincal.identify.hand_eye_fit import leave_one_out
+
+        lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
+        out.print(f"leave-one-out ({len(lo.images)} fits): held-out RMS "
+                  f"{np.sqrt(np.mean(lo.rms_px ** 2)):.2f} px = "
+                  f"{np.sqrt(np.mean(lo.rms_3d ** 2)) * 1e3:.2f} mm at the board, worst "
+                  f"{lo.images[int(np.argmax(lo.rms_px))]} {lo.rms_px.max():.2f} px; "
+                  f"hand-eye spread (jackknife) {lo.position_spread * 1e3:.2f} mm, "
+                  f"{np.degrees(lo.rotation_spread):.3f} deg")
+        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
+                                "rms_3d_m": lo.rms_3d.tolist(),
+                                "position_spread_m": lo.position_spread,
+                                "rotation_spread_rad": lo.rotation_spread}
     if output:
         atomic_write_text(output, robot_yaml_text(fit.result.robot))
         out.print(f"robot (camera as tool frame) -> {escape(output)}")
     if json_out:
-        write_json(json_out, _fit_json(fit, data))
+        write_json(json_out, doc)

@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError
-from kincal.identify.hand_eye import HandEye, check_rotations, hand_eye
+from kincal.identify.hand_eye import HandEye, average_pose, check_rotations, hand_eye
 from kincal.identify.result import CalibrationResult
 from kincal.identify.solver import calibrate
 from kincal.measure.camera_board import board_pose
@@ -49,7 +49,8 @@ Array = NDArray[np.float64]
 
 TOOL = tuple(f"tool.{f}" for f in ("x", "y", "z", "rz", "ry", "rx"))
 
-__all__ = ["HandEyeFit", "split_images", "fit_hand_camera", "closed_form_leave_one_out"]
+__all__ = ["HandEyeFit", "split_images", "fit_hand_camera", "closed_form_leave_one_out",
+           "LeaveOneOut", "leave_one_out"]
 
 
 def split_images(labels: Sequence[str], holdout: float) -> tuple[list[str], list[str]]:
@@ -138,7 +139,8 @@ def _reprojection(block: HandCameraMeasurement, robot: Robot, target: Array
 
 def fit_hand_camera(robot: Robot, block: HandCameraMeasurement, images: Sequence[str],
                     holdout: float = 0.25, free: Sequence[str] = (),
-                    min_rotation_deg: float = 5.0) -> HandEyeFit:
+                    min_rotation_deg: float = 5.0, held_out: Sequence[str] | None = None
+                    ) -> HandEyeFit:
     """Hand-eye (and robot parameters ``free``) from a hand camera (module docstring).
 
     Args:
@@ -149,11 +151,15 @@ def fit_hand_camera(robot: Robot, block: HandCameraMeasurement, images: Sequence
         free: robot parameter names / patterns fitted with the hand-eye (e.g.
             ``"theta_offset*"``); parameters the images cannot identify are held.
         min_rotation_deg: the refusal threshold of the flange's rotation.
+        held_out: the images to keep aside (instead of ``holdout``'s choice).
     """
     labels = np.asarray(list(images))
     if len(labels) != block.q.shape[0]:
         raise KincalError(f"{len(labels)} image labels for {block.q.shape[0]} rows")
     train, held = split_images(list(labels), holdout)
+    if held_out is not None:
+        held = sorted(set(held_out))
+        train = [n for n in sorted(set(labels.tolist())) if n not in held]
     if len(train) < 3:
         raise KincalError(f"{len(train)} training images: a hand-eye needs 3 at least "
                           "(better 10 or more)")
@@ -219,3 +225,37 @@ def closed_form_leave_one_out(robot_poses: Array, points: Sequence[Array],
         pred = np.column_stack([K[0] * x[:, 0] / x[:, 2] + K[2], K[1] * x[:, 1] / x[:, 2] + K[3]])
         rms[i] = float(np.sqrt(np.mean(np.sum((pred - uv[i]) ** 2, axis=1))))
     return every, rms
+
+
+@dataclass
+class LeaveOneOut:
+    """Every image held out once: its reprojection RMS [px] and 3-D error [m] under the
+    fit of the others, and the spread of the hand-eye over those fits (RMS distance of the
+    camera position [m] and angle of its rotation [rad] from their mean), a figure that
+    does not come from the covariance."""
+
+    images: list[str]
+    rms_px: Array
+    rms_3d: Array
+    position_spread: float
+    rotation_spread: float
+
+
+def leave_one_out(robot: Robot, block: HandCameraMeasurement, images: Sequence[str],
+                  free: Sequence[str] = (), min_rotation_deg: float = 5.0) -> LeaveOneOut:
+    """:func:`fit_hand_camera` once per image with that image held out.  The spread of
+    ``N`` leave-one-out estimates is ``1 / (N - 1)`` of the estimate's jackknife spread:
+    the jackknife standard error is ``sqrt((N - 1) / N sum |x_i - mean|^2)``, reported
+    here as ``position_spread`` and ``rotation_spread``."""
+    names = sorted(set(images))
+    fits = [fit_hand_camera(robot, block, images, 0.0, free, min_rotation_deg, [n])
+            for n in names]
+    X = np.array([f.X for f in fits])
+    t = X[:, :3, 3]
+    n = len(names)
+    pos = float(np.sqrt((n - 1) / n * np.sum((t - t.mean(0)) ** 2)))
+    R = average_pose(X)[:3, :3]
+    ang = np.linalg.norm(log_so3(X[:, :3, :3] @ R.T), axis=1)
+    rot = float(np.sqrt((n - 1) / n * np.sum(ang**2)))
+    return LeaveOneOut(names, np.array([f.held_rms_px for f in fits]),
+                       np.array([f.held_rms_3d for f in fits]), pos, rot)
