@@ -237,6 +237,9 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
     ``require_joints=False``: images without joint values get an empty ``q`` (for robot
     poses given otherwise, e.g. flange poses of an eye-to-hand set)."""
     cv2 = require_opencv()
+    if board.kind == "charuco" and not hasattr(getattr(cv2, "aruco", None), "CharucoDetector"):
+        raise KincalError(f"OpenCV {cv2.__version__} has no ChArUco detector; pip install "
+                          "'opencv-python-headless>=4.7'")
     if board.kind == "charuco" and not hasattr(cv2.aruco, board.dictionary):
         raise KincalError(f"dictionary {board.dictionary!r} is not one of OpenCV's")
     out = ImageSet([], [], (0, 0))
