@@ -159,3 +159,26 @@ def test_real_franka_set_import_and_hand_eye(tmp_path: Path, capsys) -> None:
     # held-out pixels: within a few times the corner noise the training fit shows
     rms = fit["reprojection_rms_px"]
     assert rms["held_out"] < 3 * rms["training"]
+
+
+def test_intrinsics_files_ros_and_opencv(tmp_path: Path) -> None:
+    from kincal.measure.camera_images import read_intrinsics
+
+    ros = tmp_path / "camera_info.yaml"
+    ros.write_text("image_width: 1280\nimage_height: 720\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+                   "  data: [633.9, 0, 642.0, 0, 633.4, 359.0, 0, 0, 1]\n"
+                   "distortion_model: plumb_bob\ndistortion_coefficients:\n  rows: 1\n"
+                   "  cols: 5\n  data: [-0.06, 0.07, -0.0002, 0.0005, -0.02]\n")
+    i = read_intrinsics(ros)
+    assert i.pinhole == (633.9, 633.4, 642.0, 359.0) and i.dist[0] == -0.06
+    ros.write_text("camera_matrix: {data: [0, 0, 642, 0, 633, 359, 0, 0, 1]}\n")
+    with pytest.raises(KincalError, match="fx, fy > 0"):
+        read_intrinsics(ros)
+    cv2 = pytest.importorskip("cv2")
+    ocv = tmp_path / "opencv.yaml"
+    fs = cv2.FileStorage(str(ocv), cv2.FILE_STORAGE_WRITE)
+    fs.write("camera_matrix", np.array([[900.0, 0, 640], [0, 901.0, 360], [0, 0, 1]]))
+    fs.write("distortion_coefficients", np.array([[0.1, -0.2, 0.0, 0.0, 0.05]]))
+    fs.release()
+    i = read_intrinsics(ocv)
+    assert i.pinhole == (900.0, 901.0, 640.0, 360.0) and i.dist == (0.1, -0.2, 0.0, 0.0, 0.05)

@@ -169,6 +169,7 @@ def hand_eye_command(
         out.print("robot parameters fitted: " + ", ".join(
             f"{n} {fit.result.params[n]:.6g} ± {std[n]:.2g}" for n in extra))
     held = (f"held out {fit.held_rms_px:.2f} px = {fit.held_rms_3d * 1e3:.2f} mm at the board"
+            " (" + ", ".join(f"{k} {v:.2f}" for k, v in fit.held_per_image.items()) + ")"
             if fit.held_out else "no held-out images")
     out.print(f"reprojection RMS: training {fit.train_rms_px:.2f} px; {held}")
     doc = _fit_json(fit, data)
