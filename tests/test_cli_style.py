@@ -52,7 +52,7 @@ def _long(p) -> list[str]:
 #: Floating-point options that are plain numbers by nature (factors, fractions,
 #: probabilities, gains): everything else dimensioned takes its unit in the value.
 DIMENSIONLESS = {"--loss-scale", "--condition-growth", "--margin", "--false-alarm",
-                 "--drift-sigma", "--gain"}
+                 "--drift-sigma", "--gain", "--holdout"}
 
 #: Commands that print no results a machine would read (so no --json), and why.
 NO_JSON = {"init": "writes a setup file for people", "fivebar-mobility": "a fixed table",
@@ -64,7 +64,7 @@ PRINTS_QUANTITIES = {"show", "fk", "jacobian", "ik", "trajectory", "simulate", "
 
 #: Positional arguments that are not the robot: the command and what they are.
 OTHER_ARGUMENTS = {"compensate": "CALIBRATED", "filter": "PROGRAM", "import ur": "FILE",
-                   "import bag": "BAG",
+                   "import bag": "BAG", "import images": "FOLDER",
                    "fleet calibrate": "MANIFEST", "fleet history": "SERIAL"}
 
 UNIT_SUFFIX = re.compile(r"[a-z]-(m|mm|cm|um|rad|deg|mrad|urad|arcsec|arcmin|s|ms|px)$")

@@ -1,0 +1,194 @@
+"""Camera commands: board images in, a hand-eye with its quality out.
+
+* ``kincal import images FOLDER --board board.yaml [--joints joints.csv] -o data.csv``:
+  detect the board in every image, write the hand-camera measurement file
+  (:mod:`kincal.measure.camera_images`; needs ``kincal[camera]``);
+* ``kincal hand-eye ROBOT --data DATA``: closed-form start, joint fit, expected error,
+  held-out images (:mod:`kincal.identify.hand_eye_fit`; plain NumPy).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.markup import escape
+
+from kincal.cli.app import app
+from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
+from kincal.cli.importers import import_app
+from kincal.errors import KincalError
+
+
+@import_app.command("images")
+def import_images(
+    folder: Annotated[str, typer.Argument(help="Folder of board images, or of pose folders "
+                                          "each with image.png and data.json.")],
+    board: Annotated[str, typer.Option("--board", help="Board description YAML (type, "
+                                       "squares, square, marker, dictionary).")],
+    output: Annotated[str, typer.Option("-o", "--output", help="kincal measurement CSV to "
+                                        "write.")],
+    joints: Annotated[str | None, typer.Option("--joints", help="CSV: image, then joint "
+                                               "columns with units (q1_rad ...).")] = None,
+    intrinsics: Annotated[str | None, typer.Option("--intrinsics", help="ROS camera_info "
+                                                   "or OpenCV YAML (default: the pose "
+                                                   "folders' data.json, else estimated).")
+                          ] = None,
+    min_corners: Annotated[int, typer.Option("--min-corners", min=4, help="Drop an image "
+                                             "with fewer corners.")] = 6,
+    sigma: Annotated[str, typer.Option("--sigma", help="Stated corner standard deviation "
+                                       "(e.g. 0.5px).")] = "0.5px",
+    robot: Annotated[str | None, typer.Option("--robot", help="Robot whose joint names head "
+                                              "the joint columns.")] = None,
+    json_out: JsonOpt = None,
+) -> None:
+    """Detect a calibration board in every image and write a camera measurement file
+    (undistorted pixels, joint values, corner ids, the image of every corner)."""
+    from kincal.io import check_outputs, write_json
+    from kincal.measure.camera_board import read_board
+    from kincal.measure.camera_images import (
+        detect_images,
+        estimate_intrinsics,
+        read_intrinsics,
+        read_joints_csv,
+        require_opencv,
+        write_image_measurements,
+    )
+    from kincal.units import parse_quantity
+
+    out = out_console(json_out)
+    check_outputs({"-o": output, "--json": json_out},
+                  {"--board": [board], "--joints": joints, "--intrinsics": intrinsics})
+    require_opencv()
+    b = read_board(board)
+    r = serial(load(robot), "import images") if robot else None
+    table = read_joints_csv(joints) if joints else None
+    given = read_intrinsics(intrinsics) if intrinsics else None
+    images = detect_images(folder, b, table, min_corners)
+    intr = given or images.intrinsics or estimate_intrinsics(images, b)
+    block = write_image_measurements(output, images, b, intr,
+                                     parse_quantity(sigma, "pixel", "--sigma", positive=True),
+                                     r)
+    out.print(f"{escape(Path(folder).name)}: {len(images.detections)} images with the "
+              f"board, {block.q.shape[0]} corners; {len(images.dropped)} dropped")
+    for name, reason in images.dropped:
+        out.print(f"[yellow]dropped[/yellow] {escape(name)}: {escape(reason)}")
+    out.print(f"intrinsics {escape(intr.source)}: fx {intr.fx:.1f} fy {intr.fy:.1f} cx "
+              f"{intr.cx:.1f} cy {intr.cy:.1f} px; distortion "
+              f"{' '.join(f'{v:.4g}' for v in intr.dist)} removed")
+    out.print(f"measurements -> {escape(output)}")
+    if json_out:
+        write_json(json_out, {
+            "folder": folder, "output": output, "board": b.__dict__,
+            "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
+                           "dist": list(intr.dist), "source": intr.source},
+            "images": [{"image": d.image, "corners": len(d.ids)} for d in images.detections],
+            "dropped": [{"image": i, "reason": why} for i, why in images.dropped]})
+
+
+def _fit_json(fit: Any, data: str) -> dict[str, Any]:
+    import numpy as np
+
+    from kincal.spatial import frame_from_matrix
+
+    return {"data": data, "training": fit.training, "held_out": fit.held_out,
+            "camera_in_tool_frame": {"matrix": fit.X.tolist(),
+                                     "frame_m_rad": frame_from_matrix(fit.X).tolist()},
+            "closed_form_start": fit.start.X.tolist(), "board_in_base": fit.board.tolist(),
+            "expected_error": {"position_m": fit.std_position,
+                               "rotation_rad": fit.std_rotation},
+            "reprojection_rms_px": {"training": fit.train_rms_px,
+                                    "held_out": fit.held_rms_px},
+            "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image,
+            "flange_rotation_deg": np.asarray(fit.rotation_deg).tolist(),
+            "sigma0": fit.result.sigma0, "estimated": fit.result.estimated}
+
+
+@app.command("hand-eye")
+def hand_eye_command(
+    robot: Annotated[str, typer.Argument(help="The nominal robot (built-in name or robot "
+                                         "file); its tool frame is the camera's flange.")],
+    data: Annotated[str, typer.Option("--data", "-d", help="Camera measurement CSV from "
+                                      "`kincal import images` (mount=hand).")],
+    holdout: Annotated[float, typer.Option("--holdout", help="Fraction of the images kept "
+                                           "aside to check the fit.")] = 0.25,
+    free: Annotated[list[str] | None, typer.Option("--free", help="Robot parameters (names "
+                                                   "or patterns) fitted with the hand-eye.")
+                    ] = None,
+    min_rotation: Annotated[str, typer.Option("--min-rotation", help="Refuse when the "
+                                              "flange turns less about two axes.")] = "5deg",
+    output: Annotated[str | None, typer.Option("-o", "--output", help="Write the calibrated "
+                                               "robot, the camera as its tool frame.")] = None,
+    loo: Annotated[bool, typer.Option("--leave-one-out", help="Also fit once per image with "
+                                      "that image held out: its error, and the spread of the "
+                                      "hand-eye (jackknife).")] = False,
+    json_out: JsonOpt = None,
+) -> None:
+    """Hand-eye of a camera on the flange: order-free closed-form start, joint fit of the
+    reprojection errors, expected error and held-out images."""
+    import numpy as np
+
+    from kincal.identify.hand_eye_fit import fit_hand_camera
+    from kincal.io import atomic_write_text, check_outputs, write_json
+    from kincal.measure.camera_images import read_image_labels
+    from kincal.measure.instruments.camera import HandCameraMeasurement, read_camera
+    from kincal.robots.files import robot_yaml_text
+    from kincal.spatial import frame_from_matrix
+    from kincal.units import parse_quantity
+
+    out = out_console(json_out)
+    check_outputs({"-o": output, "--json": json_out}, {"--data": [data], "ROBOT": [robot]})
+    r = serial(load(robot), "hand-eye")
+    blocks = read_camera(data, r)
+    if not isinstance(blocks[0], HandCameraMeasurement):
+        raise KincalError("not a hand-camera file (mount=hand); `kincal import images` "
+                          "writes one", source=data)
+    min_deg = float(np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
+                                              minimum=0.0)))
+    fit = fit_hand_camera(r, blocks[0], read_image_labels(data), holdout, free or (), min_deg)
+    rot = ", ".join(f"{v:.1f}" for v in fit.rotation_deg)
+    out.print(f"{len(fit.training)} training images, {len(fit.held_out)} held out"
+              + (f" ({', '.join(fit.held_out)})" if fit.held_out else "")
+              + f"; the flange turned {rot} deg RMS about its principal axes")
+    s = frame_from_matrix(fit.start.X)
+    out.print(f"closed-form start: camera at {s[0] * 1e3:.2f} {s[1] * 1e3:.2f} "
+              f"{s[2] * 1e3:.2f} mm in the tool frame; pair residuals "
+              f"{fit.start.rotation_rms_deg:.3f} deg, {fit.start.translation_rms * 1e3:.2f} mm "
+              "RMS")
+    f = frame_from_matrix(fit.X)
+    std = {n: fit.result.std[fit.result.names.index(n)] for n in fit.result.estimated}
+    out.print("camera in the tool frame (x y z mm, rz ry rx deg): "
+              + " ".join(f"{v * 1e3:.2f}" for v in f[:3]) + ", "
+              + " ".join(f"{np.degrees(v):.3f}" for v in f[3:]))
+    out.print(f"expected error of the hand-eye (1 sigma, covariance): "
+              f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg; "
+              f"sigma0 {fit.result.sigma0:.2f}")
+    extra = [n for n in fit.result.estimated if not n.startswith(("tool.", "camera."))]
+    if extra:
+        out.print("robot parameters fitted: " + ", ".join(
+            f"{n} {fit.result.params[n]:.6g} ± {std[n]:.2g}" for n in extra))
+    held = (f"held out {fit.held_rms_px:.2f} px = {fit.held_rms_3d * 1e3:.2f} mm at the board"
+            " (" + ", ".join(f"{k} {v:.2f}" for k, v in fit.held_per_image.items()) + ")"
+            if fit.held_out else "no held-out images")
+    out.print(f"reprojection RMS: training {fit.train_rms_px:.2f} px; {held}")
+    doc = _fit_json(fit, data)
+    if loo:
+        from kincal.identify.hand_eye_fit import leave_one_out
+
+        lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
+        out.print(f"leave-one-out ({len(lo.images)} fits): held-out RMS "
+                  f"{np.sqrt(np.mean(lo.rms_px ** 2)):.2f} px = "
+                  f"{np.sqrt(np.mean(lo.rms_3d ** 2)) * 1e3:.2f} mm at the board, worst "
+                  f"{lo.images[int(np.argmax(lo.rms_px))]} {lo.rms_px.max():.2f} px; "
+                  f"hand-eye spread (jackknife) {lo.position_spread * 1e3:.2f} mm, "
+                  f"{np.degrees(lo.rotation_spread):.3f} deg")
+        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
+                                "rms_3d_m": lo.rms_3d.tolist(),
+                                "position_spread_m": lo.position_spread,
+                                "rotation_spread_rad": lo.rotation_spread}
+    if output:
+        atomic_write_text(output, robot_yaml_text(fit.result.robot))
+        out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    if json_out:
+        write_json(json_out, doc)

@@ -1,0 +1,354 @@
+"""Board images in, a camera measurement file out (``kincal import images``).
+
+Every image of a folder is searched for the board (:mod:`kincal.measure.camera_board`)
+with OpenCV (the optional extra ``kincal[camera]``, imported only here and only when an
+image is read): ChArUco corners by ``cv2.aruco.CharucoDetector``, chessboard corners by
+``cv2.findChessboardCorners``, both refined by ``cv2.cornerSubPix`` (window kept off the
+ChArUco markers, see :func:`_refine`).  An image is dropped, with its reason, when it
+cannot be read, the board is not found, or fewer than ``min_corners`` corners are seen.
+
+Two folder layouts:
+
+* image files (``.png .jpg .jpeg .bmp``), the joint values in ``--joints joints.csv``: a
+  column ``image`` (the file name) and one column per joint with its unit
+  (``q1_rad ...`` or ``q1_deg ...``);
+* one sub-folder per pose holding ``image.png`` and ``data.json`` (franka-handeye's
+  capture layout): the joint values from ``joint_pose`` [rad], the intrinsics from
+  ``camera_intrinsics`` (3x3) and ``dist_coeffs`` (k1 k2 p1 p2 k3) when no
+  ``--intrinsics`` file is given.
+
+Intrinsics: given (``--intrinsics``: a ROS ``camera_info`` YAML or an OpenCV YAML with
+``camera_matrix`` and ``distortion_coefficients``), from the pose folders, or estimated
+from the detections by ``cv2.calibrateCamera`` (pinhole + k1 k2 p1 p2 k3).  The file holds
+*undistorted* pixels, ``u = fx x / z + cx``, ``v = fy y / z + cy`` (the pinhole model of
+:mod:`kincal.measure.instruments.camera`, ``mount=hand``), one row per corner: the joint
+values, the corner's position on the board ``target_x/y/z``, ``u, v``, the intrinsics,
+``sigma`` and the bookkeeping columns ``image`` and ``corner`` (its id).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from kincal.errors import KincalError, MeasurementFileError
+from kincal.measure.camera_board import Board
+from kincal.measure.instruments.camera import INTRINSICS, HandCameraMeasurement
+from kincal.measure.instruments.csvio import block_tags, write_block_table
+from kincal.units import UNITS
+
+Array = NDArray[np.float64]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
+
+__all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrinsics",
+           "detect_images", "write_image_measurements", "read_image_labels"]
+
+
+def require_opencv() -> Any:
+    """``cv2``, or one line telling how to install it (exit 2)."""
+    try:
+        import cv2
+    except ImportError:
+        raise KincalError("reading board images needs OpenCV: pip install "
+                          "'kincal[camera]'") from None
+    return cv2
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics ``fx, fy, cx, cy`` [px], OpenCV distortion ``k1 k2 p1 p2 k3``
+    [1] and where they came from."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    source: str = "given"
+
+    @property
+    def matrix(self) -> Array:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def pinhole(self) -> tuple[float, float, float, float]:
+        return (self.fx, self.fy, self.cx, self.cy)
+
+
+def _intrinsics_from(K: Any, dist: Any, source: str) -> Intrinsics:
+    k = np.asarray(K, dtype=float).reshape(-1)
+    d = np.asarray(dist if dist is not None else [], dtype=float).reshape(-1)
+    if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
+        raise KincalError("camera matrix: expected 9 finite numbers with fx, fy > 0",
+                          source=source)
+    if d.size not in (0, 4, 5, 8) or not np.all(np.isfinite(d)):
+        raise KincalError("distortion: expected 4, 5 or 8 coefficients (k1 k2 p1 p2 [k3 ..])",
+                          source=source)
+    return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]),
+                      tuple(float(v) for v in d), source)
+
+
+def read_intrinsics(path: str | Path) -> Intrinsics:
+    """A ROS ``camera_info`` YAML (``camera_matrix: {data: [9]}``,
+    ``distortion_coefficients: {data: [...]}``) or an OpenCV FileStorage YAML."""
+    src = str(path)
+    if not Path(path).is_file():
+        raise KincalError("no such intrinsics file", source=src)
+    text = Path(path).read_text(encoding="utf-8")
+    if text.lstrip().startswith("%YAML"):                 # OpenCV FileStorage
+        cv2 = require_opencv()
+        fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
+        K, d = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat()
+        fs.release()
+        if K is None:
+            raise KincalError("no camera_matrix in this OpenCV YAML", source=src)
+        return _intrinsics_from(K, d, src)
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        raise KincalError("not valid YAML", source=src) from None
+    cm = data.get("camera_matrix") if isinstance(data, dict) else None
+    if not isinstance(cm, dict) or "data" not in cm:
+        raise KincalError("expected camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}",
+                          source=src)
+    dc = data.get("distortion_coefficients", {})
+    return _intrinsics_from(cm["data"], dc.get("data") if isinstance(dc, dict) else None, src)
+
+
+@dataclass
+class Detection:
+    """The board corners found in one image: ids, raw pixels (n, 2) [px], joint values."""
+
+    image: str
+    ids: NDArray[np.int64]
+    uv: Array
+    q: Array
+
+
+@dataclass
+class ImageSet:
+    """The detections of a folder, the images dropped (``(image, reason)``), the image
+    size [px] and the intrinsics (given, from the pose folders, or estimated)."""
+
+    detections: list[Detection]
+    dropped: list[tuple[str, str]]
+    size: tuple[int, int]
+    intrinsics: Intrinsics | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def read_joints_csv(path: str | Path) -> dict[str, Array]:
+    """``image`` + joint columns with a unit (``q1_rad`` / ``q1_deg``) -> ``{image: q}``
+    [rad]."""
+    src = str(path)
+    try:
+        rows = [r for r in csv.reader(Path(path).read_text(encoding="utf-8-sig").splitlines())
+                if r and not r[0].lstrip().startswith("#")]
+    except FileNotFoundError:
+        raise KincalError("no such joints file", source=src) from None
+    if not rows or "image" not in [c.strip() for c in rows[0]]:
+        raise KincalError("line 1: expected a header with an 'image' column and joint "
+                          "columns with units (q1_rad, ...)", source=src)
+    head = [c.strip() for c in rows[0]]
+    k_img = head.index("image")
+    cols: list[tuple[int, float]] = []
+    for k, name in enumerate(head):
+        if k == k_img:
+            continue
+        m = re.fullmatch(r".+_([a-z]+)", name)
+        if m is None or m.group(1) not in UNITS or UNITS[m.group(1)][0] != "angle":
+            raise KincalError(f"line 1, column {k + 1} ({name}): a joint column needs an "
+                              "angle unit, e.g. q1_rad or q1_deg", source=src)
+        cols.append((k, UNITS[m.group(1)][1]))
+    out: dict[str, Array] = {}
+    for n, r in enumerate(rows[1:], start=2):
+        try:
+            out[r[k_img].strip()] = np.array([float(r[k]) * f for k, f in cols])
+        except (ValueError, IndexError):
+            raise KincalError(f"line {n}: expected {len(head)} columns of numbers",
+                              source=src) from None
+    return out
+
+
+def _sources(folder: Path) -> list[tuple[str, Path, Path | None]]:
+    """``(label, image, data.json or None)`` in name order."""
+    if not folder.is_dir():
+        raise KincalError("no such folder", source=str(folder))
+    poses = sorted(p for p in folder.iterdir() if p.is_dir() and (p / "data.json").is_file())
+    if poses:
+        return [(p.name, p / "image.png", p / "data.json") for p in poses]
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise KincalError("no images (.png .jpg .jpeg .bmp) and no pose folders with "
+                          "data.json", source=str(folder))
+    return [(p.name, p, None) for p in files]
+
+
+def _refine(cv2: Any, gray: Any, uv: Array, board: Board) -> Array:
+    """``cv2.cornerSubPix`` with a half-window of a quarter of the smallest corner
+    spacing, and on a ChArUco board 0.8 of the gap between a corner and the markers
+    (``(square - marker) / 2``: a window reaching a marker's edge pulls the corner),
+    2 to 11 px."""
+    d = np.linalg.norm(uv[:, None] - uv[None], axis=2)
+    d[d == 0] = np.inf
+    spacing = float(d.min())
+    half = 0.25 * spacing
+    if board.kind == "charuco":
+        half = min(half, 0.8 * spacing * (board.square - board.marker) / (2 * board.square))
+    win = int(np.clip(half, 2, 11))
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+    pts = uv.reshape(-1, 1, 2).astype(np.float32)
+    out = cv2.cornerSubPix(gray, pts, (win, win), (-1, -1), crit)
+    return np.asarray(out, dtype=float).reshape(-1, 2)
+
+
+def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
+    """Corner ids and sub-pixel pixels [px] of ``board`` in a grey image (empty if none)."""
+    if board.kind == "charuco":
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
+        cb = cv2.aruco.CharucoBoard((board.columns, board.rows), board.square, board.marker, d)
+        corners, ids, _, _ = cv2.aruco.CharucoDetector(cb).detectBoard(gray)
+        if ids is None or len(ids) == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+        uv = np.asarray(corners, dtype=float).reshape(-1, 2)
+        return np.asarray(ids, dtype=np.int64).reshape(-1), _refine(cv2, gray, uv, board)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE + cv2.CALIB_CB_FAST_CHECK
+    found, corners = cv2.findChessboardCorners(gray, (board.columns - 1, board.rows - 1),
+                                               flags=flags)
+    if not found:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    uv = np.asarray(corners, dtype=float).reshape(-1, 2)
+    return np.arange(len(uv), dtype=np.int64), _refine(cv2, gray, uv, board)
+
+
+def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] | None = None,
+                  min_corners: int = 6, require_joints: bool = True) -> ImageSet:
+    """Detect ``board`` in every image of ``folder`` (module docstring for the layouts);
+    ``require_joints=False``: images without joint values get an empty ``q`` (for robot
+    poses given otherwise, e.g. flange poses of an eye-to-hand set)."""
+    cv2 = require_opencv()
+    if board.kind == "charuco" and not hasattr(getattr(cv2, "aruco", None), "CharucoDetector"):
+        raise KincalError(f"OpenCV {cv2.__version__} has no ChArUco detector; pip install "
+                          "'opencv-python-headless>=4.7'")
+    if board.kind == "charuco" and not hasattr(cv2.aruco, board.dictionary):
+        raise KincalError(f"dictionary {board.dictionary!r} is not one of OpenCV's")
+    out = ImageSet([], [], (0, 0))
+    given: list[Intrinsics] = []
+    for label, image, data in _sources(Path(folder)):
+        q: Array | None = None
+        if data is not None:
+            d = json.loads(data.read_text(encoding="utf-8"))
+            if "joint_pose" in d:
+                q = np.asarray(d["joint_pose"], dtype=float)
+            if "camera_intrinsics" in d:
+                given.append(_intrinsics_from(d["camera_intrinsics"], d.get("dist_coeffs"),
+                                              str(data)))
+        if joints is not None:
+            q = joints.get(label, joints.get(image.name))
+        if q is None and not require_joints:
+            q = np.zeros(0)
+        if q is None:
+            raise KincalError(f"no joint values for image {label!r} (--joints: a row with "
+                              f"image={label})", source=str(folder))
+        gray = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
+        if gray is None:
+            out.dropped.append((label, "cannot be read as an image"))
+            continue
+        out.size = (int(gray.shape[1]), int(gray.shape[0]))
+        ids, uv = detect_board(cv2, gray, board)
+        if len(ids) == 0:
+            out.dropped.append((label, "board not found"))
+        elif len(ids) < min_corners:
+            out.dropped.append((label, f"too few corners ({len(ids)} < {min_corners})"))
+        else:
+            out.detections.append(Detection(label, ids, uv, q))
+    if given:
+        first = given[0]
+        if any(g.pinhole != first.pinhole or g.dist != first.dist for g in given[1:]):
+            raise KincalError("the pose folders state different intrinsics; give one file "
+                              "with --intrinsics", source=str(folder))
+        out.intrinsics = Intrinsics(*first.pinhole, first.dist, "pose folders (data.json)")
+    return out
+
+
+def estimate_intrinsics(images: ImageSet, board: Board) -> Intrinsics:
+    """Pinhole + k1 k2 p1 p2 k3 from the detections by ``cv2.calibrateCamera``."""
+    cv2 = require_opencv()
+    if len(images.detections) < 3:
+        raise KincalError(f"{len(images.detections)} images with the board: estimating "
+                          "intrinsics needs 3 at least; give them with --intrinsics")
+    obj = [board.corner_points(d.ids).astype(np.float32) for d in images.detections]
+    img = [d.uv.astype(np.float32).reshape(-1, 1, 2) for d in images.detections]
+    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, images.size, None, None)
+    return _intrinsics_from(K, dist, f"estimated (cv2.calibrateCamera, RMS {rms:.3g} px)")
+
+
+def undistort(uv: Array, intr: Intrinsics) -> Array:
+    """Undistorted pixels (the pinhole image of the same rays) [px]."""
+    if not any(intr.dist):
+        return uv.copy()
+    cv2 = require_opencv()
+    out = cv2.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64), intr.matrix,
+                              np.asarray(intr.dist, dtype=float), P=intr.matrix)
+    return np.asarray(out, dtype=float).reshape(-1, 2)
+
+
+def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
+                             intr: Intrinsics, sigma_px: float = 0.5, robot: Any = None,
+                             name: str = "camera") -> HandCameraMeasurement:
+    """Write the hand-camera measurement file (module docstring); returns its block."""
+    if not images.detections:
+        raise KincalError("the board was found in no image; nothing to write")
+    ns = {len(d.q) for d in images.detections}
+    if len(ns) != 1:
+        raise KincalError(f"the images have different numbers of joint values: {sorted(ns)}")
+    rows = [len(d.ids) for d in images.detections]
+    q = np.repeat(np.array([d.q for d in images.detections]), rows, axis=0)
+    s = np.vstack([board.corner_points(d.ids) for d in images.detections])
+    uv = np.vstack([undistort(d.uv, intr) for d in images.detections])
+    block = HandCameraMeasurement(name, q, s, uv, sigma_px, intr.pinhole)
+    cols: list[tuple[str, Any, str]] = [(f"target_{c}", s[:, i], "length")
+                                        for i, c in enumerate("xyz")]
+    cols += [("u", uv[:, 0], "pixel"), ("v", uv[:, 1], "pixel")]
+    cols += [(k, np.full(len(q), v), "pixel") for k, v in zip(INTRINSICS, intr.pinhole,
+                                                              strict=True)]
+    cols.append(("sigma", block.sigma, "pixel"))
+    cols.append(("image", [d.image for d, n in zip(images.detections, rows, strict=True)
+                           for _ in range(n)], "text"))
+    cols.append(("corner", np.concatenate([d.ids for d in images.detections]), "text"))
+    dist = " ".join(f"{v:.6g}" for v in intr.dist)
+    write_block_table(path, block_tags("camera", block, mount="hand"), q, cols, None, robot,
+                      [f"board: {board.kind} {board.columns}x{board.rows} squares of "
+                       f"{board.square * 1e3:g} mm; corners from OpenCV, sub-pixel",
+                       f"intrinsics {intr.source}; distortion (k1 k2 p1 p2 k3) {dist} "
+                       "removed: u = fx x/z + cx, v = fy y/z + cy",
+                       f"{len(images.detections)} images, {len(q)} corners; dropped: "
+                       + (", ".join(f"{i} ({r})" for i, r in images.dropped) or "none")])
+    return block
+
+
+def read_image_labels(path: str | Path) -> list[str]:
+    """The ``image`` column of a measurement file, one label per data row."""
+    lines = [ln for ln in Path(path).read_text(encoding="utf-8-sig").splitlines()
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    head = [c.strip() for c in next(csv.reader(lines[:1]))] if lines else []
+    if "image" not in head:
+        raise MeasurementFileError("no 'image' column: held-out images need the file "
+                                   "`kincal import images` writes", source=str(path))
+    k = head.index("image")
+    return [r[k].strip() for r in csv.reader(lines[1:])]
+
+
+def sample_labels(labels: Sequence[str]) -> list[str]:
+    """The distinct labels in name order (independent of the row order)."""
+    return sorted(set(labels))
