@@ -16,7 +16,7 @@ from kincal.identify.hand_eye import check_rotations, hand_eye
 from kincal.identify.hand_eye_fit import fit_hand_camera, split_images
 from kincal.measure.camera_board import Board, board_pose
 from kincal.measure.instruments.camera import HandCameraMeasurement
-from kincal.robots.files import load_robot
+from kincal.robots.files import load_serial_robot
 from kincal.spatial import exp_so3, inverse, log_so3, matrix_from_frame
 
 BOARD = Board("charuco", 5, 7, 0.034, 0.028, "DICT_6X6_250")
@@ -73,7 +73,7 @@ def test_board_pose_from_exact_pixels_is_the_truth() -> None:
 
 def test_closed_form_is_exact_without_noise_and_does_not_depend_on_order() -> None:
     rng = np.random.default_rng(3)
-    robot = load_robot("panda")
+    robot = load_serial_robot("panda")
     block, labels, Z = simulate(robot, 10, 0.0, rng)
     lab = np.array(labels)
     names = sorted(set(labels))
@@ -104,7 +104,7 @@ def test_eye_to_hand_closed_form() -> None:
 
 def test_fit_recovers_the_hand_eye_within_its_stated_error() -> None:
     """Monte Carlo over 8 noise draws: the error's mean square matches the stated one."""
-    robot = load_robot("panda")
+    robot = load_serial_robot("panda")
     ratios_p, ratios_r = [], []
     for seed in range(8):
         rng = np.random.default_rng(100 + seed)
@@ -120,7 +120,7 @@ def test_fit_recovers_the_hand_eye_within_its_stated_error() -> None:
 
 
 def test_fit_with_joint_offsets_recovers_robot_and_hand_eye() -> None:
-    nominal = load_robot("panda")
+    nominal = load_serial_robot("panda")
     offsets = {f"theta_offset[{k}]": v for k, v in
                zip(range(2, 7), [-0.009, -0.0126, -0.0064, 0.0126, -0.0085], strict=True)}
     true = nominal.with_params(offsets)
@@ -137,7 +137,7 @@ def test_fit_with_joint_offsets_recovers_robot_and_hand_eye() -> None:
 
 
 def test_shuffled_rows_give_the_same_fit() -> None:
-    robot = load_robot("panda")
+    robot = load_serial_robot("panda")
     block, labels, _ = simulate(robot, 10, 0.3, np.random.default_rng(7))
     p = np.random.default_rng(1).permutation(len(labels))
     shuffled = HandCameraMeasurement("camera", block.q[p], block.s[p], block.obs[p],
@@ -150,7 +150,7 @@ def test_shuffled_rows_give_the_same_fit() -> None:
 
 
 def test_refuses_rotations_about_one_axis_naming_it() -> None:
-    robot = load_robot("panda")
+    robot = load_serial_robot("panda")
     block, labels, _ = simulate(robot, 8, 0.3, np.random.default_rng(2), only_joint=6)
     with pytest.raises(IdentifiabilityError, match=r"about the flange's z axis.*need 5 deg"):
         fit_hand_camera(robot, block, labels, holdout=0.0)
@@ -190,7 +190,7 @@ def _write(path, block, labels) -> None:
 def test_cli_refuses_in_one_line_and_writes_the_robot(tmp_path, capsys) -> None:
     from cli_helpers import run
 
-    robot = load_robot("panda")
+    robot = load_serial_robot("panda")
     block, labels, _ = simulate(robot, 8, 0.3, np.random.default_rng(2), only_joint=6)
     _write(tmp_path / "bad.csv", block, labels)
     code, out, err = run(capsys, "hand-eye", "panda", "--data", tmp_path / "bad.csv")
@@ -202,7 +202,7 @@ def test_cli_refuses_in_one_line_and_writes_the_robot(tmp_path, capsys) -> None:
                          tmp_path / "cam.yaml")
     assert code == 0, err
     assert "expected error of the hand-eye" in out and "held out" in out
-    tool = load_robot(str(tmp_path / "cam.yaml")).frame_parameters("tool")
+    tool = load_serial_robot(str(tmp_path / "cam.yaml")).frame_parameters("tool")
     flange = matrix_from_frame(robot.frame_parameters("tool"))
     assert np.linalg.norm((flange @ X_TRUE)[:3, 3] - matrix_from_frame(tool)[:3, 3]) < 2e-3
 
@@ -239,7 +239,7 @@ def test_leave_one_out_spread_agrees_with_the_stated_error() -> None:
     itself scatters by tens of percent; 0.9-2.2 times over four seeds)."""
     from kincal.identify.hand_eye_fit import leave_one_out
 
-    robot = load_robot("panda")
+    robot = load_serial_robot("panda")
     block, labels, _ = simulate(robot, 12, 0.3, np.random.default_rng(200))
     lo = leave_one_out(robot, block, labels)
     fit = fit_hand_camera(robot, block, labels, holdout=0.0)
