@@ -45,6 +45,21 @@ def _outputs(program: str, output: str, texts: dict[str, str]) -> dict[str, str]
     return mapping
 
 
+#: What a file of each language starts a routine or module with: a file with one but no
+#: motion target is a program with nothing to filter (an RSI / EKI driver, a homing
+#: routine of joint moves or calls).
+_PROGRAM = {"krl": r"^[ \t]*(?:GLOBAL[ \t]+)?DEF(?:FCT|DAT)?[ \t]+\w",
+            "urscript": r"^[ \t]*def[ \t]+\w+[ \t]*\(", "rapid": r"^[ \t]*MODULE[ \t]+\w",
+            "fanuc-ls": r"^/PROG[ \t]"}
+
+
+def _is_program(dialect: str, texts: dict[str, str]) -> bool:
+    import re
+
+    pattern = re.compile(_PROGRAM.get(dialect, "$^"), re.IGNORECASE | re.MULTILINE)
+    return any(pattern.search(t) for t in texts.values())
+
+
 @app.command("filter")
 def filter_cmd(
     program: Annotated[str, typer.Argument(help="Robot program: KRL .src (its .dat beside it), "
@@ -101,7 +116,7 @@ def filter_cmd(
 
         accuracy = accuracy_from_result(result, cal)
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
-    if not res.reports:
+    if not res.reports and not _is_program(res.dialect, res.originals):
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
                           "written)", source=program)
     targets = _outputs(program, output, res.texts)
@@ -133,6 +148,10 @@ def filter_cmd(
     if len(rows) > _SHOWN:
         out.print(f"({len(rows) - len(shown)} rows without warnings not shown; all rows in "
                   "--csv / --json)")
+    if all(r.status in ("kept", "unused") for r in rows):
+        out.print("nothing to filter: " + ("no motion target in this program" if not rows else
+                                           "every motion target is kept as it is (joint "
+                                           "targets, relative or computed at run time)"))
     if shifts:
         out.print(f"shift of the filtered targets: RMS "
                   f"{math.sqrt(sum(s * s for s in shifts) / len(shifts)):.4f} mm, max "

@@ -168,6 +168,11 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
     if cmap.vendor and cmap.vendor != _VENDOR[d]:
         raise KincalError(f"robot {nominal.name!r} has a {cmap.vendor} controller, but the "
                           f"program is {d}")
+    if any("missing" in t.extra for t in prog.targets):
+        from kincal.compensation.programs.sequence import resolve_partials
+
+        resolve_partials(prog, prog.targets, nominal, cmap, frames, ops.joint_keys,
+                         ops.pose_of, ops.pose_values, ops.frames, offline_joints)
     active = {id(t) for t in prog.targets if not t.note and t.used}
     requests: list[TargetRequest] = []
     tools: list[tuple[Array, Array]] = []
@@ -184,18 +189,24 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
             continue
         user, tool = ops.frames(prog, t, frames)
         F = user @ ops.pose_of(t) @ inverse(tool)
-        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=last_joints,
+        seed = last_joints
+        if "seed_axes" in t.extra:          # URScript get_inverse_kin(pose, qnear=q)
+            seed = last_joints = cmap.to_model(t.extra["seed_axes"])
+        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=seed,
                                       tool=tool))
         tools.append((user, tool))
     result = filter_targets(calibrated, nominal, requests, offline_joints, accuracy, cmap) \
         if requests else None
     edits: dict[str, dict[int, tuple[Slot, float, int]]] = {f: {} for f in prog.texts}
     reports: list[TargetReport] = []
+    written: dict[int, dict[str, float]] = {}
+    filtered_pose: dict[int, Array] = {}
     k = 0
     for t in prog.targets:
         if id(t) not in active:
             status = "unused" if not t.used else "not filtered"
-            if t.note and t.note.startswith(("relative", "used by a relative")):
+            if t.note and (t.note.startswith(("relative", "used by a relative"))
+                           or t.extra.get("kept")):
                 status = "kept"
             reports.append(TargetReport(t.name, t.file, t.line, t.kind, status, 0.0, 0.0,
                                         math.nan, [], t.note or "not used by any motion"))
@@ -220,12 +231,34 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
             new = ops.pose_values(t, T_user)
             axes_now = cmap.to_axes(result.joints[i])
             new.update(ops.config_values(t, axes_now, result.signs[i]))
+            filtered_pose[id(t)] = T_user
         else:
             axes = cmap.to_axes(result.joints[i])
             new = dict(zip(ops.joint_keys, axes, strict=True))
+        new = {k: float(v) for k, v in new.items() if k in t.slots}   # partial: its own
+        written[id(t)] = new
         for key, value in new.items():
             slot = t.slots[key]
-            edits[t.file][slot.start] = (slot, float(value), ops.digits(key))
+            edits[t.file][slot.start] = (slot, value, ops.digits(key))
+    _partial_warnings(prog, ops, reports, written, filtered_pose, frames, nominal, cmap)
     texts = {f: render(text, edits[f], pad=ops.pad) for f, text in prog.texts.items()}
     return FilteredProgram(d, texts, dict(prog.texts), reports, result, path,
                            calibrated.name, nominal.name)
+
+
+def _partial_warnings(prog: Any, ops: DialectOps, reports: list[TargetReport],
+                      written: dict[int, dict[str, float]], filtered_pose: dict[int, Array],
+                      frames: Frames, nominal: Robot, cmap: Any) -> None:
+    """A filtered partial target (components from the previous position) gets the
+    distance between the pose the controller assembles from the filtered program and
+    its filtered pose as a warning (:mod:`~kincal.compensation.programs.sequence`)."""
+    from kincal.compensation.programs.sequence import partial_residual
+
+    for t, r in zip(prog.targets, reports, strict=True):
+        if id(t) not in filtered_pose or "resolved" not in t.extra:
+            continue
+        dp, dr = partial_residual(prog, t, written, filtered_pose[id(t)], ops.pose_of,
+                                  ops.pose_values, ops.frames, frames, nominal, cmap,
+                                  ops.joint_keys)
+        r.warnings.append(f"partial: {', '.join(t.extra['missing']).upper()} from the "
+                          f"previous position, {dp:.4f} mm / {dr:.4f} deg left")
