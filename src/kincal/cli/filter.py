@@ -131,8 +131,10 @@ def filter_cmd(
     rows = res.reports
     n_f = sum(r.status == "filtered" for r in rows)
     shifts = [r.shift_mm for r in rows if r.status == "filtered"]
+    n_p = sum(r.status == "partial" for r in rows)
     table = Table(title=f"{escape(Path(program).name)} ({res.dialect}): {len(rows)} targets, "
-                        f"{n_f} filtered, {len(res.failed)} not filtered")
+                        f"{n_f} filtered, {len(res.failed)} not filtered"
+                        + (f", {n_p} partial" if n_p else ""))
     for col in ("target", "line", "kind", "status", "shift [mm]", "shift [deg]",
                 "predicted std [mm]", "warnings"):
         table.add_column(escape(col), justify="right" if "[" in col or col == "line" else "left")
@@ -142,8 +144,9 @@ def filter_cmd(
         table.add_row(escape(r.name), str(r.line), r.kind, r.status,
                       f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
                       "-" if math.isnan(r.predicted_std_mm) else f"{r.predicted_std_mm:.4f}",
-                      escape(", ".join(r.warnings) + (f": {r.reason}" if r.reason and
-                                                      r.status == "not filtered" else "")))
+                      escape(": ".join(x for x in (", ".join(r.warnings), r.reason if
+                                                   r.status in ("not filtered", "kept",
+                                                                "partial") else "") if x)))
     out.print(table)
     if len(rows) > _SHOWN:
         out.print(f"({len(rows) - len(shown)} rows without warnings not shown; all rows in "

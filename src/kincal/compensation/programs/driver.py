@@ -63,7 +63,7 @@ class TargetReport:
     file: str
     line: int
     kind: str
-    status: str              # filtered | unchanged | not filtered | unused | kept
+    status: str              # filtered | unchanged | not filtered | unused | kept | partial
     shift_mm: float
     shift_deg: float
     predicted_std_mm: float
@@ -200,7 +200,6 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
     edits: dict[str, dict[int, tuple[Slot, float, int]]] = {f: {} for f in prog.texts}
     reports: list[TargetReport] = []
     written: dict[int, dict[str, float]] = {}
-    filtered_pose: dict[int, Array] = {}
     k = 0
     for t in prog.targets:
         if id(t) not in active:
@@ -231,7 +230,6 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
             new = ops.pose_values(t, T_user)
             axes_now = cmap.to_axes(result.joints[i])
             new.update(ops.config_values(t, axes_now, result.signs[i]))
-            filtered_pose[id(t)] = T_user
         else:
             axes = cmap.to_axes(result.joints[i])
             new = dict(zip(ops.joint_keys, axes, strict=True))
@@ -240,25 +238,44 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
         for key, value in new.items():
             slot = t.slots[key]
             edits[t.file][slot.start] = (slot, value, ops.digits(key))
-    _partial_warnings(prog, ops, reports, written, filtered_pose, frames, nominal, cmap)
+    if result is not None:
+        _partial_status(prog, ops, reports, written, tools, frames, calibrated, nominal,
+                        result)
     texts = {f: render(text, edits[f], pad=ops.pad) for f, text in prog.texts.items()}
     return FilteredProgram(d, texts, dict(prog.texts), reports, result, path,
                            calibrated.name, nominal.name)
 
 
-def _partial_warnings(prog: Any, ops: DialectOps, reports: list[TargetReport],
-                      written: dict[int, dict[str, float]], filtered_pose: dict[int, Array],
-                      frames: Frames, nominal: Robot, cmap: Any) -> None:
-    """A filtered partial target (components from the previous position) gets the
-    distance between the pose the controller assembles from the filtered program and
-    its filtered pose as a warning (:mod:`~kincal.compensation.programs.sequence`)."""
-    from kincal.compensation.programs.sequence import partial_residual
+#: A partial target whose run-time pose is this close to its filtered pose [mm, deg]
+#: (the written numbers' resolution) counts as filtered; farther, its status is
+#: ``partial`` with the distance in the reason.
+PARTIAL_TOLERANCE = (1e-3, 1e-4)
+
+
+def _partial_status(prog: Any, ops: DialectOps, reports: list[TargetReport],
+                    written: dict[int, dict[str, float]], tools: list[tuple[Array, Array]],
+                    frames: Frames, calibrated: Robot, nominal: Robot,
+                    result: FilterResult) -> None:
+    """A filtered partial target takes its left-out components from the previous target
+    at run time (:mod:`~kincal.compensation.programs.sequence`): where the real robot,
+    at the nominal controller's joints for that assembled pose, misses the target by more
+    than :data:`PARTIAL_TOLERANCE`, its status is ``partial`` with the distance."""
+    from kincal.compensation.filter import refine
+    from kincal.compensation.programs.sequence import pose_distance, run_time_pose
 
     for t, r in zip(prog.targets, reports, strict=True):
-        if id(t) not in filtered_pose or "resolved" not in t.extra:
+        if r.index is None or id(t) not in written or "resolved" not in t.extra:
             continue
-        dp, dr = partial_residual(prog, t, written, filtered_pose[id(t)], ops.pose_of,
-                                  ops.pose_values, ops.frames, frames, nominal, cmap,
-                                  ops.joint_keys)
-        r.warnings.append(f"partial: {', '.join(t.extra['missing']).upper()} from the "
-                          f"previous position, {dp:.4f} mm / {dr:.4f} deg left")
+        i = r.index
+        user, tool = tools[i]
+        P = run_time_pose(prog, t, written, ops.pose_of, ops.pose_values, ops.frames, frames)
+        q, ok = refine(nominal, (user @ P @ inverse(tool))[None], result.joints[i][None])
+        real = inverse(user) @ calibrated.fk(q[0]) @ tool
+        dp, dr = pose_distance(real, ops.pose_of(t))
+        if not ok[0] or dp > PARTIAL_TOLERANCE[0] or dr > PARTIAL_TOLERANCE[1]:
+            given = ", ".join(k for k in t.slots if k not in ("s", "t")).upper()
+            r.status = "partial"
+            r.reason = (f"partial aggregate: {given} rewritten, "
+                        f"{', '.join(t.extra['missing']).upper()} come from the previous "
+                        f"position at run time: the robot misses the target by {dp:.4f} mm "
+                        f"/ {dr:.4f} deg (write the aggregate in full to filter it)")

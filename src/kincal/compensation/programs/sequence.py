@@ -115,34 +115,45 @@ def resolve_partials(prog: Any, targets: Sequence[ProgramTarget], nominal: Robot
             resolve(t)
 
 
-def partial_residual(prog: Any, t: ProgramTarget, new: Mapping[int, dict[str, float]],
-                     target_pose: Array, pose_of: Callable[[ProgramTarget], Array],
-                     pose_values: Callable[[ProgramTarget, Array], dict[str, float]],
-                     frames_of: FramesOf, frames: Frames, nominal: Robot,
-                     cmap: ControllerMap, joint_keys: Sequence[str]) -> tuple[float, float]:
-    """How far [mm, deg] the pose the controller assembles at run time for the partial
-    target ``t`` (its rewritten components, the others from the previous target as the
-    filtered program writes it) is from its filtered pose ``target_pose`` (user frame)."""
-    pt, pfr = t.extra["previous"]
-    prev_new = new.get(id(pt))
-    if pt.kind == "joints" or prev_new is None:
-        missing = dict(t.extra["resolved"])
-    else:
-        pvals = {k: float(pt.values([k])[0]) for k in pt.slots}
-        pvals.update(prev_new)
-        if "resolved" in pt.extra:
-            pvals.update({k: v for k, v in pt.extra["resolved"].items() if k not in pvals})
-        prev_after = _with_values(pt, pvals)
-        F = _flange(prog, prev_after, pose_of, frames_of, frames, _frames_key(pfr))
-        user, tool = frames_of(prog, t, frames)
-        full = pose_values(t, inverse(user) @ F @ tool)
-        if _frames_key(pfr) == (t.tool_key, t.base_key):
-            full = {k: pvals[k] for k in t.extra["missing"]}
-        missing = {k: full[k] for k in t.extra["missing"]}
+def run_time_values(prog: Any, t: ProgramTarget, new: Mapping[int, dict[str, float]],
+                    pose_of: Callable[[ProgramTarget], Array],
+                    pose_values: Callable[[ProgramTarget, Array], dict[str, float]],
+                    frames_of: FramesOf, frames: Frames, depth: int = 0) -> dict[str, float]:
+    """All components of target ``t`` as the controller has them at run time in the
+    filtered program: its own as rewritten (``new``, by target id), the left-out ones
+    from the previous target as it is at run time (recursively, for a chain of partial
+    targets)."""
     mine = {k: float(t.slots[k].value) for k in t.slots}
     mine.update(new.get(id(t), {}))
-    run = _with_values(t, {**missing, **mine})
-    P = pose_of(run)
-    dp = float(np.linalg.norm(P[:3, 3] - target_pose[:3, 3]) * 1e3)
-    dr = float(np.degrees(np.linalg.norm(log_so3(P[:3, :3] @ target_pose[:3, :3].T))))
+    if "missing" not in t.extra:
+        return mine
+    pt, pfr = t.extra["previous"]
+    if pt.kind == "joints" or depth > 50:
+        return {**t.extra["resolved"], **mine}
+    pvals = run_time_values(prog, pt, new, pose_of, pose_values, frames_of, frames, depth + 1)
+    if _frames_key(pfr) == (t.tool_key, t.base_key):
+        missing = {k: pvals[k] for k in t.extra["missing"]}
+    else:
+        F = _flange(prog, _with_values(pt, pvals), pose_of, frames_of, frames,
+                    _frames_key(pfr))
+        user, tool = frames_of(prog, t, frames)
+        full = pose_values(t, inverse(user) @ F @ tool)
+        missing = {k: full[k] for k in t.extra["missing"]}
+    return {**missing, **mine}
+
+
+def run_time_pose(prog: Any, t: ProgramTarget, new: Mapping[int, dict[str, float]],
+                  pose_of: Callable[[ProgramTarget], Array],
+                  pose_values: Callable[[ProgramTarget, Array], dict[str, float]],
+                  frames_of: FramesOf, frames: Frames) -> Array:
+    """The pose (user frame, [m]) the controller assembles at run time for the partial
+    target ``t`` of the filtered program (:func:`run_time_values`)."""
+    return pose_of(_with_values(t, run_time_values(prog, t, new, pose_of, pose_values,
+                                                   frames_of, frames)))
+
+
+def pose_distance(A: Array, B: Array) -> tuple[float, float]:
+    """``|p_A - p_B|`` [mm] and the angle between the rotations [deg] of two poses."""
+    dp = float(np.linalg.norm(A[:3, 3] - B[:3, 3]) * 1e3)
+    dr = float(np.degrees(np.linalg.norm(log_so3(A[:3, :3] @ B[:3, :3].T))))
     return dp, dr

@@ -160,10 +160,6 @@ class _Reader:
             bracket = at + (1 if s.startswith("p") else 0)
             slots, after = _numbers(self.text, self.code, bracket)
             if slots is not None and not self.code[after:end].strip():
-                if len(slots) != 6:
-                    what = "pose" if s.startswith("p") else "joint list"
-                    raise fail(self.path, self.text, bracket,
-                               f"{what} needs 6 numbers, got {len(slots)}")
                 return _Value("pose" if s.startswith("p") else "joints", bracket, slots, s)
         if s.startswith("p[") and _close(self.code, at + 1) < 0:
             raise fail(self.path, self.text, at + 1, "pose: '[' is not closed")
@@ -281,6 +277,9 @@ def read_urscript(path: str) -> UrProgram:
                 t.note = "used with two different TCPs"
             continue
         assert v.slots is not None
+        if len(v.slots) != 6:
+            what = "pose" if v.kind == "pose" else "joint list"
+            raise fail(path, text, v.at, f"{what} needs 6 numbers, got {len(v.slots)}")
         keys = POSE_KEYS if v.kind == "pose" else JOINT_KEYS
         name = f"line {line}" if line == call_line else f"line {line} (used line {call_line})"
         t = ProgramTarget(name, path, line, col, v.kind, dict(zip(keys, v.slots, strict=True)))
@@ -289,7 +288,7 @@ def read_urscript(path: str) -> UrProgram:
         if tcp is not None and tcp.slots is None and v.kind == "pose":
             t.note = f"the TCP is computed at run time: {_short(tcp.text)}"
         if seed is not None:
-            if seed.kind == "joints" and seed.slots is not None:
+            if seed.kind == "joints" and seed.slots is not None and len(seed.slots) == 6:
                 t.extra["seed_axes"] = np.array([s.value for s in seed.slots])
             elif v.kind == "pose":
                 t.note = f"qnear of get_inverse_kin is not known here: {_short(seed.text)}"
