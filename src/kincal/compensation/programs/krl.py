@@ -464,8 +464,7 @@ class _SrcReader:
             t.extra["kept"] = True
         elif _HOME.fullmatch(name):
             t.kind = "joints"
-            t.note = (f"{name}: an axis position of $config.dat (KUKA declares the home "
-                      "positions as E6AXIS): a joint target, kept")
+            t.note = f"{name}: an axis position (E6AXIS) of $config.dat: kept"
             t.extra["kept"] = True
         elif name.upper() in self.local:
             t.note = f"computed at run time: {name} is a variable of the program"
