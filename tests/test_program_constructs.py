@@ -44,6 +44,7 @@ CORPUS = [
     ("krl", "kr6", "hand_moves.src", "krl_frames.yaml"),
     ("krl", "kr6", "Go_Home.src", None),
     ("krl", "kr6", "rsi_driver.src", None),
+    ("krl", "kr6", "eki_driver.src", None),
     ("urscript", "ur5", "pick_and_place.script", None),
     ("urscript", "ur5", "reassign.script", None),
     ("urscript", "ur5", "polyscope_export.script", None),
@@ -260,6 +261,24 @@ def test_kss8_inline_forms_and_spline_blocks_use_the_frames_their_motion_names(t
             assert dp > 1e-5, name
 
 
+def test_tool_data_of_an_fdat_number_is_the_same_as_stool2(tmp_path, robots):
+    """``$TOOL = TOOL_DATA[FP2.TOOL_NO]`` and ``$BASE = BASE_DATA[FP2.BASE_NO]`` in the WITH
+    clause mean what STOOL2(FP2) / SBASE(FP2.BASE_NO) mean: the same filtered program."""
+    nom, cal, _ = robots["kr6"]
+    src = _copy(tmp_path, "spline_cell.src")
+    fr = read_frames(str(tmp_path / "spline_frames.yaml"))
+    before = filter_program(str(src), cal, nom, "krl", fr)
+    text = src.read_bytes().replace(b"$TOOL = STOOL2(FP2), $BASE = SBASE(FP2.BASE_NO)",
+                                    b"$TOOL = TOOL_DATA[FP2.TOOL_NO], $BASE = BASE_DATA["
+                                    b"FP2.BASE_NO]")
+    assert text != src.read_bytes()
+    src.write_bytes(text)
+    after = filter_program(str(src), cal, nom, "krl", fr)
+    dat = str(tmp_path / "spline_cell.dat")
+    assert after.texts[dat] == before.texts[dat]
+    assert [r.status for r in after.reports] == [r.status for r in before.reports]
+
+
 def test_dat_items_the_filter_does_not_need_never_stop_it(tmp_path, robots):
     """Booleans, enums, strings with commas, nested aggregates, other types (LDAT, PDAT,
     BOOL, CHAR) anywhere in the .dat, and such items inside FDAT and E6POS."""
@@ -332,6 +351,7 @@ BAD = [   # (program, old, new, the row's reason, exit code)
     ("spline_cell.dat", "DECL FDAT FP2={TOOL_NO 2,BASE_NO 3,IPO_FRAME #BASE",
      "DECL FDAT FP2={TOOL_NO 2,BASE_NO 3,IPO_FRAME #TCP", "external TCP", 1),
     ("spline_cell.src", "STOOL2(FP2)", "STOOL2(FP99)", "FP99", 1),
+    ("weld_seam.src", "FDAT_ACT=FP1", "FDAT_ACT=FGLOBAL", "FDAT_ACT = FGLOBAL", 1),
     ("spline_cell.src", "SLIN XP2 WITH", "SLIN XGLOBAL WITH", "declared outside", 1),
     ("hand_moves.src", "BAS(#INITMOV,0)\r\n", "BAS(#INITMOV,0)\r\nLIN {X 1, Y 2}\r\n",
      "the previous position is not known", 1),
@@ -438,7 +458,7 @@ def test_a_polyscope_export_is_filtered_with_each_waypoints_qnear(tmp_path, robo
     assert "computed at run time: pose_trans(Plane_1" in res.reports[3].reason
 
 
-@pytest.mark.parametrize("program", ["Go_Home.src", "rsi_driver.src",
+@pytest.mark.parametrize("program", ["Go_Home.src", "rsi_driver.src", "eki_driver.src",
                                      "external_control.script"])
 def test_a_program_without_local_targets_has_nothing_to_filter(program, tmp_path, capsys):
     robot = "ur5" if program.endswith(".script") else "kr6"

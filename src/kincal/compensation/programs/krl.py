@@ -263,12 +263,19 @@ def read_krl(path: str) -> KrlProgram:
     targets: list[ProgramTarget] = []
     by_name: dict[str, ProgramTarget] = {}
     fdat: dict[str, _Fdat] = {}
+    no_value: set[str] = set()
     if dat_path is not None:
         dtext = read_program_text(dat_path)
         texts[str(dat_path)] = dtext
         for off, code in _lines(dtext):
             m = _DECL.match(code)
             if m is None:
+                bare = _SRC_DECL.match(code)
+                if bare and "=" not in code:
+                    for part in bare.group(1).split(","):
+                        nm = _NAME.match(part.strip())
+                        if nm:
+                            no_value.add(nm.group(0).upper())
                 continue
             typ, name = m.group(1).upper(), m.group(2)
             agg = parse_aggregate(str(dat_path), dtext, off + m.end() - 1)
@@ -285,7 +292,9 @@ def read_krl(path: str) -> KrlProgram:
     if src_path is not None:
         stext = read_program_text(src_path)
         texts[str(src_path)] = stext
-        _SrcReader(str(src_path), stext, targets, by_name, fdat).read()
+        reader = _SrcReader(str(src_path), stext, targets, by_name, fdat)
+        reader.local |= no_value
+        reader.read()
     return KrlProgram(texts, targets, str(src_path) if src_path else "",
                       str(dat_path) if dat_path else None)
 
@@ -343,6 +352,11 @@ class _SrcReader:
         """Apply ``$TOOL`` / ``$BASE`` / ``$IPO_MODE`` ``= value`` to ``fr``."""
         v = value.strip()
         vu = v.upper().replace(" ", "")
+        ref = re.fullmatch(r"(TOOL|BASE)_DATA\[([A-Z_$][\w$]*)\.(?:TOOL|BASE)_NO\]", vu)
+        if ref and var == ref.group(1):           # TOOL_DATA[FP1.TOOL_NO]
+            f = self.fdat.get(ref.group(2))
+            n = None if f is None else (f.tool if var == "TOOL" else f.base)
+            v = vu = f"{var}_DATA[{n}]" if n is not None else v
         if var == "TOOL":
             m = re.fullmatch(r"TOOL_DATA\[(\d+)\]", vu)
             if m or vu == "$NULLFRAME":
@@ -396,6 +410,10 @@ class _SrcReader:
                 self.frames.tool = f.tool if f.tool is not None else self.frames.tool
                 self.frames.base = f.base if f.base is not None else self.frames.base
                 self.frames.ipo = f.ipo or "#BASE"
+            else:
+                self.frames.tool = self.frames.base = None
+                self.frames.why = (f"FDAT_ACT = {m.group(1)}: that FDAT is not in this "
+                                   "program's .dat")
 
     # -- program -----------------------------------------------------------------
     def read(self) -> None:
@@ -467,7 +485,7 @@ class _SrcReader:
             t.note = f"{name}: an axis position (E6AXIS) of $config.dat: kept"
             t.extra["kept"] = True
         elif name.upper() in self.local:
-            t.note = f"computed at run time: {name} is a variable of the program"
+            t.note = f"computed at run time: {name} is a variable without a written value"
             t.extra["kept"] = True
         else:
             t.note = (f"{name} is declared outside this program's .dat ($config.dat or "
