@@ -355,8 +355,9 @@ class _SrcReader:
         ref = re.fullmatch(r"(TOOL|BASE)_DATA\[([A-Z_$][\w$]*)\.(?:TOOL|BASE)_NO\]", vu)
         if ref and var == ref.group(1):           # TOOL_DATA[FP1.TOOL_NO]
             f = self.fdat.get(ref.group(2))
-            n = None if f is None else (f.tool if var == "TOOL" else f.base)
-            v = vu = f"{var}_DATA[{n}]" if n is not None else v
+            number = None if f is None else (f.tool if var == "TOOL" else f.base)
+            if number is not None:
+                v = vu = f"{var}_DATA[{number}]"
         if var == "TOOL":
             m = re.fullmatch(r"TOOL_DATA\[(\d+)\]", vu)
             if m or vu == "$NULLFRAME":
@@ -370,9 +371,9 @@ class _SrcReader:
                 fr.tool, fr.why = None, f"$TOOL = {v}: computed at run time"
         elif var == "BASE":
             m = re.fullmatch(r"BASE_DATA\[(\d+)\]", vu)
-            n = re.fullmatch(r"SBASE\((\d+)\)", vu)
-            if m or n or vu == "$NULLFRAME":
-                fr.base = m.group(1) if m else (n.group(1) if n else "0")
+            sb = re.fullmatch(r"SBASE\((\d+)\)", vu)
+            if m or sb or vu == "$NULLFRAME":
+                fr.base = m.group(1) if m else (sb.group(1) if sb else "0")
             elif vu.startswith(("SBASE(", "EK(")):
                 f = self.fdat.get(_fdat_of(v[v.index("(") + 1:]))
                 fr.base = None if f is None else f.base
