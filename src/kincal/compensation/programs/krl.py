@@ -43,7 +43,6 @@ from kincal.compensation.programs.base import (
     ProgramTarget,
     Slot,
     fail,
-    number_slot,
     pose_mm_deg,
     position,
     read_program_text,
@@ -78,6 +77,7 @@ _BAS = re.compile(r"\bBAS[ \t]*\([ \t]*#(TOOL|BASE)[ \t]*,[ \t]*(\d+)[ \t]*\)", 
 _FDAT_ACT = re.compile(r"\bFDAT_ACT[ \t]*=[ \t]*([A-Za-z_$][\w$]*)", re.IGNORECASE)
 _WITH = re.compile(r"\bWITH\b", re.IGNORECASE)
 _NAME = re.compile(r"[A-Za-z_$][\w$]*")
+_ITEM = re.compile(r"([A-Za-z_$][\w$]*(?:\[\])?)[ \t]*")
 #: KUKA's standard $config.dat declares the home positions XHOME, XHOME1... as E6AXIS.
 _HOME = re.compile(r"X?HOME\d*", re.IGNORECASE)
 
@@ -107,6 +107,12 @@ def _lines(text: str) -> list[tuple[int, str]]:
 def _split(body: str) -> list[tuple[int, str]]:
     """(offset, text) of the top-level comma-separated parts of ``body`` (nested
     ``{}``, ``()``, ``[]`` and strings kept whole)."""
+    if not any(ch in body for ch in '"{([})]'):
+        parts, pos, flat = body.split(","), 0, []
+        for part in parts:
+            flat.append((pos, part))
+            pos += len(part) + 1
+        return flat
     out: list[tuple[int, str]] = []
     depth, begin, inside = 0, 0, False
     for i, ch in enumerate(body):
@@ -127,6 +133,10 @@ def _split(body: str) -> list[tuple[int, str]]:
 
 def _closing(text: str, start: int, end: int) -> int:
     """Index of the ``}`` closing the ``{`` at ``text[start]`` before ``end``, or -1."""
+    first = text.find("}", start, end)
+    if first >= 0 and text.find("{", start + 1, first) < 0 and \
+            text.find('"', start, first) < 0:
+        return first                         # the usual flat aggregate
     depth, inside = 0, False
     for i in range(start, end):
         ch = text[i]
@@ -173,7 +183,7 @@ def parse_aggregate(path: str, text: str, start: int) -> Aggregate:
         b = item.strip()
         if not b:
             raise fail(path, text, at, "empty aggregate item")
-        m = re.match(r"([A-Za-z_$][\w$]*(?:\[\])?)[ \t]*", b)
+        m = _ITEM.match(b)
         if m is None:
             raise fail(path, text, at, f"aggregate item {b!r} has no name")
         key = m.group(1).upper()
@@ -183,7 +193,7 @@ def parse_aggregate(path: str, text: str, start: int) -> Aggregate:
         vstart = at + m.end()
         where[key] = vstart
         if NUMBER.fullmatch(value):
-            numbers[key] = number_slot(path, text, vstart, vstart + len(value), f"item {key}")
+            numbers[key] = Slot(vstart, vstart + len(value), value, float(value))
         else:
             other[key] = value
     return Aggregate(start, close + 1, numbers, other, where)
@@ -333,7 +343,8 @@ class _SrcReader:
         self.block: _Frames | None = None
         self.previous: tuple[ProgramTarget, _Frames] | str = "the start of the program"
         self.local: set[str] = set()
-        for _, code in _lines(text):
+        self.lines = _lines(text)
+        for _, code in self.lines:
             d = _SRC_DECL.match(code)
             if d:
                 for part in d.group(1).split(","):
@@ -418,7 +429,7 @@ class _SrcReader:
 
     # -- program -----------------------------------------------------------------
     def read(self) -> None:
-        for off, code in _lines(self.text):
+        for off, code in self.lines:
             if _ENDBLOCK.match(code):
                 self.block = None
                 continue

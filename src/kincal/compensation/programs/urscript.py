@@ -78,6 +78,10 @@ def code_of(text: str) -> str:
 
 def _close(code: str, start: int) -> int:
     """Index of the bracket closing the one at ``code[start]`` (``(`` or ``[``), or -1."""
+    if code[start] == "[":                   # the usual flat list
+        first = code.find("]", start)
+        if first >= 0 and not any(ch in code[start + 1:first] for ch in "[(\n"):
+            return first
     depth = 0
     for i in range(start, len(code)):
         if code[i] in "([":
