@@ -357,6 +357,12 @@ BAD = [   # (program, old, new, the row's reason, exit code)
      "the previous position is not known", 1),
     ("hand_moves.src", "PTP {A1 15.0}", "MOVE_IT()\r\nPTP {A1 15.0}",
      "the previous position (line", 1),
+    ("hand_moves.src", "LIN {X 320.0, Y -150.0, Z 480.0}", "LIN {X 320.0, Y P.Y, Z P.Z}",
+     "partly computed at run time (Y P.Y), partly written (X)", 1),
+    ("hand_moves.src", "LIN {X 320.0, Y -150.0, Z 480.0}", "LIN {X P.X, Y P.Y, Z P.Z}",
+     "computed at run time: X P.X", 0),
+    ("reassign.script", "wp = p[-0.40, -0.30, 0.20,", "wp = p[-0.40, -0.30, z,",
+     "partly computed at run time, partly written", 1),
     ("reassign.script", "  movel(wp, a=1.2, v=0.25)\n  wp = p[-0.40",
      "  movel(wq, a=1.2, v=0.25)\n  wq = p[-0.40", "", 0),
     ("reassign.script", "  wp = p[-0.45",
@@ -439,7 +445,8 @@ def test_a_pose_variable_assigned_twice_gives_two_targets_each_filtered(tmp_path
 def test_a_polyscope_export_is_filtered_with_each_waypoints_qnear(tmp_path, robots):
     """movej(get_inverse_kin(Waypoint_1_p, qnear=Waypoint_1_q)), movel, optimovej and
     optimovel (UR 5.21 / 10.8): each waypoint pose is filtered on the branch of its
-    qnear; the waypoint relative to a feature (pose_trans) is listed as computed."""
+    qnear; a waypoint relative to a feature, pose_trans(Plane_1, p[...]), in that
+    feature's frame (which stays)."""
     nom, cal, _ = robots["ur5"]
     src = _copy(tmp_path, "polyscope_export.script")
     res = filter_program(str(src), cal, nom, "urscript")
@@ -454,8 +461,13 @@ def test_a_polyscope_export_is_filtered_with_each_waypoints_qnear(tmp_path, robo
         q, dp, dr = _ur_reach(nom, cal, ur_pose(new[line]), ur_pose(old[line]), tcp, qs[k])
         assert dp < TOL_P and dr < TOL_R, k
         assert np.abs(q - qs[k]).max() < 0.05                      # the qnear branch
-    assert [r.status for r in res.reports] == ["filtered"] * 3 + ["kept"]
-    assert "computed at run time: pose_trans(Plane_1" in res.reports[3].reason
+    assert [r.status for r in res.reports] == ["filtered"] * 4
+    # the waypoint relative to the feature Plane_1: the pose in it is rewritten
+    plane = ur_pose(_literals(text_old)[13])
+    assert _literals(text_new)[13] == _literals(text_old)[13]
+    q, dp, dr = _ur_reach(nom, cal, plane @ ur_pose(new[30]), plane @ ur_pose(old[30]), tcp,
+                          qs[1])
+    assert dp < TOL_P and dr < TOL_R
 
 
 @pytest.mark.parametrize("program", ["Go_Home.src", "rsi_driver.src", "eki_driver.src",
@@ -595,7 +607,8 @@ def ur_programs(draw):
         d = draw(st.integers(3, 6))
         lit = "p[" + ", ".join(_fmt(float(x), d) for x in [*T[:3, 3], *r]) + "]"
         qlit = "[" + ", ".join(_fmt(float(x), 4) for x in q) + "]"
-        form = draw(st.sampled_from(["literal", "var", "ik", "optimovel", "computed"]))
+        form = draw(st.sampled_from(["literal", "var", "ik", "optimovel", "computed",
+                                     "feature"]))
         if form == "literal":
             lines.append(f"  movel({lit}, a=1.2, v=0.25)")
         elif form == "var":
@@ -605,6 +618,13 @@ def ur_programs(draw):
                       f"  movej(get_inverse_kin(W{k}_p, qnear=W{k}_q), a=1.4, v=1.05)"]
         elif form == "optimovel":
             lines += [f"  wp = {lit}", "  optimovel(wp, a=0.3, v=0.3)"]
+        elif form == "feature":                  # PolyScope: a waypoint in a feature's frame
+            plane = ur_pose([-0.25, -0.4, 0.1, 0.0, 0.0, 1.5708])
+            rel = np.linalg.inv(plane) @ T
+            lit = "p[" + ", ".join(_fmt(float(x), d) for x in [*rel[:3, 3],
+                                                                *log_so3(rel[:3, :3])]) + "]"
+            lines += ["  global Plane_1=p[-0.25, -0.4, 0.1, 0.0, 0.0, 1.5708]",
+                      f"  movel(pose_trans(Plane_1, {lit}), a=1.2, v=0.25)"]
         else:
             lines.append("  movel(pose_trans(get_actual_tcp_pose(), p[0, 0, 0.01, 0, 0, 0]))")
     return "\n".join(lines + ["end", "prog()", ""])

@@ -212,8 +212,13 @@ def _target(path: str, text: str, name: str, agg: Aggregate, kind_hint: str,
         kind_hint == "" and any(k in agg.numbers or k in agg.other for k in AXIS_KEYS))
     if bad:
         t = ProgramTarget(name, path, line, col, "joints" if axis else "pose", {})
-        t.note = f"computed at run time: {bad[0]} {agg.other[bad[0]]}"
-        t.extra["kept"] = True
+        written = sorted((set(agg.numbers) & _NEEDED) - {"S", "T"})
+        if written:          # absolute numbers that would need filtering, mixed with run time
+            t.note = (f"partly computed at run time ({bad[0]} {agg.other[bad[0]]}), partly "
+                      f"written ({', '.join(written)}): not filtered")
+        else:
+            t.note = f"computed at run time: {bad[0]} {agg.other[bad[0]]}"
+            t.extra["kept"] = True
         return t
     if axis:
         slots = {k.lower(): agg.numbers[k] for k in AXIS_KEYS if k in agg.numbers}

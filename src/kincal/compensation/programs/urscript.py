@@ -11,6 +11,10 @@ What is read (URScript manual syntax), in program (text) order:
   last before it in the text (a variable assigned twice gives two targets).  A value that
   is not a literal of numbers (``pose_trans(...)``, ``[params[2] / 1000, ...]``,
   ``get_actual_tcp_pose()``) is computed at run time: listed, not filtered;
+* ``pose_trans(feature, pose)`` of two written poses (PolyScope's waypoints relative to a
+  feature): ``pose`` is the target, written in the frame ``feature``, which stays (when
+  the feature is itself a motion target, the pose is relative to it, as ``_REL`` in KRL:
+  left as it is);
 * ``set_tcp(p[...])`` sets the tool for the motions after it.
 
 ``#`` starts a comment.  Poses are in the robot's base frame.  URScript states no
@@ -165,6 +169,14 @@ class _Reader:
             slots, after = _numbers(self.text, self.code, bracket)
             if slots is not None and not self.code[after:end].strip():
                 return _Value("pose" if s.startswith("p") else "joints", bracket, slots, s)
+            close = _close(self.code, bracket)
+            parts = [x.strip() for x in self.code[bracket + 1:close].split(",")] \
+                if close > 0 else []
+            _check_literal(self, _Value("computed", at, None, s))     # misspelt numbers
+            numeric = sum(NUMBER.fullmatch(x) is not None for x in parts)
+            if 0 < numeric < len(parts) and not self.code[close + 1:end].strip():
+                return _Value("unknown", at, None,
+                              f"{_short(s)}: partly computed at run time, partly written")
         if s.startswith("p[") and _close(self.code, at + 1) < 0:
             raise fail(self.path, self.text, at + 1, "pose: '[' is not closed")
         return _Value("computed", at, None, s)
@@ -214,6 +226,26 @@ class UrProgram:
     targets: list[ProgramTarget]
 
 
+_POSE_TRANS = re.compile(r"pose_trans\s*\(")
+
+
+def _target_of(reader: _Reader, off: int, a: str, use: int) -> tuple[_Value, _Value | None]:
+    """A motion's target argument ``a`` at ``off``: its value and, for
+    ``pose_trans(F, P)`` of two written poses (a PolyScope waypoint relative to a feature),
+    ``F`` as the frame the pose ``P`` is written in."""
+    s = a.strip()
+    pt = _POSE_TRANS.match(s)
+    if pt is not None:
+        at = off + len(a) - len(a.lstrip())
+        inner = _args(reader.code, at + pt.end())
+        if len(inner) == 2:
+            frame = reader.value(inner[0][0], inner[0][0] + len(inner[0][1]), use)
+            pose = reader.value(inner[1][0], inner[1][0] + len(inner[1][1]), use)
+            if frame.kind == pose.kind == "pose" and frame.slots and len(frame.slots) == 6:
+                return pose, frame
+    return reader.value(off, off + len(a), use), None
+
+
 def _events(reader: _Reader) -> list[tuple[int, str, object]]:
     """(offset, what, data) of every set_tcp and motion target, in text order."""
     code = reader.code
@@ -230,7 +262,7 @@ def _events(reader: _Reader) -> list[tuple[int, str, object]]:
             if ik is not None:
                 at = off + len(a) - len(a.lstrip())
                 inner = _args(code, at + ik.end())
-                v = reader.value(inner[0][0], inner[0][0] + len(inner[0][1]), m.start())
+                v, user = _target_of(reader, inner[0][0], inner[0][1], m.start())
                 seed: _Value | None = None
                 for ioff, ia in inner[1:]:
                     kw = re.match(r"\s*(\w+)\s*=", ia)
@@ -239,11 +271,11 @@ def _events(reader: _Reader) -> list[tuple[int, str, object]]:
                     elif kw and kw.group(1) == "tcp":
                         v = _Value("computed", v.at, None,
                                    "get_inverse_kin with a tcp of its own")
-                events.append((m.start(), m.group(1), (v, seed)))
+                events.append((m.start(), m.group(1), (v, seed, user)))
                 continue
-            v = reader.value(off, off + len(a), m.start())
+            v, user = _target_of(reader, off, a, m.start())
             _check_literal(reader, v)
-            events.append((m.start(), m.group(1), (v, None)))
+            events.append((m.start(), m.group(1), (v, None, user)))
     events.sort(key=lambda e: e[0])
     return events
 
@@ -261,7 +293,7 @@ def read_urscript(path: str) -> UrProgram:
             tcp = data
             continue
         assert isinstance(data, tuple)
-        v, seed = data
+        v, seed, user = data
         line, col = position(text, v.at)
         call_line = position(text, start)[0]
         if v.kind in ("computed", "unknown"):
@@ -275,10 +307,14 @@ def read_urscript(path: str) -> UrProgram:
             continue
         tcp_key = None if tcp is None or tcp.slots is None else \
             tuple(s.value for s in tcp.slots)
+        user_key = None if user is None or user.slots is None else \
+            tuple(s.value for s in user.slots)
         if v.at in seen:
             t = seen[v.at]
             if t.extra.get("tcp_key") != tcp_key:
                 t.note = "used with two different TCPs"
+            if t.extra.get("user_key") != user_key:
+                t.note = "used in two different frames (pose_trans)"
             continue
         assert v.slots is not None
         if len(v.slots) != 6:
@@ -289,6 +325,10 @@ def read_urscript(path: str) -> UrProgram:
         t = ProgramTarget(name, path, line, col, v.kind, dict(zip(keys, v.slots, strict=True)))
         t.extra["tcp"] = None if tcp_key is None else np.array(tcp_key)
         t.extra["tcp_key"] = tcp_key
+        t.extra["user_key"] = user_key
+        if user_key is not None:
+            t.extra["user"] = np.array(user_key)
+            t.extra["user_at"] = user.at if user is not None else -1
         if tcp is not None and tcp.slots is None and v.kind == "pose":
             t.note = f"the TCP is computed at run time: {_short(tcp.text)}"
         if seed is not None:
@@ -298,6 +338,11 @@ def read_urscript(path: str) -> UrProgram:
                 t.note = f"qnear of get_inverse_kin is not known here: {_short(seed.text)}"
         seen[v.at] = t
         targets.append(t)
+    for t in targets:            # a feature that is itself a target would move with it
+        if t.extra.get("user_at", -1) in seen and not t.note:
+            t.note = ("relative to a pose that is itself a motion target (pose_trans): left "
+                      "as it is")
+            t.extra["kept"] = True
     return UrProgram({path: text}, targets)
 
 
@@ -312,9 +357,11 @@ def pose_matrix(v: Array) -> Array:
 
 
 def frames(prog: UrProgram, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
-    """(base frame = identity, the TCP set before the motion)."""
-    tcp = t.extra.get("tcp")
-    return np.eye(4), (np.eye(4) if tcp is None else pose_matrix(tcp))
+    """(the feature of ``pose_trans(feature, pose)`` or the base frame, the TCP set
+    before the motion)."""
+    tcp, user = t.extra.get("tcp"), t.extra.get("user")
+    return (np.eye(4) if user is None else pose_matrix(user),
+            np.eye(4) if tcp is None else pose_matrix(tcp))
 
 
 def pose_of(t: ProgramTarget) -> Array:
