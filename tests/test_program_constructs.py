@@ -347,6 +347,19 @@ def test_partial_aggregates_take_the_previous_position_as_the_controller_does(tm
             assert abs(math.degrees(dr) - float(reported.group(2))) < 2e-4, r.name
 
 
+def test_a_partial_axis_target_is_kept_when_taught_and_listed_when_offline(tmp_path, robots):
+    """PTP {A1 15.0}: taught, a joint target that stays; as an offline-programmed one its
+    other axes would come from the previous (rewritten) axis target: not filtered."""
+    nom, cal, _ = robots["kr6"]
+    src = _copy(tmp_path, "hand_moves.src")
+    fr = read_frames(str(tmp_path / "krl_frames.yaml"))
+    taught = {r.line: r for r in filter_program(str(src), cal, nom, "krl", fr).reports}
+    offline = {r.line: r for r in filter_program(str(src), cal, nom, "krl", fr,
+                                                  offline_joints=True).reports}
+    assert taught[10].status == "kept" and offline[9].status == "filtered"
+    assert offline[10].status == "not filtered" and "offline" in offline[10].reason
+
+
 BAD = [   # (program, old, new, the row's reason, exit code)
     ("spline_cell.dat", "DECL FDAT FP2={TOOL_NO 2,BASE_NO 3,IPO_FRAME #BASE",
      "DECL FDAT FP2={TOOL_NO 2,BASE_NO 3,IPO_FRAME #TCP", "external TCP", 1),

@@ -264,7 +264,8 @@ def _partial_status(prog: Any, ops: DialectOps, reports: list[TargetReport],
     from kincal.compensation.programs.sequence import pose_distance, run_time_pose
 
     for t, r in zip(prog.targets, reports, strict=True):
-        if r.index is None or id(t) not in written or "resolved" not in t.extra:
+        if r.index is None or t.kind != "pose" or id(t) not in written or \
+                "resolved" not in t.extra:
             continue
         i = r.index
         user, tool = tools[i]

@@ -76,6 +76,8 @@ def resolve_partials(prog: Any, targets: Sequence[ProgramTarget], nominal: Robot
             pt, pfr = prev
             if "missing" in pt.extra and (depth > 50 or not resolve(pt, depth + 1)):
                 why = f"the previous position ({pt.name}) is not known"
+            elif t.kind == "joints" and offline_joints:
+                why = "--joint-targets offline rewrites the previous axis values"
             elif t.kind == "joints":
                 if pt.kind == "joints":
                     v = dict(zip(joint_keys, pt.values(joint_keys), strict=True))
