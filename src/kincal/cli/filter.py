@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -54,8 +55,6 @@ _PROGRAM = {"krl": r"^[ \t]*(?:GLOBAL[ \t]+)?DEF(?:FCT|DAT)?[ \t]+\w",
 
 
 def _is_program(dialect: str, texts: dict[str, str]) -> bool:
-    import re
-
     pattern = re.compile(_PROGRAM.get(dialect, "$^"), re.IGNORECASE | re.MULTILINE)
     return any(pattern.search(t) for t in texts.values())
 
@@ -139,7 +138,7 @@ def filter_cmd(
                 "predicted std [mm]", "warnings"):
         table.add_column(escape(col), justify="right" if "[" in col or col == "line" else "left")
     shown = rows if len(rows) <= _SHOWN else [r for r in rows if r.warnings or
-                                              r.status == "not filtered"][:_SHOWN]
+                                              r.status in ("not filtered", "partial")][:_SHOWN]
     for r in shown:
         table.add_row(escape(r.name), str(r.line), r.kind, r.status,
                       f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
