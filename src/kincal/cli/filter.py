@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -43,6 +44,19 @@ def _outputs(program: str, output: str, texts: dict[str, str]) -> dict[str, str]
         if Path(o).resolve() == Path(f).resolve():
             raise KincalError(f"output {o} is an input file; write elsewhere")
     return mapping
+
+
+#: What a file of each language starts a routine or module with: a file with one but no
+#: motion target is a program with nothing to filter (an RSI / EKI driver, a homing
+#: routine of joint moves or calls).
+_PROGRAM = {"krl": r"^[ \t]*(?:GLOBAL[ \t]+)?DEF(?:FCT|DAT)?[ \t]+\w",
+            "urscript": r"^[ \t]*def[ \t]+\w+[ \t]*\(", "rapid": r"^[ \t]*MODULE[ \t]+\w",
+            "fanuc-ls": r"^/PROG[ \t]"}
+
+
+def _is_program(dialect: str, texts: dict[str, str]) -> bool:
+    pattern = re.compile(_PROGRAM.get(dialect, "$^"), re.IGNORECASE | re.MULTILINE)
+    return any(pattern.search(t) for t in texts.values())
 
 
 @app.command("filter")
@@ -101,7 +115,7 @@ def filter_cmd(
 
         accuracy = accuracy_from_result(result, cal)
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
-    if not res.reports:
+    if not res.reports and not _is_program(res.dialect, res.originals):
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
                           "written)", source=program)
     targets = _outputs(program, output, res.texts)
@@ -116,23 +130,30 @@ def filter_cmd(
     rows = res.reports
     n_f = sum(r.status == "filtered" for r in rows)
     shifts = [r.shift_mm for r in rows if r.status == "filtered"]
+    n_p = sum(r.status == "partial" for r in rows)
     table = Table(title=f"{escape(Path(program).name)} ({res.dialect}): {len(rows)} targets, "
-                        f"{n_f} filtered, {len(res.failed)} not filtered")
+                        f"{n_f} filtered, {len(res.failed)} not filtered"
+                        + (f", {n_p} partial" if n_p else ""))
     for col in ("target", "line", "kind", "status", "shift [mm]", "shift [deg]",
                 "predicted std [mm]", "warnings"):
         table.add_column(escape(col), justify="right" if "[" in col or col == "line" else "left")
     shown = rows if len(rows) <= _SHOWN else [r for r in rows if r.warnings or
-                                              r.status == "not filtered"][:_SHOWN]
+                                              r.status in ("not filtered", "partial")][:_SHOWN]
     for r in shown:
         table.add_row(escape(r.name), str(r.line), r.kind, r.status,
                       f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
                       "-" if math.isnan(r.predicted_std_mm) else f"{r.predicted_std_mm:.4f}",
-                      escape(", ".join(r.warnings) + (f": {r.reason}" if r.reason and
-                                                      r.status == "not filtered" else "")))
+                      escape(": ".join(x for x in (", ".join(r.warnings), r.reason if
+                                                   r.status in ("not filtered", "kept",
+                                                                "partial") else "") if x)))
     out.print(table)
     if len(rows) > _SHOWN:
         out.print(f"({len(rows) - len(shown)} rows without warnings not shown; all rows in "
                   "--csv / --json)")
+    if all(r.status in ("kept", "unused") for r in rows):
+        out.print("nothing to filter: " + ("no motion target in this program" if not rows else
+                                           "every motion target is kept as it is (joint "
+                                           "targets, relative or computed at run time)"))
     if shifts:
         out.print(f"shift of the filtered targets: RMS "
                   f"{math.sqrt(sum(s * s for s in shifts) / len(shifts)):.4f} mm, max "

@@ -86,7 +86,12 @@ class ProgramTarget:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def values(self, keys: Sequence[str]) -> Array:
-        return np.array([self.slots[k].value for k in keys])
+        """The values of ``keys``: written ones, else those resolved from the program
+        (``extra["resolved"]``: the components a partial target takes from the previous
+        position)."""
+        resolved = self.extra.get("resolved", {})
+        return np.array([self.slots[k].value if k in self.slots else resolved[k]
+                         for k in keys])
 
 
 def read_program_text(path: str | os.PathLike[str]) -> str:

@@ -63,7 +63,7 @@ class TargetReport:
     file: str
     line: int
     kind: str
-    status: str              # filtered | unchanged | not filtered | unused | kept
+    status: str              # filtered | unchanged | not filtered | unused | kept | partial
     shift_mm: float
     shift_deg: float
     predicted_std_mm: float
@@ -168,6 +168,11 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
     if cmap.vendor and cmap.vendor != _VENDOR[d]:
         raise KincalError(f"robot {nominal.name!r} has a {cmap.vendor} controller, but the "
                           f"program is {d}")
+    if any("missing" in t.extra for t in prog.targets):
+        from kincal.compensation.programs.sequence import resolve_partials
+
+        resolve_partials(prog, prog.targets, nominal, cmap, frames, ops.joint_keys,
+                         ops.pose_of, ops.pose_values, ops.frames, offline_joints)
     active = {id(t) for t in prog.targets if not t.note and t.used}
     requests: list[TargetRequest] = []
     tools: list[tuple[Array, Array]] = []
@@ -184,18 +189,23 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
             continue
         user, tool = ops.frames(prog, t, frames)
         F = user @ ops.pose_of(t) @ inverse(tool)
-        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=last_joints,
+        seed = last_joints
+        if "seed_axes" in t.extra:          # URScript get_inverse_kin(pose, qnear=q)
+            seed = last_joints = cmap.to_model(t.extra["seed_axes"])
+        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=seed,
                                       tool=tool))
         tools.append((user, tool))
     result = filter_targets(calibrated, nominal, requests, offline_joints, accuracy, cmap) \
         if requests else None
     edits: dict[str, dict[int, tuple[Slot, float, int]]] = {f: {} for f in prog.texts}
     reports: list[TargetReport] = []
+    written: dict[int, dict[str, float]] = {}
     k = 0
     for t in prog.targets:
         if id(t) not in active:
             status = "unused" if not t.used else "not filtered"
-            if t.note and t.note.startswith(("relative", "used by a relative")):
+            if t.note and (t.note.startswith(("relative", "used by a relative"))
+                           or t.extra.get("kept")):
                 status = "kept"
             reports.append(TargetReport(t.name, t.file, t.line, t.kind, status, 0.0, 0.0,
                                         math.nan, [], t.note or "not used by any motion"))
@@ -223,9 +233,50 @@ def filter_program(path: str, calibrated: Robot, nominal: Robot, dialect: str = 
         else:
             axes = cmap.to_axes(result.joints[i])
             new = dict(zip(ops.joint_keys, axes, strict=True))
+        new = {k: float(v) for k, v in new.items() if k in t.slots}   # partial: its own
+        written[id(t)] = new
         for key, value in new.items():
             slot = t.slots[key]
-            edits[t.file][slot.start] = (slot, float(value), ops.digits(key))
+            edits[t.file][slot.start] = (slot, value, ops.digits(key))
+    if result is not None:
+        _partial_status(prog, ops, reports, written, tools, frames, calibrated, nominal,
+                        result)
     texts = {f: render(text, edits[f], pad=ops.pad) for f, text in prog.texts.items()}
     return FilteredProgram(d, texts, dict(prog.texts), reports, result, path,
                            calibrated.name, nominal.name)
+
+
+#: A partial target whose run-time pose is this close to its filtered pose [mm, deg]
+#: (the written numbers' resolution) counts as filtered; farther, its status is
+#: ``partial`` with the distance in the reason.
+PARTIAL_TOLERANCE = (1e-3, 1e-4)
+
+
+def _partial_status(prog: Any, ops: DialectOps, reports: list[TargetReport],
+                    written: dict[int, dict[str, float]], tools: list[tuple[Array, Array]],
+                    frames: Frames, calibrated: Robot, nominal: Robot,
+                    result: FilterResult) -> None:
+    """A filtered partial target takes its left-out components from the previous target
+    at run time (:mod:`~kincal.compensation.programs.sequence`): where the real robot,
+    at the nominal controller's joints for that assembled pose, misses the target by more
+    than :data:`PARTIAL_TOLERANCE`, its status is ``partial`` with the distance."""
+    from kincal.compensation.filter import refine
+    from kincal.compensation.programs.sequence import pose_distance, run_time_pose
+
+    for t, r in zip(prog.targets, reports, strict=True):
+        if r.index is None or t.kind != "pose" or id(t) not in written or \
+                "resolved" not in t.extra:
+            continue
+        i = r.index
+        user, tool = tools[i]
+        P = run_time_pose(prog, t, written, ops.pose_of, ops.pose_values, ops.frames, frames)
+        q, ok = refine(nominal, (user @ P @ inverse(tool))[None], result.joints[i][None])
+        real = inverse(user) @ calibrated.fk(q[0]) @ tool
+        dp, dr = pose_distance(real, ops.pose_of(t))
+        if not ok[0] or dp > PARTIAL_TOLERANCE[0] or dr > PARTIAL_TOLERANCE[1]:
+            given = ", ".join(k for k in t.slots if k not in ("s", "t")).upper()
+            r.status = "partial"
+            r.reason = (f"partial aggregate: {given} rewritten, "
+                        f"{', '.join(t.extra['missing']).upper()} come from the previous "
+                        f"position at run time: the robot misses the target by {dp:.4f} mm "
+                        f"/ {dr:.4f} deg (write the aggregate in full to filter it)")
