@@ -33,7 +33,7 @@ from kincal.measure.simulate import perturb_robot
 from kincal.motion.ik import solve_ik
 from kincal.motion.ik_wrist import ik_spherical_wrist
 from kincal.robots.controller import controller_map
-from kincal.robots.files import load_robot, write_robot_yaml
+from kincal.robots.files import load_serial_robot, write_robot_yaml
 from kincal.spatial import log_so3
 
 DATA = Path(__file__).parent / "data" / "programs"
@@ -69,7 +69,7 @@ def robots(tmp_path_factory):
     folder = tmp_path_factory.mktemp("robots")
     out = {}
     for name in ("kr6", "ur5"):
-        nom = load_robot(name)
+        nom = load_serial_robot(name)
         cal = perturb_robot(nom, np.random.default_rng(7)).with_name(f"{name}_cal")
         write_robot_yaml(cal, folder / f"{name}_cal.yaml")
         out[name] = (nom, cal, str(folder / f"{name}_cal.yaml"))
@@ -504,8 +504,8 @@ def test_a_file_that_is_no_program_is_still_refused(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------- properties
-KR6 = load_robot("kr6")
-UR5 = load_robot("ur5")
+KR6 = load_serial_robot("kr6")
+UR5 = load_serial_robot("ur5")
 KR6_CAL = perturb_robot(KR6, np.random.default_rng(11))
 UR5_CAL = perturb_robot(UR5, np.random.default_rng(11))
 #: x, y, z [mm], A, B, C [deg] of the frames the generated programs use.

@@ -30,7 +30,8 @@ grep -m 3 "PTP" poses.src
 # --8<-- [end:plan]
 
 # --8<-- [start:spline]
-cp "$FILES"/spline_cell.src "$FILES"/spline_cell.dat "$FILES"/spline_frames.yaml .
+cp examples/tutorials/files/spline_cell.src examples/tutorials/files/spline_cell.dat \
+    examples/tutorials/files/spline_frames.yaml .
 grep -m 1 "^SLIN XP2" spline_cell.src | cut -c 1-98
 kincal filter spline_cell.src --robot kr6_cal.yaml --nominal kr6 --frames spline_frames.yaml \
     -o filtered/spline_cell.src
@@ -39,7 +40,7 @@ kincal filter spline_cell.src --robot kr6_cal.yaml --nominal kr6 --frames spline
 # --8<-- [start:polyscope]
 kincal simulate ur5 -o ur_train.csv --truth ur_truth.yaml -n 60 --noise 0.01mm --seed 2
 kincal calibrate ur5 --data ur_train.csv -o ur5_cal.yaml > ur_calibrate.txt
-cp "$FILES"/polyscope_export.script .
+cp examples/tutorials/files/polyscope_export.script .
 kincal filter polyscope_export.script --robot ur5_cal.yaml --nominal ur5 \
     -o filtered/polyscope_export.script
 diff polyscope_export.script filtered/polyscope_export.script || true
