@@ -123,7 +123,8 @@ SETUP_KEYS = ("robot", "base_link", "tip_link", "hold", "data", "validate", "cal
               "outputs")
 
 #: Keys of one ``data:`` / ``validate:`` entry.
-DATA_KEYS = ("file", "units", "ignore", "instrument", "name", "format", "options", "frames")
+DATA_KEYS = ("file", "units", "ignore", "instrument", "name", "format", "options", "joint_names",
+             "columns", "frames")
 
 
 # --------------------------------------------------------------------------- YAML with lines
@@ -494,6 +495,7 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
             tags = instrument_tags(opts)
         except KincalError as exc:
             raise r.fail(p + ("options",), str(exc)) from None
+        tags.update(_column_maps(r, m, p))
         frames = None
         if "frames" in m:
             frames = r.text(m["frames"], p + ("frames",))
@@ -502,6 +504,22 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
         out.append(DataSource(file, units, ignore, instrument, name, fmt, tags, frames,
                               _where(r.source, r.lines, r.prefix + p)))
     return tuple(out)
+
+
+def _column_maps(r: _Reader, m: Mapping[str, Any], p: KeyPath) -> dict[str, str]:
+    """``joint_names:`` / ``columns:`` maps ``{file column: name}`` as tag text
+    (:mod:`kincal.measure.columns`)."""
+    from kincal.measure.columns import format_map
+
+    out = {}
+    for key in ("joint_names", "columns"):
+        if key in m:
+            mp = r.mapping(m[key], p + (key,))
+            try:
+                out[key] = format_map({str(k): r.text(v, p + (key, k)) for k, v in mp.items()})
+            except KincalError as exc:
+                raise r.fail(p + (key,), str(exc)) from None
+    return out
 
 
 def _calibration(r: _Reader, value: Any, path: KeyPath) -> dict[str, Any]:
