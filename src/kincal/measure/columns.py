@@ -24,6 +24,7 @@ one error line listing what there is.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -119,8 +120,22 @@ def _split(name: str) -> tuple[str, str | None]:
 def _joint_map(names: Sequence[str], tags: Mapping[str, str], robot: Any,
                fail: Fail) -> tuple[dict[str, str], str]:
     """``{file column: new column name}`` for the joints, and its note."""
-    jnames = [j.name for j in robot.joints] if robot is not None else []
+    if robot is None:                  # a header read without its robot: joints stay
+        return {}, ""
+    jnames = [j.name for j in robot.joints]
     given = tags.get("joint_names")
+    if given and given.strip().lower() == "ros":
+        if not ros_names(robot):
+            known = ", ".join(sorted(ROS_JOINT_NAMES))
+            raise fail(f"joint_names ros: robot {robot.name!r} has no "
+                       f"known ROS joint names (built-in robots with them: {known}); give "
+                       "the map FILE_COLUMN=JOINT,...")
+        missing = [r for r in ros_names(robot)
+                   if r not in names and r not in {_split(n)[0] for n in names}]
+        if missing:
+            raise fail(f"joint_names ros: the file has no column {missing[0]!r} (columns: "
+                       f"{', '.join(names)})")
+        given = None
     if given:
         mapping = parse_map(given)
         out = {}
@@ -129,7 +144,7 @@ def _joint_map(names: Sequence[str], tags: Mapping[str, str], robot: Any,
                 raise fail(f"joint_names: the file has no column {col!r} (columns: "
                            f"{', '.join(names)})")
             joint, unit = _split(target)
-            if jnames and joint not in jnames and target not in jnames:
+            if joint not in jnames and target not in jnames:
                 raise fail(f"joint_names: robot {robot.name!r} has no joint {target!r} "
                            f"(joints: {', '.join(jnames)})")
             out[col] = target
@@ -138,12 +153,13 @@ def _joint_map(names: Sequence[str], tags: Mapping[str, str], robot: Any,
     if not ros:
         return {}, ""
     bases = {_split(n)[0]: n for n in names}
-    if any(j in bases or j in names for j in jnames) or not all(r in bases for r in ros):
+    bases.update({n: n for n in names})       # a whole name first: joint_1 is no "_1" unit
+    if any(j in bases for j in jnames) or not all(r in bases for r in ros):
         return {}, ""
     out = {}
     for r, joint in ros.items():
         col = bases[r]
-        unit = _split(col)[1] or "rad"
+        unit = "rad" if col == r else _split(col)[1]
         out[col] = f"{joint}_{unit}"
     return out, (f"ROS joint names read as robot {robot.name!r}'s joints "
                  f"({next(iter(ros))} -> {ros[next(iter(ros))]} ...; rad unless the "
@@ -178,9 +194,25 @@ def map_columns(names: Sequence[str], tags: Mapping[str, str], robot: Any,
     if note:
         notes.append(note)
     out = [renamed.get(n, n) for n in names]
-    new_units = {renamed.get(k, k): v for k, v in units.items()}
-    new_ignore = tuple(renamed.get(p, p) for p in ignore)
+    new_units: dict[str, str] = {}
+    for k, v in units.items():
+        for key in _moved(k, names, renamed):
+            new_units.setdefault(key, v)
+    new_ignore = tuple(key for p in ignore for key in _moved(p, names, renamed))
     return ColumnMap(out, renamed, new_units, new_ignore, notes)
+
+
+def _moved(pattern: str, names: Sequence[str], renamed: Mapping[str, str]) -> list[str]:
+    """A ``--units`` / ``--ignore`` key after renaming: the new names of the renamed
+    columns it matches, and itself when it matches a column that keeps its name (or
+    none at all, so that the reader's own message names it)."""
+    rx = re.compile("".join(".*" if c == "*" else "." if c == "?" else re.escape(c)
+                            for c in pattern) + r"\Z")
+    hit = [n for n in names if rx.match(n)]
+    out = [renamed[n] for n in hit if n in renamed]
+    if not out or any(n not in renamed for n in hit):
+        out.append(pattern)
+    return out
 
 
 def missing_joints_message(robot: Any, missing: str, have: Sequence[str],

@@ -607,7 +607,8 @@ def _unexpected(base: str, jnames: Sequence[str], lower_j: Mapping[str, str],
     if close or re.fullmatch(r"(q|j|joint)\d+", base, re.IGNORECASE):
         near = f" (closest joint: {close[0]})" if close else ""
         return (f"looks like a joint column, but the robot has no joint {base!r}{near}; "
-                f"its joints are {', '.join(jnames) or 'none'} (or list it in --ignore)")
+                f"its joints are {', '.join(jnames) or 'none'} (map it with --joint-names "
+                "FILE_COLUMN=JOINT,..., or list it in --ignore)")
     if not fields:
         return ("looks like a measurement, but this file holds joint values only; list it "
                 "in --ignore to drop it")
