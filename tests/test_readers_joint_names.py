@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from cli_helpers import run
+
 from kincal.errors import MeasurementFileError
 from kincal.measure.columns import ROS_JOINT_NAMES, format_map, parse_map
 from kincal.measure.files import write_table
