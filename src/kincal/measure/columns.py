@@ -148,7 +148,7 @@ def _joint_map(names: Sequence[str], tags: Mapping[str, str], robot: Any,
                 raise fail(f"joint_names: robot {robot.name!r} has no joint {target!r} "
                            f"(joints: {', '.join(jnames)})")
             out[col] = target
-        return out, "joint columns mapped: " + ", ".join(f"{k} -> {v}" for k, v in out.items())
+        return out, _mapped("joint columns mapped", out)
     ros = ros_names(robot)
     if not ros:
         return {}, ""
@@ -185,7 +185,7 @@ def map_columns(names: Sequence[str], tags: Mapping[str, str], robot: Any,
                 raise fail(f"columns: the file has no column {col!r} (columns: "
                            f"{', '.join(names)})")
             renamed[col] = new
-        notes.append("columns mapped: " + ", ".join(f"{k} -> {v}" for k, v in renamed.items()))
+        notes.append(_mapped("columns mapped", renamed))
     jmap, note = _joint_map(names, tags, robot, fail)
     for col, new in jmap.items():
         if col in renamed:
@@ -228,3 +228,10 @@ def missing_joints_message(robot: Any, missing: str, have: Sequence[str],
                else f"{names[0]}={jnames[0]}")
     return msg + (f"Name the columns after the joints, or map them: --joint-names "
                   f"'{example},...' (joint_names: in a setup file)")
+
+
+def _mapped(what: str, renamed: Mapping[str, str], shown: int = 3) -> str:
+    """``"columns mapped: a -> b, c -> d ... (12 in all)"``: one short line."""
+    items = [f"{k} -> {v}" for k, v in renamed.items()]
+    more = f" ... ({len(items)} in all)" if len(items) > shown else ""
+    return f"{what}: {', '.join(items[:shown])}{more}"

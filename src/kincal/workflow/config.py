@@ -41,7 +41,7 @@ from typing import Any
 from kincal.errors import KincalError
 from kincal.io import read_text
 from kincal.units import UNITS, parse_quantity
-from kincal.workflow.sources import FORMATS, DataSource, instrument_tags
+from kincal.workflow.sources import FORMATS, DataSource, detect_format, instrument_tags
 
 __all__ = ["Setup", "YamlDocument", "SetupError", "read_yaml", "load_setup", "parse_setup",
            "hold_robot", "CALIBRATION_KEYS", "OUTPUT_KEYS", "SETUP_KEYS",
@@ -468,8 +468,7 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
                                                f"{', '.join(UNITS)})")
             units[k] = u
         ignore = tuple(r.text_list(m["ignore"], p + ("ignore",))) if "ignore" in m else ()
-        fmt = r.text(m.get("format", "mukca" if Path(file).is_dir() else "kincal"),
-                     p + ("format",))
+        fmt = r.text(m.get("format", detect_format(file)), p + ("format",))
         if fmt not in FORMATS:
             raise r.fail(p + ("format",), f"{fmt!r} is not {' or '.join(FORMATS)}")
         if fmt == "mukca" and not Path(file).is_dir():
