@@ -204,10 +204,11 @@ def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
     The folder holds one headerless file per socket (``hole_0.csv``, ``hole_1.csv``:
     one configuration per row, the robot's joints in its order, in ``angle_unit``,
     radians as the MUKCa recorder writes them); the recorder's ``hole_?_pose.csv`` beside
-    them (the controller's own pose of the ball) are skipped (:func:`socket_files`).  Files carry no tag line, so ``tags``
-    says what the artifact is: ``instrument`` (default ``two-socket``), its length
-    (``length_mm=50``), the probe (``probe=tool`` ...), ``point_std_<u>`` and the rest
-    of the artifact tags (module docstring).  The placement is the folder's name.
+    them (the controller's own pose of the ball) are skipped (:func:`socket_files`).
+    Files carry no tag line, so ``tags`` says what the artifact is: ``instrument``
+    (default ``two-socket``), its length (``length_mm=50``), the probe (``probe=tool``
+    ...), ``point_std_<u>`` and the rest of the artifact tags (module docstring).  The
+    placement is the folder's name.
     """
     src = str(path)
     data = read_socket_files(socket_files(path), angle_unit=angle_unit,
