@@ -161,7 +161,7 @@ def _joint_map(names: Sequence[str], tags: Mapping[str, str], robot: Any,
         col = bases[r]
         unit = "rad" if col == r else _split(col)[1]
         out[col] = f"{joint}_{unit}"
-    return out, (f"ROS joint names read as robot {robot.name!r}'s joints "
+    return out, (f"ROS joint names read as the joints of robot {robot.name!r} "
                  f"({next(iter(ros))} -> {ros[next(iter(ros))]} ...; rad unless the "
                  "column says its unit)")
 
