@@ -265,8 +265,10 @@ def _held_out_frames(f: str, data: Sequence[str]) -> list[str]:
     else ``register`` (another set-up: its frame is refitted), marked CHECK."""
     from kincal.measure.files import read_header
 
+    from kincal.workflow.sources import detect_format
+
     name = read_header(f)[0].get("name")
-    shared = [d for d in data if not Path(d).is_dir() and name is not None
+    shared = [d for d in data if detect_format(d) == "kincal" and name is not None
               and read_header(d)[0].get("name") == name]
     if shared:
         return [f"    frames: training     # same instrument set-up: name={name} as in "
@@ -318,6 +320,7 @@ def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequen
     to mark CHECK under a file, from :func:`data_checks`)."""
     from kincal.measure.files import read_header
     from kincal.workflow.config import CALIBRATION_KEYS
+    from kincal.workflow.sources import detect_format
 
     lines = ["# kincal setup file: kincal calibrate --config THIS_FILE",
              "# Paths are relative to this file. Options given on the command line override",
@@ -347,6 +350,11 @@ def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequen
                           "    instrument: two-socket",
                           "    options: {length: 50mm, probe: tool}    # CHECK: the "
                           "socket distance and the probe"]
+                continue
+            if detect_format(f) == "ros-industrial":
+                lines += ["    format: ros-industrial    # a ROS-I observation YAML (pose "
+                          "instrument, static camera)",
+                          "    name: camera"]
                 continue
             tags, names, _ = read_header(f)
             units, notes = _guess_units(f, robot_obj)
