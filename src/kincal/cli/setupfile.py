@@ -264,7 +264,6 @@ def _held_out_frames(f: str, data: Sequence[str]) -> list[str]:
     when its ``name=`` tag is a training file's (the user stated one instrument set-up),
     else ``register`` (another set-up: its frame is refitted), marked CHECK."""
     from kincal.measure.files import read_header
-
     from kincal.workflow.sources import detect_format
 
     name = read_header(f)[0].get("name")
