@@ -140,3 +140,23 @@ def test_cli_joint_names_calibrates_a_simulated_robot(tmp_path, capsys):
     est = next(p["estimate"] for p in res["parameters"] if p["name"] == "theta_offset[3]")
     assert est == pytest.approx(true_offset, abs=1e-9)
     assert "joint columns mapped: J1_deg -> shoulder_pan_deg" in " ".join((out + err).split())
+
+
+def test_setup_file_maps_as_a_mapping_or_ros_and_only_for_csv_files(tmp_path):
+    from kincal.workflow.config import SetupError, parse_setup
+
+    (tmp_path / "m.csv").write_text("J1,x_mm\n0,1\n")
+    (tmp_path / "sockets").mkdir()
+    ok = parse_setup({"robot": "ur5", "data": [
+        {"file": "m.csv", "joint_names": {"J1": "shoulder_pan"},
+         "columns": {"x_mm": "x_mm"}},
+        {"file": "m.csv", "joint_names": "ros"}]}, tmp_path)
+    assert ok.data[0].tags["joint_names"] == "J1=shoulder_pan"
+    assert ok.data[0].tags["columns"] == "x_mm=x_mm"
+    assert ok.data[1].tags["joint_names"] == "ros"
+    with pytest.raises(SetupError, match=r"data\[0\]\.joint_names: maps the columns of a CSV"):
+        parse_setup({"robot": "ur5", "data": [{"file": "sockets", "joint_names": {"a": "b"}}]},
+                    tmp_path)
+    with pytest.raises(SetupError, match=r"data\[0\]\.columns: column name 'a,b'"):
+        parse_setup({"robot": "ur5", "data": [{"file": "m.csv", "columns": {"a,b": "x"}}]},
+                    tmp_path)

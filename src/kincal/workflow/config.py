@@ -494,7 +494,7 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
             tags = instrument_tags(opts)
         except KincalError as exc:
             raise r.fail(p + ("options",), str(exc)) from None
-        tags.update(_column_maps(r, m, p))
+        tags.update(_column_maps(r, m, p, fmt))
         frames = None
         if "frames" in m:
             frames = r.text(m["frames"], p + ("frames",))
@@ -505,14 +505,18 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
     return tuple(out)
 
 
-def _column_maps(r: _Reader, m: Mapping[str, Any], p: KeyPath) -> dict[str, str]:
+def _column_maps(r: _Reader, m: Mapping[str, Any], p: KeyPath, fmt: str) -> dict[str, str]:
     """``joint_names:`` / ``columns:`` maps ``{file column: name}`` as tag text
     (:mod:`kincal.measure.columns`)."""
     from kincal.measure.columns import format_map
 
     out = {}
     for key in ("joint_names", "columns"):
-        if key in m:
+        if key in m and fmt != "kincal":
+            raise r.fail(p + (key,), "maps the columns of a CSV file; this source has none")
+        if key == "joint_names" and isinstance(m.get(key), str) and m[key].strip() == "ros":
+            out[key] = "ros"
+        elif key in m:
             mp = r.mapping(m[key], p + (key,))
             try:
                 out[key] = format_map({str(k): r.text(v, p + (key, k)) for k, v in mp.items()})
