@@ -510,7 +510,7 @@ def _column_maps(r: _Reader, m: Mapping[str, Any], p: KeyPath, fmt: str) -> dict
     (:mod:`kincal.measure.columns`)."""
     from kincal.measure.columns import format_map
 
-    out = {}
+    out: dict[str, str] = {}
     for key in ("joint_names", "columns"):
         if key in m and fmt != "kincal":
             raise r.fail(p + (key,), "maps the columns of a CSV file; this source has none")
