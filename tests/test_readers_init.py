@@ -87,3 +87,19 @@ def test_init_warns_for_no_sigma_and_a_joint_that_never_moves(tmp_path, capsys):
     _, held = _files(tmp_path, held_name="tracker", sigma=True)
     code, out, err = run(capsys, "init", "puma560", "--data", held, "-o", setup, "--force")
     assert code == 0 and "CHECK: no sigma" not in setup.read_text() and "never moves" not in err
+
+
+def test_init_suggests_a_column_map_for_prefixed_measurements(tmp_path, capsys):
+    f = tmp_path / "rec.csv"
+    f.write_text("q1_deg;q2_deg;q3_deg;q4_deg;q5_deg;q6_deg;meas_x;meas_y;meas_z;meas_std_x;"
+                 "meas_std_y;meas_std_z\n" + "1,5;2;3;4;5;6;100;200;300;0,01;0,01;0,02\n" * 3)
+    setup = tmp_path / "setup.yaml"
+    code, _, err = run(capsys, "init", "puma560", "--data", f, "-o", setup)
+    assert code == 0, err
+    text = setup.read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("    # columns: {"))
+    doc = yaml.safe_load(line.split("# columns:", 1)[1].split("#", 1)[0])
+    assert doc == {"meas_x": "x_mm", "meas_y": "y_mm", "meas_z": "z_mm",
+                   "meas_std_x": "sigma_x_mm", "meas_std_y": "sigma_y_mm",
+                   "meas_std_z": "sigma_z_mm"}
+    assert sum(ln.startswith("    # columns: {") for ln in text.splitlines()) == 1

@@ -277,6 +277,31 @@ def _held_out_frames(f: str, data: Sequence[str]) -> list[str]:
             "                         # training only if it is the same set-up (nothing moved)"]
 
 
+def _column_map_hint(names: Sequence[str]) -> list[str]:
+    """Commented ``columns:`` maps for observation columns under a prefix (``meas_x``,
+    ``meas_std_x`` ...) when the file has no plain ``x, y, z``: one per candidate prefix,
+    marked CHECK (the units and which prefix is the measurement are the user's)."""
+    import re
+
+    if {"x", "y", "z"} <= {n.rsplit("_", 1)[0] for n in names} | set(names):
+        return []
+    out = []
+    for m in dict.fromkeys(re.fullmatch(r"(.+?[_ ])x", n) for n in names):
+        if m is None:
+            continue
+        pre = m.group(1)
+        if pre.lower().endswith(("std_", "std ", "sigma_", "sigma ")) or \
+                not all(f"{pre}{c}" in names for c in "yz"):
+            continue
+        entry = {f"{pre}{c}": f"{c}_mm" for c in "xyz"}
+        entry |= {f"{pre}{c}": f"{c}_deg" for c in ("rx", "ry", "rz") if f"{pre}{c}" in names}
+        entry |= {f"{pre}std_{c}": f"sigma_{c}_{'deg' if c[0] == 'r' else 'mm'}"
+                  for c in ("x", "y", "z", "rx", "ry", "rz") if f"{pre}std_{c}" in names}
+        out.append(f"    # columns: {_yaml_scalar(entry)}    # CHECK: are {pre!r}* the "
+                   "measurements, and these their units?")
+    return out
+
+
 def data_checks(blocks: Sequence[Any], robot: Any) -> dict[str, list[str]]:
     """What a person should know about each file before calibrating: ``{file: [line]}``.
 
@@ -366,6 +391,7 @@ def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequen
             else:
                 lines.append(f"    # tag line: {'; '.join(f'{k}={v}' for k, v in tags.items())}")
             lines.append(f"    # columns: {', '.join(names)}")
+            lines += _column_map_hint(names)
             if key == "validate":
                 lines += _held_out_frames(f, data)
     lines += ["", "calibration:              # every `kincal calibrate` option, by its long "
