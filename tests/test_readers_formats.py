@@ -125,3 +125,17 @@ def test_folder_with_only_pose_files_is_refused(tmp_path):
     with tag_overrides(tmp_path, {}), pytest.raises(MeasurementFileError,
                                                      match="no socket files"):
         read_socket_folder(tmp_path, robot, {"length_mm": "50"})
+
+
+def test_mukca_robot_folder_reads_every_placement_as_one_block():
+    root = DATA / "mukca_fleet" / "panda_7"
+    if not root.is_dir():
+        pytest.skip("MUKCa data not present")
+    robot = load_robot(str(DATA / "panda_two_socket" / "panda.urdf"), "panda_link0",
+                       "panda_hand_tcp")
+    tags = {"length_mm": "50"}
+    (whole,) = read_socket_folder(root, robot, tags, name="ball")
+    parts = [read_socket_folder(root / p, robot, tags)[0] for p in ("front", "right")]
+    np.testing.assert_array_equal(whole.q, np.concatenate([b.q for b in parts]))
+    assert list(dict.fromkeys(whole.placement_labels)) == ["front", "right"]
+    assert whole.name == "ball"

@@ -199,7 +199,9 @@ def _block(q: Array, placement: Sequence[str], point: Sequence[str], tags: Mappi
 def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
                        name: str | None = None, angle_unit: str = "rad"
                        ) -> list[ArtifactMeasurement]:
-    """A MUKCa-style socket folder as one artifact block (one placement).
+    """A MUKCa-style socket folder as one artifact block (one placement), or a robot's
+    folder of such placement folders as one block of several placements (as the MUKCa
+    recorder lays them out: ``panda_3/frontleft/hole_0.csv`` ...).
 
     The folder holds one headerless file per socket (``hole_0.csv``, ``hole_1.csv``:
     one configuration per row, the robot's joints in its order, in ``angle_unit``,
@@ -211,6 +213,15 @@ def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
     placement is the folder's name.
     """
     src = str(path)
+    subs = placement_folders(path)
+    if subs:                                   # a robot's folder: one placement per folder
+        blocks = [read_socket_folder(f, robot, tags, name, angle_unit)[0] for f in subs]
+        try:
+            return [merge_blocks(blocks, name)]
+        except MeasurementFileError:
+            raise
+        except KincalError as exc:
+            raise MeasurementFileError(str(exc), source=src) from None
     data = read_socket_files(socket_files(path), angle_unit=angle_unit,
                              placement=Path(path).name)
     if robot is not None and data.q.shape[1] != robot.n:
@@ -231,6 +242,16 @@ def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
 #: ball (its forward kinematics of its nominal model, position and quaternion), not a
 #: measurement: skipped on purpose by :func:`socket_files`.
 CONTROLLER_POSE_SUFFIX = "_pose"
+
+
+def placement_folders(folder: str | Path) -> list[Path]:
+    """The placement sub-folders of a MUKCa robot folder (each holding socket files), in
+    name order; ``[]`` when ``folder`` itself holds socket files (one placement)."""
+    root = Path(folder)
+    if any(f for f in root.glob("*.csv") if not f.stem.endswith(CONTROLLER_POSE_SUFFIX)):
+        return []
+    return sorted(d for d in root.iterdir() if d.is_dir() and any(
+        f for f in d.glob("*.csv") if not f.stem.endswith(CONTROLLER_POSE_SUFFIX)))
 
 
 def socket_files(folder: str | Path) -> list[Path]:
