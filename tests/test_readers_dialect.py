@@ -105,3 +105,15 @@ def test_ipa_ur10_file_reads_as_recorded():
     np.testing.assert_allclose(b.poses[:, :3, 3], xyz, rtol=1e-15, atol=1e-15)
     notes = b.provenance.table.notes
     assert any("semicolon" in n for n in notes) and any("ROS joint names" in n for n in notes)
+
+
+def test_instrument_detected_from_a_semicolon_header(tmp_path, puma):
+    """No tag line: the instrument comes from the header, which must be split on ';'."""
+    p = tmp_path / "pose.csv"
+    p.write_text(";".join(HEAD[:6] + ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"])
+                 + "\n" + ";".join(["0"] * 6 + ["1,5", "2", "3", "90", "0", "0"]) + "\n")
+    (b,) = read_measurements(p, puma)
+    assert type(b).__name__ == "PoseMeasurement"
+    np.testing.assert_allclose(b.poses[0, :3, 3], [1.5e-3, 2e-3, 3e-3])
+    np.testing.assert_allclose(b.poses[0, :3, :3], [[1, 0, 0], [0, 0, -1], [0, 1, 0]],
+                               atol=1e-15)

@@ -226,8 +226,11 @@ def _guess_units(path: str, robot: Any) -> tuple[dict[str, str], list[str]]:
             and LOOKS_MEASURED.fullmatch(n)]
     if not bare:
         return {}, []
+    from kincal.measure.dialect import normalise, sniff
+
     text = Path(path).read_text(encoding="utf-8-sig").splitlines()
     rows = [r for r in text[line:] if r.strip() and not r.lstrip().startswith("#")][:200]
+    rows = normalise(rows, sniff(text[line - 1], rows, path, line))   # ';' and ',' decimals
     import csv
 
     cols = {n: i for i, n in enumerate(names)}
