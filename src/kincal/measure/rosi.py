@@ -15,7 +15,7 @@ instrument: ``T_obs = T_I^-1 T_e(q) T_t``, the camera frame ``T_I`` and the targ
 tool ``T_t`` estimated.  A moving camera (``camera_joints`` not empty) is refused.
 
 Standard deviations come from the file's options as for any pose file (``sigma: 0.5mm``,
-``sigma_rot: 0.1deg`` in a setup file; default 0.01 mm and 0.01 mm-equivalent rad).
+``sigma_rot: 0.1deg`` in a setup file; default 1e-5: 0.01 mm and 1e-5 rad).
 Every error names the file and the YAML line of the observation.
 """
 
