@@ -168,7 +168,8 @@ def test_every_calibrate_option_is_a_setup_key():
             if o.startswith("--") and not getattr(p, "hidden", False)}
     files = {"data", "validate", "units", "ignore", "config", "output", "urdf", "json",
              "report", "base_link", "tip_link", "hold", "instrument", "option", "help", "si",
-             "scheduler", "workers"}     # where the fold fits run, not what is calibrated
+             "scheduler", "workers",     # where the fold fits run, not what is calibrated
+             "joint_names"}              # a reading option: data: entries have it
     assert set(CALIBRATION_KEYS) <= opts
     assert opts - files <= set(CALIBRATION_KEYS), opts - files - set(CALIBRATION_KEYS)
 

@@ -26,6 +26,7 @@ from kincal.cli.calibration_common import (
     DataOpt,
     IgnoreOpt,
     JointModelOpt,
+    JointNamesOpt,
     JsonOpt,
     OptionalDataOpt,
     OptionalRobotArg,
@@ -34,6 +35,7 @@ from kincal.cli.calibration_common import (
     UnitsOpt,
     WorkersOpt,
     fold_engine,
+    joint_names_option,
     load,
     out_console,
     print_cross_validation,
@@ -227,7 +229,7 @@ def calibrate_cmd(
     truth: TruthOpt = None, all_parameters: AllParametersOpt = False, force: ForceOpt = False,
     base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
     config: ConfigOpt = None, hold: HoldOpt = None, instrument: InstrumentOpt = None,
-    option: OptionOpt = None,
+    option: OptionOpt = None, joint_names: JointNamesOpt = None,
 ) -> None:
     """Calibrate ROBOT from measurement files: estimate the identifiable parameters, report
     errors before/after (training and held-out), write the calibrated robot, JSON and report.
@@ -270,7 +272,8 @@ def calibrate_cmd(
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior_value)
     train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
-                                     instrument=instrument, options=option)
+                                     instrument=instrument,
+                                     options=[*(option or []), *joint_names_option(joint_names)])
     urdf = _urdf_output(robot, r, output, urdf)
     check_outputs({"-o": output, "--urdf": urdf, "--json": json_out, "--report": report},
                   {"--data": [s.path for s in train_src],

@@ -42,6 +42,10 @@ IgnoreOpt = Annotated[list[str] | None, typer.Option(
     "--ignore", help="Columns to drop on purpose, comma separated, * and ? allowed "
     "('x2,y2,z2' or '?2,?3'). Columns that look like joints or measurements are never "
     "dropped silently.")]
+JointNamesOpt = Annotated[str | None, typer.Option(
+    "--joint-names", metavar="MAP", help="Joint columns under other names, FILE_COLUMN=JOINT "
+    "comma separated (e.g. 'J1=q1,J2=q2'); 'ros' for the ROS names of a built-in robot "
+    "(recognised by themselves: shoulder_pan_joint, panda_joint1, joint_a1, joint_1).")]
 JointModelOpt = Annotated[str | None, typer.Option(
     "--joint-model", metavar="TERMS", help="Non-geometric joint model, comma separated: "
     "'hysteresis' (each joint lags its encoder by a play, in the direction it last moved; "
@@ -135,6 +139,11 @@ def read_blocks(paths: Sequence[str], robot: Any, units: str | None,
     return blocks
 
 
+def joint_names_option(text: str | None) -> list[str]:
+    """``--joint-names MAP`` as an ``--option`` item (the ``joint_names`` tag)."""
+    return [f"joint_names={text.strip()}"] if text and text.strip() else []
+
+
 def print_ignored(out: Console, blocks: Sequence[Any]) -> None:
     """One dim line per file: the columns its reader did not read."""
     from kincal.workflow.flow import ignored_columns
@@ -142,6 +151,10 @@ def print_ignored(out: Console, blocks: Sequence[Any]) -> None:
     for path, cols in ignored_columns(blocks):
         out.print(f"[dim]{escape(path)}: not read (not joint or measurement "
                   f"columns): {escape(', '.join(cols))}[/dim]")
+    for b in blocks:                     # how a file in another spelling was read
+        table = b.provenance.table if b.provenance is not None else None
+        for note in getattr(table, "notes", None) or []:
+            out.print(f"[dim]{escape(b.source_label)}: {escape(note)}[/dim]")
 
 
 class Progress:

@@ -20,9 +20,10 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 
 from kincal.cli.app import app
-from kincal.cli.common import BaseLink, RobotArg, TipLink, console
+from kincal.cli.common import BaseLink, RobotArg, TipLink, console, err_console
 from kincal.errors import KincalError
 
 ConfigOpt = Annotated[str | None, typer.Option(
@@ -225,8 +226,11 @@ def _guess_units(path: str, robot: Any) -> tuple[dict[str, str], list[str]]:
             and LOOKS_MEASURED.fullmatch(n)]
     if not bare:
         return {}, []
+    from kincal.measure.dialect import normalise, sniff
+
     text = Path(path).read_text(encoding="utf-8-sig").splitlines()
     rows = [r for r in text[line:] if r.strip() and not r.lstrip().startswith("#")][:200]
+    rows = normalise(rows, sniff(text[line - 1], rows, path, line))   # ';' and ',' decimals
     import csv
 
     cols = {n: i for i, n in enumerate(names)}
@@ -258,11 +262,92 @@ def _guess_units(path: str, robot: Any) -> tuple[dict[str, str], list[str]]:
     return units, notes
 
 
+def _held_out_frames(f: str, data: Sequence[str]) -> list[str]:
+    """The ``frames:`` line of held-out file ``f``, from what the files say: ``training``
+    when its ``name=`` tag is a training file's (the user stated one instrument set-up),
+    else ``register`` (another set-up: its frame is refitted), marked CHECK."""
+    from kincal.measure.files import read_header
+    from kincal.workflow.sources import detect_format
+
+    name = read_header(f)[0].get("name")
+    shared = [d for d in data if detect_format(d) == "kincal" and name is not None
+              and read_header(d)[0].get("name") == name]
+    if shared:
+        return [f"    frames: training     # same instrument set-up: name={name} as in "
+                f"{Path(shared[0]).name}"]
+    return ["    frames: register     # CHECK: no name= shared with a training file, so another",
+            "                         # instrument set-up: its frame is refitted here. Write",
+            "                         # training only if it is the same set-up (nothing moved)"]
+
+
+def _column_map_hint(names: Sequence[str]) -> list[str]:
+    """Commented ``columns:`` maps for observation columns under a prefix (``meas_x``,
+    ``meas_std_x`` ...) when the file has no plain ``x, y, z``: one per candidate prefix,
+    marked CHECK (the units and which prefix is the measurement are the user's)."""
+    import re
+
+    if {"x", "y", "z"} <= {n.rsplit("_", 1)[0] for n in names} | set(names):
+        return []
+    out = []
+    for m in dict.fromkeys(re.fullmatch(r"(.+?[_ ])x", n) for n in names):
+        if m is None:
+            continue
+        pre = m.group(1)
+        if pre.lower().endswith(("std_", "std ", "sigma_", "sigma ")) or \
+                not all(f"{pre}{c}" in names for c in "yz"):
+            continue
+        entry = {f"{pre}{c}": f"{c}_mm" for c in "xyz"}
+        entry |= {f"{pre}{c}": f"{c}_deg" for c in ("rx", "ry", "rz") if f"{pre}{c}" in names}
+        entry |= {f"{pre}std_{c}": f"sigma_{c}_{'deg' if c[0] == 'r' else 'mm'}"
+                  for c in ("x", "y", "z", "rx", "ry", "rz") if f"{pre}std_{c}" in names}
+        out.append(f"    # columns: {_yaml_scalar(entry)}    # CHECK: are {pre!r}* the "
+                   "measurements, and these their units?")
+    return out
+
+
+def data_checks(blocks: Sequence[Any], robot: Any) -> dict[str, list[str]]:
+    """What a person should know about each file before calibrating: ``{file: [line]}``.
+
+    * no standard deviation stated (no ``sigma`` column, no ``sigma_<unit>`` tag): every
+      row then weighs as the default 0.01 mm, whatever the instrument;
+    * a joint that never moves (range below 1e-4 rad / m over the file): its parameters
+      cannot be identified from this file; hold it at its value.
+    """
+    import numpy as np
+
+    from kincal.measure.files import HELD_TOLERANCE
+
+    out: dict[str, list[str]] = {}
+    for b in blocks:
+        table = b.provenance.table if b.provenance is not None else None
+        path = b.provenance.path if b.provenance is not None else ""
+        lines = out.setdefault(path, [])
+        if table is not None and not any(k.startswith("sigma") for k in table.values) and \
+                not any(k.startswith("sigma") for k in table.tags):
+            lines.append("no sigma column or sigma_<unit> option: every row weighs as 0.01 mm; "
+                         "state the instrument's (options: {sigma: 0.05mm})")
+        q = np.asarray(getattr(b, "q", np.zeros((0, 0))), dtype=float)
+        joints = list(getattr(robot, "joints", []))
+        if q.ndim == 2 and len(q) > 1:
+            span = q.max(axis=0) - q.min(axis=0)
+            for k in np.flatnonzero(span < HELD_TOLERANCE):
+                j = joints[k].name if k < len(joints) else f"{k + 1}"
+                value = (f"{np.degrees(q[0, k]):.4g}deg" if k >= len(joints) or
+                         joints[k].kind == "revolute" else f"{q[0, k] * 1000:.4g}mm")
+                lines.append(f"joint {j} never moves (range {span[k]:.2g} over {len(q)} rows): "
+                             f"its parameters are not identifiable here; hold it (hold: "
+                             f"{{{j}: {value}}})")
+    return {k: v for k, v in out.items() if v}
+
+
 def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequence[str],
-               base_link: str | None, tip_link: str | None, base: Path) -> str:
-    """The text of a commented setup file for ``robot`` and these files."""
+               base_link: str | None, tip_link: str | None, base: Path,
+               checks: dict[str, list[str]] | None = None) -> str:
+    """The text of a commented setup file for ``robot`` and these files (``checks``: lines
+    to mark CHECK under a file, from :func:`data_checks`)."""
     from kincal.measure.files import read_header
     from kincal.workflow.config import CALIBRATION_KEYS
+    from kincal.workflow.sources import detect_format
 
     lines = ["# kincal setup file: kincal calibrate --config THIS_FILE",
              "# Paths are relative to this file. Options given on the command line override",
@@ -286,11 +371,17 @@ def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequen
                                    "    # held-out files: errors before/after")]
         for f in files:
             lines.append(f"  - file: {_yaml_scalar(_relative(f, base))}")
+            lines += [f"    # CHECK: {c}" for c in (checks or {}).get(f, [])]
             if Path(f).is_dir():
                 lines += ["    format: mukca        # a folder of per-socket files (radians)",
                           "    instrument: two-socket",
                           "    options: {length: 50mm, probe: tool}    # CHECK: the "
                           "socket distance and the probe"]
+                continue
+            if detect_format(f) == "ros-industrial":
+                lines += ["    format: ros-industrial    # a ROS-I observation YAML (pose "
+                          "instrument, static camera)",
+                          "    name: camera"]
                 continue
             tags, names, _ = read_header(f)
             units, notes = _guess_units(f, robot_obj)
@@ -303,9 +394,9 @@ def setup_text(robot: str, robot_obj: Any, data: Sequence[str], validate: Sequen
             else:
                 lines.append(f"    # tag line: {'; '.join(f'{k}={v}' for k, v in tags.items())}")
             lines.append(f"    # columns: {', '.join(names)}")
+            lines += _column_map_hint(names)
             if key == "validate":
-                lines.append("    frames: training     # training (same session) | register "
-                             "(the instrument moved)")
+                lines += _held_out_frames(f, data)
     lines += ["", "calibration:              # every `kincal calibrate` option, by its long "
               "name"]
     for k, spec in CALIBRATION_KEYS.items():
@@ -362,11 +453,20 @@ def init_cmd(
     parsed = yaml.safe_load(text)
     setup = parse_setup(parsed, base, source=output)
     problems = []
+    blocks = []
     for src in setup.data + setup.validate:
         try:
-            read_sources([src], r)
+            blocks += read_sources([src], r)
         except KincalError as exc:
             problems.append(str(exc))
+    by_path = {str(s.path): f for s, f in zip(setup.data + setup.validate, files, strict=True)}
+    checks = {by_path.get(k, k): v for k, v in data_checks(blocks, r).items()}
+    if checks:
+        text = setup_text(robot, r, list(data), list(validate or []), base_link, tip_link,
+                          base, checks)
+        for f, lines in checks.items():
+            for c in lines:
+                err_console.print(f"[yellow]warning:[/yellow] {escape(f)}: {escape(c)}")
     if problems:
         text += "\n# Reading the files with these settings failed (fix, then run kincal " \
                 "calibrate --config):\n" + "".join(f"#   {p}\n" for p in problems)

@@ -62,6 +62,8 @@ from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text, read_text
+from kincal.measure.columns import map_columns, missing_joints_message
+from kincal.measure.dialect import Dialect, normalise, sniff
 from kincal.robots.hold import held_joints
 from kincal.units import DIMENSIONS, MAX_SI, UNITS
 
@@ -113,6 +115,8 @@ class MeasurementTable:
         lines: (N,) file line number of every row (1-based), for messages.
         ignored: names of the columns that were not read.
         columns: observation base name -> column header as written in the file.
+        notes: how the file was read when it differs from kincal's own spelling (its
+            CSV dialect, renamed columns), one line each, for the command to print.
     """
 
     path: str
@@ -124,6 +128,7 @@ class MeasurementTable:
     ignored: list[str] = field(default_factory=list)
     columns: dict[str, str] = field(default_factory=dict)
     header_line: int = 1
+    notes: list[str] = field(default_factory=list)
 
     def __len__(self) -> int:
         return int(self.lines.size)
@@ -298,12 +303,16 @@ def read_header(path: str | os.PathLike[str]) -> tuple[dict[str, str], list[str]
     """The tags, the header's column names and the header's line number (1-based)."""
     lines = _read_lines(path)
     tags = file_tags(path, lines[0])
-    for i, line in enumerate(lines):
-        s = line.strip()
-        if not s or s.startswith("#"):
-            continue
-        names = [c.strip() for c in next(csv.reader([line]))]
-        return tags, names, i + 1
+    body = [(i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and
+            not ln.lstrip().startswith("#")]
+    if body:
+        header_line, body, _ = _sniffed(body, str(path))
+        names = [c.strip() for c in next(csv.reader([body[0][1]]))]
+
+        def fail(msg: str) -> MeasurementFileError:
+            return MeasurementFileError(f"line {header_line}: {msg}", source=str(path))
+
+        return tags, map_columns(names, tags, None, {}, (), fail).names, header_line
     raise MeasurementFileError(f"line {len(lines)}: no header line (only comments)",
                                source=str(path))
 
@@ -361,22 +370,23 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
     if not body:
         raise MeasurementFileError(f"line {len(lines)}: no header line (only comments)",
                                    source=src)
-    header_line, header_text = body[0]
+    header_line, body, dialect = _sniffed(body, src)
+    header_text = body[0][1]
     names = [c.strip() for c in next(csv.reader([header_text]))]
 
     def fail(msg: str, line: int = header_line) -> MeasurementFileError:
         return MeasurementFileError(f"line {line}: {msg}", source=src)
 
-    ignore_rx, unit_rx = _check_header(names, ignore, units, fail)
+    cmap = map_columns(names, tags, robot if joints else None, units, ignore, fail)
+    file_names, names, units = names, cmap.names, cmap.units
+    ignore_rx, unit_rx = _check_header(names, cmap.ignore, units, fail)
     jc = _JointColumns.of(robot, joints)
     used, ignored, bases = _sort_columns(names, fields, ignore_rx, unit_rx, jc, fail)
     if jc.names:
         missing = [j for j in jc.names if j not in bases]
         if missing:
             have = [b for _, b, _, r in used if r == "joint"]
-            raise fail(f"no column for joint {missing[0]!r}: robot {robot.name!r} has "
-                       f"{len(jc.names)} joints ({', '.join(jc.names)}), the file has "
-                       f"{len(have)} joint columns ({', '.join(have) or 'none'})")
+            raise fail(missing_joints_message(robot, missing[0], have, file_names))
 
     data_rows = body[1:]
     if not data_rows:
@@ -388,8 +398,20 @@ def read_table(path: str | os.PathLike[str], robot: Any, fields: Sequence[Field]
     values = {b: arr[:, k] for k, (_, b, _, r) in enumerate(used) if r == "obs"}
     col_names = {b: names[c] for c, b, _, r in used if r == "obs"}
     _check_held(arr, cells, linenos, names, used, jc.held, ignored, fail)
+    notes = ([dialect.note] if dialect.note else []) + cmap.notes
     return MeasurementTable(src, tags, q, values, {b: u for _, b, u, r in used if r != "held"},
-                            linenos, ignored, col_names, header_line)
+                            linenos, ignored, col_names, header_line, notes)
+
+
+def _sniffed(body: list[tuple[int, str]], src: str
+             ) -> tuple[int, list[tuple[int, str]], Dialect]:
+    """The header line, the body lines in kincal's dialect and the file's dialect
+    (:mod:`kincal.measure.dialect`)."""
+    header_line = body[0][0]
+    dialect = sniff(body[0][1], [ln for _, ln in body[1:]], src, header_line,
+                    [i for i, _ in body[1:]])
+    text = normalise([ln for _, ln in body], dialect)
+    return header_line, [(i, t) for (i, _), t in zip(body, text, strict=True)], dialect
 
 
 def _check_header(names: Sequence[str], ignore: Sequence[str], units: Mapping[str, str],
@@ -585,7 +607,8 @@ def _unexpected(base: str, jnames: Sequence[str], lower_j: Mapping[str, str],
     if close or re.fullmatch(r"(q|j|joint)\d+", base, re.IGNORECASE):
         near = f" (closest joint: {close[0]})" if close else ""
         return (f"looks like a joint column, but the robot has no joint {base!r}{near}; "
-                f"its joints are {', '.join(jnames) or 'none'} (or list it in --ignore)")
+                f"its joints are {', '.join(jnames) or 'none'} (map it with --joint-names "
+                "FILE_COLUMN=JOINT,..., or list it in --ignore)")
     if not fields:
         return ("looks like a measurement, but this file holds joint values only; list it "
                 "in --ignore to drop it")

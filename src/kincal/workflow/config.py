@@ -41,7 +41,7 @@ from typing import Any
 from kincal.errors import KincalError
 from kincal.io import read_text
 from kincal.units import UNITS, parse_quantity
-from kincal.workflow.sources import FORMATS, DataSource, instrument_tags
+from kincal.workflow.sources import FORMATS, DataSource, detect_format, instrument_tags
 
 __all__ = ["Setup", "YamlDocument", "SetupError", "read_yaml", "load_setup", "parse_setup",
            "hold_robot", "CALIBRATION_KEYS", "OUTPUT_KEYS", "SETUP_KEYS",
@@ -123,7 +123,8 @@ SETUP_KEYS = ("robot", "base_link", "tip_link", "hold", "data", "validate", "cal
               "outputs")
 
 #: Keys of one ``data:`` / ``validate:`` entry.
-DATA_KEYS = ("file", "units", "ignore", "instrument", "name", "format", "options", "frames")
+DATA_KEYS = ("file", "units", "ignore", "instrument", "name", "format", "options", "joint_names",
+             "columns", "frames")
 
 
 # --------------------------------------------------------------------------- YAML with lines
@@ -467,8 +468,7 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
                                                f"{', '.join(UNITS)})")
             units[k] = u
         ignore = tuple(r.text_list(m["ignore"], p + ("ignore",))) if "ignore" in m else ()
-        fmt = r.text(m.get("format", "mukca" if Path(file).is_dir() else "kincal"),
-                     p + ("format",))
+        fmt = r.text(m.get("format", detect_format(file)), p + ("format",))
         if fmt not in FORMATS:
             raise r.fail(p + ("format",), f"{fmt!r} is not {' or '.join(FORMATS)}")
         if fmt == "mukca" and not Path(file).is_dir():
@@ -494,6 +494,7 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
             tags = instrument_tags(opts)
         except KincalError as exc:
             raise r.fail(p + ("options",), str(exc)) from None
+        tags.update(_column_maps(r, m, p, fmt))
         frames = None
         if "frames" in m:
             frames = r.text(m["frames"], p + ("frames",))
@@ -502,6 +503,26 @@ def _sources(r: _Reader, value: Any, path: KeyPath, held_out: bool) -> tuple[Dat
         out.append(DataSource(file, units, ignore, instrument, name, fmt, tags, frames,
                               _where(r.source, r.lines, r.prefix + p)))
     return tuple(out)
+
+
+def _column_maps(r: _Reader, m: Mapping[str, Any], p: KeyPath, fmt: str) -> dict[str, str]:
+    """``joint_names:`` / ``columns:`` maps ``{file column: name}`` as tag text
+    (:mod:`kincal.measure.columns`)."""
+    from kincal.measure.columns import format_map
+
+    out: dict[str, str] = {}
+    for key in ("joint_names", "columns"):
+        if key in m and fmt != "kincal":
+            raise r.fail(p + (key,), "maps the columns of a CSV file; this source has none")
+        if key == "joint_names" and isinstance(m.get(key), str) and m[key].strip() == "ros":
+            out[key] = "ros"
+        elif key in m:
+            mp = r.mapping(m[key], p + (key,))
+            try:
+                out[key] = format_map({str(k): r.text(v, p + (key, k)) for k, v in mp.items()})
+            except KincalError as exc:
+                raise r.fail(p + (key,), str(exc)) from None
+    return out
 
 
 def _calibration(r: _Reader, value: Any, path: KeyPath) -> dict[str, Any]:

@@ -35,7 +35,7 @@ __all__ = ["DataSource", "FORMATS", "read_sources", "sources_from_options",
            "instrument_tags", "detect_format"]
 
 #: Formats of measurement sources.
-FORMATS = ("kincal", "mukca")
+FORMATS = ("kincal", "mukca", "ros-industrial")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,8 +108,16 @@ def instrument_tags(options: Mapping[str, Any], what: str = "instrument option"
 
 
 def detect_format(path: str | Path) -> str:
-    """``mukca`` for a folder (the one folder format), else ``kincal``."""
-    return "mukca" if Path(path).is_dir() else "kincal"
+    """``mukca`` for a folder (the one folder format), ``ros-industrial`` for a ROS-I
+    observation YAML (:mod:`kincal.measure.rosi`), else ``kincal``."""
+    if Path(path).is_dir():
+        return "mukca"
+    if Path(path).suffix.lower() in (".yaml", ".yml"):
+        from kincal.measure.rosi import is_rosi_observations
+
+        if is_rosi_observations(path):
+            return "ros-industrial"
+    return "kincal"
 
 
 def _matching(path: str, umap: Mapping[str, str]) -> dict[str, str]:
@@ -177,6 +185,12 @@ def _read_one(src: DataSource, robot: Any, name: str | None) -> list[Any]:
             tags = {k: v for k, v in src.all_tags().items() if k != "name"}
             return read_socket_folder(src.path, robot, tags, name=name or src.name,
                                       angle_unit=angle)
+        if src.format == "ros-industrial":
+            from kincal.measure.files import tag_overrides
+            from kincal.measure.rosi import read_rosi_observations
+
+            with tag_overrides(src.path, src.all_tags()):
+                return list(read_rosi_observations(src.path, robot, name=name or src.name))
         if Path(src.path).is_dir():
             raise MeasurementFileError("is a folder; a folder of per-socket files needs "
                                        "format mukca", source=src.path)

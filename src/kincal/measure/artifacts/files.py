@@ -199,17 +199,31 @@ def _block(q: Array, placement: Sequence[str], point: Sequence[str], tags: Mappi
 def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
                        name: str | None = None, angle_unit: str = "rad"
                        ) -> list[ArtifactMeasurement]:
-    """A MUKCa-style socket folder as one artifact block (one placement).
+    """A MUKCa-style socket folder as one artifact block (one placement), or a robot's
+    folder of such placement folders as one block of several placements (as the MUKCa
+    recorder lays them out: ``panda_3/frontleft/hole_0.csv`` ...).
 
     The folder holds one headerless file per socket (``hole_0.csv``, ``hole_1.csv``:
     one configuration per row, the robot's joints in its order, in ``angle_unit``,
-    radians as the MUKCa recorder writes them).  Files carry no tag line, so ``tags``
-    says what the artifact is: ``instrument`` (default ``two-socket``), its length
-    (``length_mm=50``), the probe (``probe=tool`` ...), ``point_std_<u>`` and the rest
-    of the artifact tags (module docstring).  The placement is the folder's name.
+    radians as the MUKCa recorder writes them); the recorder's ``hole_?_pose.csv`` beside
+    them (the controller's own pose of the ball) are skipped (:func:`socket_files`).
+    Files carry no tag line, so ``tags`` says what the artifact is: ``instrument``
+    (default ``two-socket``), its length (``length_mm=50``), the probe (``probe=tool``
+    ...), ``point_std_<u>`` and the rest of the artifact tags (module docstring).  The
+    placement is the folder's name.
     """
     src = str(path)
-    data = read_socket_files(path, angle_unit=angle_unit)
+    subs = placement_folders(path)
+    if subs:                                   # a robot's folder: one placement per folder
+        blocks = [read_socket_folder(f, robot, tags, name, angle_unit)[0] for f in subs]
+        try:
+            return [merge_blocks(blocks, name)]
+        except MeasurementFileError:
+            raise
+        except KincalError as exc:
+            raise MeasurementFileError(str(exc), source=src) from None
+    data = read_socket_files(socket_files(path), angle_unit=angle_unit,
+                             placement=Path(path).name)
     if robot is not None and data.q.shape[1] != robot.n:
         raise MeasurementFileError(f"{data.q.shape[1]} joint values per row, but robot "
                                    f"{robot.name!r} has {robot.n} joints "
@@ -222,6 +236,34 @@ def read_socket_folder(path: str | Path, robot: Any, tags: Mapping[str, str],
                                        f"sockets ({', '.join(geom.sockets)}): name the files "
                                        "after them", source=src)
     return [_block(data.q, data.placement, data.socket, tags, path, robot, name, geom)]
+
+
+#: What the MUKCa recorder writes beside each socket file: the controller's own pose of the
+#: ball (its forward kinematics of its nominal model, position and quaternion), not a
+#: measurement: skipped on purpose by :func:`socket_files`.
+CONTROLLER_POSE_SUFFIX = "_pose"
+
+
+def placement_folders(folder: str | Path) -> list[Path]:
+    """The placement sub-folders of a MUKCa robot folder (each holding socket files), in
+    name order; ``[]`` when ``folder`` itself holds socket files (one placement)."""
+    root = Path(folder)
+    if any(f for f in root.glob("*.csv") if not f.stem.endswith(CONTROLLER_POSE_SUFFIX)):
+        return []
+    return sorted(d for d in root.iterdir() if d.is_dir() and any(
+        f for f in d.glob("*.csv") if not f.stem.endswith(CONTROLLER_POSE_SUFFIX)))
+
+
+def socket_files(folder: str | Path) -> list[Path]:
+    """The socket files of a MUKCa folder: every ``*.csv`` but the controller's pose files
+    (``hole_0_pose.csv``: the controller's forward kinematics, which carries no information
+    a calibration can use); one error line when none is left."""
+    files = sorted(f for f in Path(folder).glob("*.csv")
+                   if not f.stem.endswith(CONTROLLER_POSE_SUFFIX))
+    if not files:
+        raise MeasurementFileError("no socket files (hole_0.csv, hole_1.csv ...) in the "
+                                   "folder", source=str(folder))
+    return files
 
 
 def merge_blocks(blocks: Sequence[ArtifactMeasurement], name: str | None = None

@@ -61,6 +61,7 @@ from kincal.measure.instruments.position import (
     scalar_sigma,
     tag_sigma,
 )
+from kincal.measure.orientation import AXIS_SIGMAS, pose_rotations, quaternion_units, row_sigmas
 from kincal.measure.registry import Instrument, register
 from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
@@ -72,7 +73,6 @@ from kincal.spatial import (
     log_so3,
     matrix_from_frame,
     matrix_to_rpy,
-    rpy_to_matrix,
 )
 
 Array = NDArray[np.float64]
@@ -305,18 +305,21 @@ POSE_FIELDS = (
     Field(r"r[xyz]", "angle", "rx, ry, rz (roll-pitch-yaw)"),
     Field(r"sigma", "length", "sigma (position standard deviation)"),
     Field(r"sigma_rot", "angle", "sigma_rot (orientation standard deviation)"),
+    Field(r"q[wxyz]", "dimensionless", "qw, qx, qy, qz (unit quaternion)"),
+    Field(r"sigma_[xyz]", "length", "sigma_x, sigma_y, sigma_z (per axis)"),
+    Field(r"sigma_r[xyz]", "angle", "sigma_rx, sigma_ry, sigma_rz (per axis)"),
 )
 
 
 def pose_matrices(t: MeasurementTable) -> Array:
-    """(N, 4, 4) poses from the ``x y z rx ry rz`` columns of a table."""
-    for c in ("x", "y", "z", "rx", "ry", "rz"):
+    """(N, 4, 4) poses from the ``x y z`` columns and the orientation columns of a table
+    (their convention: the ``orientation`` tag, :mod:`kincal.measure.orientation`)."""
+    for c in ("x", "y", "z"):
         if c not in t.values:
-            unit = "deg" if c.startswith("r") else "mm"
-            raise t.error(f"missing column {c!r} (with its unit, e.g. {c}_{unit})")
-    rpy = np.stack([t.values[c] for c in ("rx", "ry", "rz")], axis=1)
+            raise t.error(f"missing column {c!r} (with its unit, e.g. {c}_mm)")
+    R, _ = pose_rotations(t)
     p = np.stack([t.values[c] for c in "xyz"], axis=1)
-    return homogeneous(rpy_to_matrix(rpy), p)
+    return homogeneous(R, p)
 
 
 def write_pose(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str] | None = None,
@@ -339,14 +342,14 @@ def write_pose(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str]
 def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = None,
               ignore: Sequence[str] = (), name: str | None = None) -> list[Any]:
     """Read a ``pose`` CSV into one :class:`PoseMeasurement` (SI units)."""
-    t = read_table(path, robot, POSE_FIELDS, units, ignore)
+    t = read_table(path, robot, POSE_FIELDS, {**quaternion_units(path), **dict(units or {})},
+                   ignore)
     P = pose_matrices(t)
-    for b in ("sigma", "sigma_rot"):
+    for b in ("sigma", "sigma_rot", *AXIS_SIGMAS[0], *AXIS_SIGMAS[1]):
         check_positive(t, b)
-    block = PoseMeasurement(t.q, P, sigma_position=scalar_sigma(t.values.get("sigma"),
-                                                                 tag_sigma(t, "sigma")),
-                            sigma_orientation=scalar_sigma(t.values.get("sigma_rot"),
-                                                            tag_sigma(t, "sigma_rot")),
+    sp, so = row_sigmas(t)
+    block = PoseMeasurement(t.q, P, sigma_position=scalar_sigma(sp, tag_sigma(t, "sigma")),
+                            sigma_orientation=scalar_sigma(so, tag_sigma(t, "sigma_rot")),
                             name=name or t.tags.get("name") or UNNAMED)
     block.provenance = Provenance(str(path), t)
     return [block]
