@@ -21,7 +21,7 @@ from kincal.parallel.files import load_fivebar
 runner = CliRunner()
 
 
-def test_fivebar_thesis_command_writes_plots_and_history(tmp_path) -> None:
+def test_fivebar_reference_command_writes_plots_and_history(tmp_path) -> None:
     out = tmp_path / "plots"
     res = runner.invoke(app, ["fivebar-demo", "--out-dir", str(out), "--json",
                               str(tmp_path / "h.json")])
@@ -50,7 +50,7 @@ def test_workspace_and_mobility_commands(tmp_path) -> None:
 
 
 def test_show_fk_ik_helpers(tmp_path) -> None:
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     buf = io.StringIO()
     show_fivebar(robot, Console(file=buf, width=120))
     assert "base2.x" in buf.getvalue() and "F = 2" in buf.getvalue()
@@ -68,18 +68,19 @@ def test_generic_show_and_fk_commands_reach_the_fivebar() -> None:
     res = runner.invoke(app, ["show", "fivebar"])
     assert res.exit_code == 0, res.output
     assert "offset2" in res.output
-    res = runner.invoke(app, ["fk", "fivebar_thesis", "--q", "0.6,2.5", "--json", "-"])
+    res = runner.invoke(app, ["fk", "fivebar_reference", "--q", "0.6,2.5", "--json", "-"])
     assert res.exit_code == 0, res.output
-    assert np.allclose(json.loads(res.stdout)["x"], load_fivebar("fivebar_thesis").fk([0.6, 2.5]))
+    assert np.allclose(json.loads(res.stdout)["x"],
+                       load_fivebar("fivebar_reference").fk([0.6, 2.5]))
 
 
 def test_simulate_then_calibrate_a_measurement_file(tmp_path) -> None:
     data = tmp_path / "d.csv"
-    res = runner.invoke(app, ["fivebar-simulate", "fivebar_thesis", "-o", str(data),
+    res = runner.invoke(app, ["fivebar-simulate", "fivebar_reference", "-o", str(data),
                               "--set", "l1=1.86m", "--set", "l2=2200mm", "--set", "l3=2.8m",
                               "--set", "l4=3.3m", "--set", "offset1=0.01rad", "-n", "40"])
     assert res.exit_code == 0, res.output
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     result = calibrate_fivebar_file(robot, data, method="lm",
                                     tolerances=dict.fromkeys(("l1", "l2", "l3", "l4"), 0.05))
     assert result.trusted, result.verdict.line()
@@ -89,7 +90,7 @@ def test_simulate_then_calibrate_a_measurement_file(tmp_path) -> None:
     # the file stores 17 significant digits of deg and mm: recovery to ~1e-12
     assert np.max(np.abs(result.robot.param_values - truth.param_values)) < 1e-9
     calibrated = load_fivebar(tmp_path / "cal.yaml")
-    assert calibrated.name == "fivebar_thesis_calibrated"
+    assert calibrated.name == "fivebar_reference_calibrated"
     assert np.allclose(calibrated.param_values, result.robot.param_values, atol=1e-15)
     assert json.loads((tmp_path / "c.json").read_text())["converged"] is True
     # the report is the serial robots' page: before/after table, parameters in mm / deg
@@ -102,9 +103,9 @@ def test_fivebar_calibrate_prints_like_a_serial_robot(tmp_path, capsys) -> None:
     from cli_helpers import run
 
     data = tmp_path / "d.csv"
-    assert runner.invoke(app, ["fivebar-simulate", "fivebar_thesis", "-o", str(data),
+    assert runner.invoke(app, ["fivebar-simulate", "fivebar_reference", "-o", str(data),
                                "--set", "l1=1.86m", "-n", "30"]).exit_code == 0
-    code, out, err = run(capsys, "calibrate", "fivebar_thesis", "--data", data, "--report",
+    code, out, err = run(capsys, "calibrate", "fivebar_reference", "--data", data, "--report",
                          tmp_path / "r.html", "-o", tmp_path / "cal.yaml")
     # 140 mm from a 2 m drawing is 140 tolerances of 1 mm: shown, not trusted, not written
     assert code == 1
@@ -137,7 +138,7 @@ def test_user_errors_exit_with_code_2_and_one_line(tmp_path) -> None:
 def test_calibrate_rejects_bad_method_and_files(tmp_path, method: str) -> None:
     from kincal.errors import KincalError, MeasurementFileError
 
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     with pytest.raises(KincalError, match="method must be one of"):
         calibrate_fivebar_file(robot, tmp_path / "x.csv", method="newton")
     with pytest.raises(MeasurementFileError, match="no such measurement file"):

@@ -23,7 +23,7 @@ THESIS = {
 
 
 def test_library_files_load_with_their_source() -> None:
-    thesis = load_fivebar("fivebar_thesis")
+    thesis = load_fivebar("fivebar_reference")
     assert thesis.param_values[:8].tolist() == [2, 2, 3, 3, 1, 0, -1, 0]
     assert "Pittr" in thesis.source and thesis.assembly == -1 and thesis.working_mode == "-+"
     generic = load_fivebar("fivebar")
@@ -34,7 +34,7 @@ def test_generic_loader_returns_a_fivebar() -> None:
     from kincal.parallel.fivebar import FiveBar
     from kincal.workflow.robots import load_any_robot
 
-    assert isinstance(load_any_robot("fivebar_thesis"), FiveBar)
+    assert isinstance(load_any_robot("fivebar_reference"), FiveBar)
 
 
 def test_units_are_converted_at_the_border() -> None:
@@ -75,7 +75,7 @@ def test_bad_fields_are_named_in_one_line(change: dict, message: str) -> None:
 
 
 def test_robot_file_round_trip(tmp_path) -> None:
-    robot = load_fivebar("fivebar_thesis").with_params({"l1": 1.86, "offset2": -0.01})
+    robot = load_fivebar("fivebar_reference").with_params({"l1": 1.86, "offset2": -0.01})
     path = write_fivebar(robot, tmp_path / "r.yaml")
     back = load_fivebar(path)
     assert np.array_equal(back.param_values, robot.param_values)

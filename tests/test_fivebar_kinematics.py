@@ -102,7 +102,7 @@ def test_fk_closes_the_loop_and_passive_angles_agree() -> None:
 
 
 def test_single_configuration_shapes() -> None:
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     q = np.array([0.6, 2.5])
     x = robot.fk(q)
     assert x.shape == (2,)
@@ -118,7 +118,7 @@ def test_single_configuration_shapes() -> None:
 
 
 def test_thesis_robot_default_modes_match_its_layout() -> None:
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     rng = np.random.default_rng(0)
     q = np.c_[rng.uniform(0.1, 1.4, 200), rng.uniform(1.7, 3.0, 200)]
     x = robot.fk(q)
@@ -176,7 +176,7 @@ def test_continuous_assembly_crosses_a_type2_singularity() -> None:
 
 
 def test_continuous_assembly_matches_the_loop_on_a_random_walk() -> None:
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     rng = np.random.default_rng(5)
     q = np.array([0.7, 2.3]) + np.cumsum(rng.normal(0.0, 0.05, (2000, 2)), axis=0)
     x_cont = robot.fk(q, "continuous", unreachable="nan")
@@ -188,7 +188,7 @@ def test_continuous_assembly_matches_the_loop_on_a_random_walk() -> None:
 
 
 def test_singularity_measures_at_constructed_singular_configurations() -> None:
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     # Type 1: arm 1 stretched, J3 on the circle of radius l1 + l3 about B1
     b1 = np.array([robot.base1_x, robot.base1_y])
     x1 = b1 + (robot.l1 + robot.l3) * np.array([np.cos(1.9), np.sin(1.9)])
@@ -215,7 +215,7 @@ def test_singularity_measures_at_constructed_singular_configurations() -> None:
 
 
 def test_with_params_is_a_new_value() -> None:
-    robot = load_fivebar("fivebar_thesis")
+    robot = load_fivebar("fivebar_reference")
     other = robot.with_params({"l1": 1.86, "offset2": 0.01})
     assert robot.l1 == 2.0 and other.l1 == 1.86 and other.offset2 == 0.01
     assert np.array_equal(robot.with_params(other.param_values).param_values, other.param_values)
@@ -232,7 +232,7 @@ def test_workspace_area_and_membership() -> None:
     robot = FiveBar(l1=1.0, l2=1.0, l3=2.0, l4=2.0, base1_x=0.0, base2_x=1e-9)
     ws = workspace(robot, "+-", resolution=600)
     assert ws.area == pytest.approx(4 * np.pi * 1.0 * 2.0, rel=0.01)
-    thesis = load_fivebar("fivebar_thesis")
+    thesis = load_fivebar("fivebar_reference")
     ws = workspace(thesis, resolution=120)
     gx, gy = np.meshgrid(ws.xs, ws.ys)
     pts = np.c_[gx.ravel(), gy.ravel()]

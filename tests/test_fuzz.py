@@ -85,7 +85,7 @@ def good(tmp_path_factory) -> dict[str, Path]:
     assert invoke("export", "puma560", "-o", files["urdf"]) == 0
     assert invoke("calibrate", "puma560", "--data", files["csv"], "-o", files["cal"],
                   "--json", files["res"], "--force") in (0, 1)
-    assert invoke("fivebar-simulate", "fivebar_thesis", "-o", files["fb"], "-n", "8") == 0
+    assert invoke("fivebar-simulate", "fivebar_reference", "-o", files["fb"], "-n", "8") == 0
     return files
 
 
@@ -317,7 +317,7 @@ def test_other_readers(good, tmp_path_factory, raw, which):
         cmd = ["validate", "puma560", "--data", good["csv"], "--result", f, "--json", out]
     elif which == "fivebar":
         f.write_bytes(raw)
-        cmd = ["calibrate", "fivebar_thesis", "--data", f, "-o", out]
+        cmd = ["calibrate", "fivebar_reference", "--data", f, "-o", out]
     elif which == "ur":
         f.write_bytes(raw)
         cmd = ["import", "ur", f, "--nominal", "ur5", "-o", out]

@@ -335,10 +335,10 @@ def test_cli_ik_fivebar_branch(tmp_path):
     from kincal.workflow.robots import load_any_robot
 
     runner = CliRunner()
-    robot = load_any_robot("fivebar_thesis")
+    robot = load_any_robot("fivebar_reference")
     x = robot.fk([0.6, 2.5])
     xy = f"{float(x[0])!r},{float(x[1])!r}"
-    res = runner.invoke(app, ["ik", "fivebar_thesis", "--position", xy, "--mode", "-+",
+    res = runner.invoke(app, ["ik", "fivebar_reference", "--position", xy, "--mode", "-+",
                               "--json", str(tmp_path / "ik.json")])
     assert res.exit_code == 0, res.output
     out = json.loads((tmp_path / "ik.json").read_text())

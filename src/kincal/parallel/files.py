@@ -3,7 +3,7 @@
 Layout (units explicit; lengths in ``units.length``, angles in ``units.angle``)::
 
     kind: fivebar
-    name: fivebar_thesis
+    name: fivebar_reference
     source: where the numbers come from
     units: {length: m, angle: rad}          # length: m | mm, angle: rad | deg
     links: {l1: 2.0, l2: 2.0, l3: 3.0, l4: 3.0}
@@ -224,7 +224,7 @@ def write_fivebar(robot: FiveBar, path: str | Path) -> Path:
 
 
 def load_fivebar(name_or_path: str | os.PathLike[str]) -> FiveBar:
-    """A five-bar from a file path or a built-in robot name (``fivebar``, ``fivebar_thesis``)."""
+    """A five-bar from a file path or a built-in robot name (``fivebar``, ``fivebar_reference``)."""
     path = Path(name_or_path)
     if not path.is_file():
         candidate = library_dir() / f"{name_or_path}.yaml"

@@ -7,7 +7,7 @@ direct kinematics with beta1 in (0, pi/2), beta2 in (pi/2, pi), stop threshold
 the thesis's figures 4.1-4.4) and the result with its history as JSON, then
 repeats the run with the task-space residual and with noisy readings.
 
-    python examples/fivebar_thesis.py [output folder]
+    python examples/fivebar_reference.py [output folder]
 
 The same from the command line: ``kincal fivebar-demo --out-dir DIR --json FILE``.
 """
@@ -37,7 +37,7 @@ def main(out: Path) -> None:
     print("true      " + " ".join(f"{v:16.12f}" for v in EXPERIMENT_TRUE_LENGTHS.values()))
     for path in plot_reference_experiment(result, true, out):
         print("wrote", path)
-    print("wrote", result.to_json(out / "fivebar_thesis.json"))
+    print("wrote", result.to_json(out / "fivebar_reference.json"))
 
     fk_result, _ = run_reference_experiment(residual="fk")
     err = max(abs(fk_result.params[k] - v) for k, v in EXPERIMENT_TRUE_LENGTHS.items())
