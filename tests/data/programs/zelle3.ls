@@ -43,9 +43,9 @@ P[1]{
 };
 P[2:"Schweisspunkt"]{
    GP1:
-	UF : 2, UT : 3,		KONFIG : 'N U T, 0, 0, 0',
-	X =    73.060  mm,	Y =  -677.465  mm,	Z =   941.353  mm,
-	W =  -119.202 deg,	P =   -11.567 deg,	R =  -107.443 deg
+	UF : 2, UT : 3,		KONFIG : 'F U T, 0, 0, 0',
+	X =  -102.676  mm,	Y =  -775.158  mm,	Z =  1178.783  mm,
+	W =   -52.850 deg,	P =    -5.381 deg,	R =   176.268 deg
    GP2:
 	UF : 2, UT : 3,	
 	J1=     0.000  mm

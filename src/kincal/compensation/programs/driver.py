@@ -284,8 +284,9 @@ def filter_program(path: str | Sequence[str], calibrated: Robot, nominal: Robot,
             user, tool = tools[i]
             T_user = inverse(user) @ result.flange[i] @ tool
             new = ops.pose_values(t, T_user)
-            axes_now = cmap.to_axes(result.joints[i])
-            new.update(ops.config_values(t, axes_now, result.signs[i]))
+            if "after" not in t.extra:       # monitoring off: the configuration is not read
+                axes_now = cmap.to_axes(result.joints[i])
+                new.update(ops.config_values(t, axes_now, result.signs[i]))
         else:
             axes = cmap.to_axes(result.joints[i])
             new = dict(zip(ops.joint_keys, axes, strict=True))

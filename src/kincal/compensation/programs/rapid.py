@@ -46,6 +46,8 @@ from kincal.spatial import homogeneous, quat_to_matrix
 JOINT_KEYS = ("j1", "j2", "j3", "j4", "j5", "j6")
 _DECL = re.compile(r"(?:\b(?:LOCAL|TASK)\s+)?\b(CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|"
                    r"wobjdata)\s+([A-Za-z]\w*)\s*:=\s*", re.IGNORECASE)
+_DECL_BARE = re.compile(r"\b(?:PERS|VAR)\s+(?:robtarget|jointtarget|tooldata|wobjdata)\s+"
+                        r"([A-Za-z]\w*)\s*(?:\{[^}]*\})?\s*;", re.IGNORECASE)
 _MOVE = re.compile(r"\b(MoveJ|MoveL|MoveC|MoveAbsJ|MoveJDO|MoveLDO|MoveCDO|MoveJSync|MoveLSync|"
                    r"MoveCSync|TriggJ|TriggL|TriggC|MoveExtJ)\b\s*", re.IGNORECASE)
 
@@ -259,6 +261,8 @@ _RELATIVE = ("offs", "reltool")
 def _declarations(path: str, text: str, code: str, prog: RapidProgram,
                   by_name: dict[str, ProgramTarget]) -> None:
     """Pass 1 over one module: its robtargets, jointtargets, tools and work objects."""
+    for m in _DECL_BARE.finditer(code):                # declared without a value
+        prog.computed.add(m.group(1).lower())
     for m in _DECL.finditer(code):
         kind, name = m.group(2).lower(), m.group(3)
         at = m.end()
@@ -289,10 +293,10 @@ def _declarations(path: str, text: str, code: str, prog: RapidProgram,
 
 
 def _head(arg: str) -> str:
-    """The name an argument starts with (after an ``Name :=`` prefix), lower case."""
+    """The name an argument starts with (after an ``Name :=`` prefix)."""
     a = re.sub(r"^\s*[A-Za-z]\w*\s*:=", "", arg)
     m = re.match(r"\s*([A-Za-z]\w*)", a)
-    return m.group(1).lower() if m else ""
+    return m.group(1) if m else ""
 
 
 class _Motions:
@@ -325,7 +329,7 @@ class _Motions:
         for _, a in args:
             w = re.search(r"\\WObj\s*:=\s*([A-Za-z]\w*)", a, re.IGNORECASE)
             if w:
-                wobj = w.group(1).lower()
+                wobj = w.group(1)
         tool = _head(positional[tool_at][1]) if len(positional) > tool_at else ""
         key = (tool or "?", wobj)
         monitored = instr == "moveabsj" or self.monitor["j" if instr[-1] == "j" or
@@ -339,7 +343,8 @@ class _Motions:
                 self.prev = None
                 continue
             if t.slots:
-                if t.used and (t.tool_key, t.base_key) != key:
+                if t.used and (str(t.tool_key).lower(), str(t.base_key).lower()) != \
+                        (key[0].lower(), key[1].lower()):
                     t.note = (f"used with {t.tool_key}/{t.base_key} and with "
                               f"{key[0]}/{key[1]}")
                 t.tool_key, t.base_key = key
@@ -452,8 +457,8 @@ def frames(prog: RapidProgram, t: ProgramTarget, fr: Frames) -> tuple[Array, Arr
 
     where = f"{t.name} ({Path(t.file).name}:{t.line})"
     found: list[Array] = []
-    for which, table, key in (("work object", prog.wobjs, t.base_key),
-                              ("tool", prog.tools, t.tool_key)):
+    for which, table, key in (("tool", prog.tools, t.tool_key),
+                              ("work object", prog.wobjs, t.base_key)):
         k = str(key).lower()
         named = {n.lower(): v for n, v in (fr.base if which == "work object"
                                             else fr.tool).items()}
@@ -464,7 +469,7 @@ def frames(prog: RapidProgram, t: ProgramTarget, fr: Frames) -> tuple[Array, Arr
                               f"({files}) nor in --frames: give the module that declares it "
                               "(RobotStudio: CalibData.mod) or --frames")
         found.append(value)
-    wobj, tool = found
+    tool, wobj = found
     if np.isnan(tool).any() or np.isnan(wobj).any():
         raise KincalError(f"{where}: a stationary tool or a robot-held work object is not "
                           "supported")
