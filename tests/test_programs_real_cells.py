@@ -421,3 +421,19 @@ def test_calibrated_urdf_keeps_unchanged_numbers_and_rpy_near_its_own(tmp_path):
     back = load_urdf(tmp_path / "c.urdf", "a", "c")
     q = np.array([[0.3, -0.7], [1.0, 2.0]])
     assert np.abs(back.fk(q) - cal.fk(q)).max() < 1e-12
+
+
+def test_fanuc_point_crossing_p90_keeps_w_and_r(tmp_path, capsys):
+    """A 0.1 deg turn about the pitch axis takes P = 90 to 90.1: written as P 90.100 with
+    W and R as they were, not as the other Euler solution (W - 180, 89.9, R + 180)."""
+    nom = load_robot("m10ia")
+    v = dict(zip(nom.param_names, nom.param_values, strict=True))
+    cal = nom.with_params({"base.ry": v["base.ry"] - math.radians(0.1)}).with_name("tilted")
+    write_robot_yaml(cal, tmp_path / "tilted.yaml")
+    src = tmp_path / "g.ls"
+    src.write_bytes((DATA / "gimbal.ls").read_bytes().replace(b"L P[2]", b"! P[2"))
+    code, _, err = run(capsys, "filter", src, "--robot", tmp_path / "tilted.yaml",
+                       "--nominal", "m10ia", "-o", tmp_path / "o.ls")
+    assert code == 0, err
+    w, p, r = _ls_points((tmp_path / "o.ls").read_text("latin-1"))[1][1][3:]
+    assert (w, r) == (168.02, 0.0) and p == pytest.approx(90.1, abs=1e-3)
