@@ -57,7 +57,7 @@ def _outputs(program: str, output: str, texts: dict[str, str],
 @app.command("filter")
 def filter_cmd(
     programs: Annotated[list[str], typer.Argument(
-        metavar="PROGRAM...", help="Robot program: KRL .src (its .dat beside it), RAPID "
+        metavar="PROGRAM", help="Robot program: KRL .src (its .dat beside it), RAPID "
         ".mod/.prg (several modules, or a folder: a controller backup's task or a "
         "RobotStudio project; -o is then a folder), URScript .script, FANUC .ls.")],
     robot: Annotated[str, typer.Option("--robot", help="The calibrated robot (from `kincal "

@@ -53,6 +53,9 @@ def dialect_of(path: str | Sequence[str], dialect: str = "auto") -> str:
         if dialect not in DIALECTS:
             raise KincalError(f"option --dialect: unknown dialect {dialect!r}; use auto, "
                               f"{', '.join(DIALECTS)}")
+        if not isinstance(path, str) and len(path) > 1 and dialect != "rapid":
+            raise KincalError(f"a {dialect} program is one file; several files are read "
+                              "together only as RAPID modules")
         return dialect
     if not isinstance(path, str):
         kinds = {dialect_of(p) for p in path}
@@ -123,7 +126,7 @@ class FilteredProgram:
 class DialectOps:
     """What the driver needs from a dialect."""
 
-    read: Callable[[str], Any]                         # -> object with .texts, .targets
+    read: Callable[[Any], Any]            # path(s) -> object with .texts, .targets
     pose_of: Callable[[ProgramTarget], Array]          # user-frame pose [m]
     pose_values: Callable[[ProgramTarget, Array], dict[str, float]]
     joint_keys: tuple[str, ...]
@@ -245,6 +248,8 @@ def filter_program(path: str | Sequence[str], calibrated: Robot, nominal: Robot,
                    ) -> FilteredProgram:
     """Filter every target of the program at ``path`` (module docstring): one file, or
     for RAPID several modules or a folder of them."""
+    if not isinstance(path, str) and len(path) == 1:
+        path = path[0]
     d = dialect_of(path, dialect)
     ops = _ops(d)
     prog = ops.read(path)
