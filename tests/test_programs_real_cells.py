@@ -230,7 +230,8 @@ def test_rapid_backup_folder_tool_in_calibdata_and_confl_off(tmp_path, robots, c
     assert code == 0, err
     rows = {r.split(",")[0]: r for r in (tmp_path / "t.csv").read_text().splitlines()[1:]}
     assert all(",filtered," in rows[n] for n in RAPID_AXES)
-    assert "ConfJ/ConfL \\Off" in rows["pWeld20"] and "ConfJ/ConfL" not in rows["pWeld10"]
+    assert "ConfL\\Off: branch nearest the previous target" in rows["pWeld20"]
+    assert "Off" not in rows["pWeld10"]
     assert ",kept," in rows["RelTool(pApproach...) line 18"]
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*.*")) == \
         ["PROGMOD/CalibData.mod", "PROGMOD/MainModule.mod", "SYSMOD/user.sys"]

@@ -309,7 +309,7 @@ class _Motions:
         self.monitor = {"j": True, "l": True}          # On after PP to main
         self.prev: ProgramTarget | None = None
         self.seen_missing: dict[str, ProgramTarget] = {}
-        self.uses: dict[int, list[tuple[bool, ProgramTarget | None]]] = {}
+        self.uses: dict[int, list[tuple[str, ProgramTarget | None]]] = {}
 
     def module(self, path: str, text: str, code: str) -> None:
         events = [(m.start(), "conf", m) for m in _CONF.finditer(code)]
@@ -332,9 +332,9 @@ class _Motions:
                 wobj = w.group(1)
         tool = _head(positional[tool_at][1]) if len(positional) > tool_at else ""
         key = (tool or "?", wobj)
-        monitored = instr == "moveabsj" or self.monitor["j" if instr[-1] == "j" or
-                                                        instr in ("movejdo", "movejsync")
-                                                        else "l"]
+        kind = "j" if instr in ("movej", "movejdo", "movejsync", "triggj") else "l"
+        # "" when the configuration is monitored, else the instruction that switched it off
+        unmonitored = "" if instr == "moveabsj" or self.monitor[kind] else f"Conf{kind.upper()}"
         for off, a in positional[:n_targets]:
             stripped = a.lstrip()
             at = off + len(a) - len(stripped)
@@ -349,7 +349,7 @@ class _Motions:
                               f"{key[0]}/{key[1]}")
                 t.tool_key, t.base_key = key
             t.used = True
-            self.uses.setdefault(id(t), []).append((monitored, self.prev))
+            self.uses.setdefault(id(t), []).append((unmonitored, self.prev))
             self.prev = t
 
     def _target(self, path: str, text: str, code: str, instr: str, arg: str, at: int
@@ -404,12 +404,11 @@ class _Motions:
         (the controller takes the solution nearest to the previous position)."""
         for t in self.prog.targets:
             uses = self.uses.get(id(t), [])
-            if t.kind != "pose" or not t.slots or not uses or any(on for on, _ in uses):
+            if t.kind != "pose" or not t.slots or not uses or any(not off for off, _ in uses):
                 continue
             t.config = None
             t.extra["after"] = uses[0][1]
-            t.extra["warning"] = ("configuration monitoring off (ConfJ/ConfL \\Off): "
-                                  "nearest branch to the previous target")
+            t.extra["warning"] = f"{uses[0][0]}\\Off: branch nearest the previous target"
 
 
 def file_digits(targets: Sequence[ProgramTarget]) -> dict[str, int]:
