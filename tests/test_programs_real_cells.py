@@ -438,3 +438,25 @@ def test_fanuc_point_crossing_p90_keeps_w_and_r(tmp_path, capsys):
     assert code == 0, err
     w, p, r = _ls_points((tmp_path / "o.ls").read_text("latin-1"))[1][1][3:]
     assert (w, r) == (168.02, 0.0) and p == pytest.approx(90.1, abs=1e-3)
+
+
+def test_a_backup_of_several_tasks_is_refused_in_one_line(tmp_path, capsys):
+    for task in ("T_ROB_L", "T_ROB_R"):                 # a YuMi backup: one arm per task
+        shutil.copytree(TASK, tmp_path / "bak" / "RAPID" / task)
+    code, _, err = run(capsys, "filter", tmp_path / "bak", "--robot", "irb120",
+                       "--nominal", "irb120", "-o", tmp_path / "out")
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "2 RAPID tasks" in err and "T_ROB_L" in err and not (tmp_path / "out").exists()
+
+
+def test_extended_axes_in_the_robots_group_are_listed(tmp_path, capsys):
+    text = (DATA / "zelle3.ls").read_bytes().replace(
+        b"R =  -167.769 deg\r\n", b"R =  -167.769 deg,\r\n\tE1=  1500.000  mm\r\n")
+    src = tmp_path / "rail.ls"
+    src.write_bytes(text)
+    code, _, _ = run(capsys, "filter", src, "--robot", "m10ia", "--nominal", "m10ia",
+                     "--frames", DATA / "fanuc_frames.yaml", "-o", tmp_path / "o.ls",
+                     "--csv", tmp_path / "t.csv")
+    rows = {r.split(",")[0]: r for r in (tmp_path / "t.csv").read_text().splitlines()[1:]}
+    assert code == 1 and ",not filtered," in rows["P[1]"] and "E1" in rows["P[1]"]
+    assert (tmp_path / "o.ls").read_bytes() == text
