@@ -460,3 +460,25 @@ def test_extended_axes_in_the_robots_group_are_listed(tmp_path, capsys):
     rows = {r.split(",")[0]: r for r in (tmp_path / "t.csv").read_text().splitlines()[1:]}
     assert code == 1 and ",not filtered," in rows["P[1]"] and "E1" in rows["P[1]"]
     assert (tmp_path / "o.ls").read_bytes() == text
+
+
+def test_rapid_follows_procedure_calls_from_main(tmp_path, robots, capsys):
+    """``ConfL \\Off`` in main before a call reaches the moves of the called procedure,
+    even when that procedure is written above main: the result is the backup's."""
+    nom, cal, cal_path = robots["irb120"]
+    main = (TASK / "PROGMOD/MainModule.mod").read_bytes().decode("latin-1")
+    head, body = main.split("  PROC main()\r\n")
+    body = body.replace("    MoveL pWeld20, v50, z1, tGun\\WObj:=wFixture;\r\n"
+                        "    MoveL pWeld30, v50, fine, tGun\\WObj:=wFixture;\r\n"
+                        "    ConfL \\On;\r\n", "    weld_seam;\r\n    ConfL \\On;\r\n")
+    weld = ("  PROC weld_seam()\r\n    MoveL pWeld20, v50, z1, tGun\\WObj:=wFixture;\r\n"
+            "    MoveL pWeld30, v50, fine, tGun\\WObj:=wFixture;\r\n  ENDPROC\r\n\r\n")
+    src = tmp_path / "MainModule.mod"
+    src.write_bytes((head + weld + "  PROC main()\r\n" + body).encode("latin-1"))
+    code, _, err = run(capsys, "filter", src, TASK / "PROGMOD/CalibData.mod", "--robot",
+                       cal_path, "--nominal", "irb120", "-o", tmp_path / "out",
+                       "--csv", tmp_path / "t.csv")
+    assert code == 0, err
+    assert "ConfL\\Off" in (tmp_path / "t.csv").read_text()
+    out = (tmp_path / "out" / "MainModule.mod").read_text("latin-1")
+    _rapid_check(nom, cal, main, out)

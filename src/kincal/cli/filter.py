@@ -37,10 +37,12 @@ def _outputs(program: str, output: str, texts: dict[str, str],
     with the same relative paths."""
     out = Path(output)
     mapping: dict[str, str] = {}
-    if several:
+    if several:     # by file name when the names differ, else relative to the common folder
         common = Path(os.path.commonpath([str(Path(f).resolve().parent) for f in texts]))
+        unique = len({Path(f).name for f in texts}) == len(texts) and not Path(program).is_dir()
         for f in texts:
-            mapping[f] = str(out / Path(f).resolve().relative_to(common))
+            mapping[f] = str(out / (Path(f).name if unique else
+                                    Path(f).resolve().relative_to(common)))
         texts = {}
     for f in texts:
         p = Path(f)

@@ -299,24 +299,79 @@ def _head(arg: str) -> str:
     return m.group(1) if m else ""
 
 
-class _Motions:
-    """Pass 2: the motion instructions of every module in textual order, with the
-    configuration monitoring (``ConfJ`` / ``ConfL``) they run under."""
+_PROC = re.compile(r"^[ \t]*(?:LOCAL[ \t]+)?PROC[ \t]+([A-Za-z]\w*)[^\n]*\n(.*?)^[ \t]*ENDPROC\b",
+                   re.IGNORECASE | re.MULTILINE | re.DOTALL)
 
-    def __init__(self, prog: RapidProgram, by_name: dict[str, ProgramTarget]) -> None:
+
+#: A statement that is a name (and arguments): a procedure call when the name is a PROC.
+_CALL = re.compile(r"^[ \t]*([A-Za-z]\w*)[ \t]*(?:;|[ \t\\][^;\n]*;)", re.MULTILINE)
+
+
+@dataclass
+class _Proc:
+    """One procedure: its module and the span of its body in the module's text."""
+
+    path: str
+    start: int
+    end: int
+
+
+class _Motions:
+    """Pass 2: the motion instructions in program order, with the configuration
+    monitoring (``ConfJ`` / ``ConfL``) they run under.
+
+    Program order is followed statically: from ``main``, each procedure's motions and
+    configuration switches in textual order, a call of a procedure (a statement that is
+    its name) walked where it stands (branches and loops are not evaluated; a procedure
+    already being walked is not entered again); then the procedures no walk reached, and
+    code outside procedures, in module order."""
+
+    def __init__(self, prog: RapidProgram, by_name: dict[str, ProgramTarget],
+                 codes: dict[str, str]) -> None:
         self.prog = prog
         self.by_name = by_name
+        self.codes = codes
         self.monitor = {"j": True, "l": True}          # On after PP to main
         self.prev: ProgramTarget | None = None
         self.seen_missing: dict[str, ProgramTarget] = {}
         self.uses: dict[int, list[tuple[str, ProgramTarget | None]]] = {}
+        self.procs: dict[str, _Proc] = {}
+        for f, code in codes.items():
+            for m in _PROC.finditer(code):
+                self.procs.setdefault(m.group(1).lower(), _Proc(f, m.start(2), m.end(2)))
+        self.walked: set[str] = set()
 
-    def module(self, path: str, text: str, code: str) -> None:
-        events = [(m.start(), "conf", m) for m in _CONF.finditer(code)]
-        events += [(m.start(), "move", m) for m in _MOVE.finditer(code)]
-        for _, what, m in sorted(events, key=lambda e: e[0]):
+    def run(self) -> None:
+        """Walk the program: ``main`` first, then whatever it did not reach."""
+        if "main" in self.procs:
+            self._walk("main", [])
+        for name in self.procs:
+            if name not in self.walked:
+                self._walk(name, [])
+        for f, code in self.codes.items():             # statements outside any procedure
+            inside = [(p.start, p.end) for p in self.procs.values() if p.path == f]
+            self._span(f, 0, len(code), [], inside)
+
+    def _walk(self, name: str, stack: list[str]) -> None:
+        proc = self.procs[name]
+        self.walked.add(name)
+        self._span(proc.path, proc.start, proc.end, stack + [name], [])
+
+    def _span(self, path: str, start: int, end: int, stack: list[str],
+              skip: list[tuple[int, int]]) -> None:
+        code, text = self.codes[path], self.prog.texts[path]
+        events = [(m.start(), "conf", m) for m in _CONF.finditer(code, start, end)]
+        events += [(m.start(), "move", m) for m in _MOVE.finditer(code, start, end)]
+        events += [(m.start(), "call", m) for m in _CALL.finditer(code, start, end)
+                   if m.group(1).lower() in self.procs]
+        for at, what, m in sorted(events, key=lambda e: e[0]):
+            if any(a <= at < b for a, b in skip):
+                continue
             if what == "conf":
                 self.monitor[m.group(1).lower()] = m.group(2).lower() == "on"
+            elif what == "call":
+                if m.group(1).lower() not in stack:
+                    self._walk(m.group(1).lower(), stack)
             elif m.group(1).lower() in _SIGNATURE:
                 self._move(path, text, code, m)
 
@@ -439,9 +494,8 @@ def read_rapid(path: str | Sequence[str]) -> RapidProgram:
         prog.texts[f] = text
         codes[f] = code_of(text)
         _declarations(f, text, codes[f], prog, by_name)
-    motions = _Motions(prog, by_name)
-    for f in files:
-        motions.module(f, prog.texts[f], codes[f])
+    motions = _Motions(prog, by_name, codes)
+    motions.run()
     motions.finish()
     prog.digits = file_digits(prog.targets)
     return prog
