@@ -715,10 +715,12 @@ def _fmt(values: Sequence[float] | NDArray[np.float64]) -> str:
 def _unchanged_kept(new: Sequence[float] | Array, old: Sequence[float]) -> Array:
     """``new`` with every number within :data:`UNCHANGED` of the file's ``old`` one set to
     it exactly, so rounding noise of the origin's recomposition (1e-13 .. 1e-26) is not
-    written into a number the calibration did not change."""
+    written into a number the calibration did not change; the others rounded to 13
+    decimals, below which the recomposition's digits are noise."""
     n = np.array(new, dtype=float)
     o = np.asarray(old, dtype=float)
-    return np.where(np.abs(n - o) <= UNCHANGED, o, n)
+    # a changed number to 13 decimals (0.30005, not 0.3000499999999999): 5e-14 m or rad
+    return np.where(np.abs(n - o) <= UNCHANGED, o, np.round(n, 13))
 
 
 def _origin_attrs(T: Array) -> dict[str, str]:
@@ -891,7 +893,7 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
                 F[:3, :3] = exp_so3(np.asarray(u, dtype=float) * c)
             T = T @ F
         xyz = _unchanged_kept(T[:3, 3], j.xyz)
-        rpy = _unchanged_kept(rpy_near(T[:3, :3], j.rpy), j.rpy)
+        rpy = _unchanged_kept(rpy_near(T[:3, :3], j.rpy, UNCHANGED), j.rpy)
         if np.allclose(xyz, j.xyz, rtol=0, atol=0) and np.allclose(rpy, j.rpy, rtol=0, atol=0):
             continue                        # untouched: not a byte of it changes
         out_text = set_origin(out_text, j.name, xyz, rpy, _fmt)
