@@ -32,6 +32,8 @@ from kincal.compensation.programs.base import (
     render,
 )
 from kincal.errors import KincalError
+from kincal.motion.ik_closed_form import NotThisFamily
+from kincal.motion.ik_wrist import ik_spherical_wrist
 from kincal.robots.chain import Robot
 from kincal.robots.controller import ControllerMap, controller_map
 from kincal.spatial import inverse
@@ -192,10 +194,37 @@ def _previous_joints(t: ProgramTarget, ops: DialectOps, prog: Any, frames: Frame
     except KincalError:
         return fallback
     seed = _previous_joints(prev, ops, prog, frames, nominal, cmap, fallback, depth + 1)
-    F = (user @ ops.pose_of(prev) @ inverse(tool))[None]
+    F = user @ ops.pose_of(prev) @ inverse(tool)
+    if "after" in prev.extra and seed is not None:
+        return nearest_branch(nominal, F, seed)
     start = np.zeros(nominal.n) if seed is None else seed
-    q, ok, _ = nominal_solutions(nominal, cmap, F, [prev.config], start[None])
+    q, ok, _ = nominal_solutions(nominal, cmap, F[None], [prev.config], start[None])
     return q[0] if ok[0] else fallback
+
+
+def nearest_branch(robot: Robot, F: Array, q_prev: Array) -> Array:
+    """The joint solution of flange pose F (4, 4) [m] closest to ``q_prev`` (n,) [rad]:
+    every closed-form branch, each joint moved by whole turns towards ``q_prev`` where the
+    limits allow, the least ``|q - q_prev|``; what a controller with configuration
+    monitoring off reaches.  ``q_prev`` itself when the robot has no closed form or F is
+    out of reach (the numerical IK seeded there then decides)."""
+    try:
+        sol = ik_spherical_wrist(robot, F[None])
+    except NotThisFamily:
+        return q_prev
+    cands = sol.q[0][sol.reachable[0]]
+    if not len(cands):
+        return q_prev
+    turn = 2 * math.pi
+    moved = cands + turn * np.round((q_prev - cands) / turn)
+    lim = robot.joint_limits
+    inside = (moved >= lim[:, 0] - 1e-9) & (moved <= lim[:, 1] + 1e-9)
+    moved = np.where(inside, moved, cands)
+    ok = np.all((moved >= lim[:, 0] - 1e-9) & (moved <= lim[:, 1] + 1e-9), axis=1)
+    if not ok.any():
+        return q_prev
+    dist = np.where(ok, np.linalg.norm(moved - q_prev, axis=1), np.inf)
+    return np.asarray(moved[int(np.argmin(dist))], dtype=float)
 
 
 def _requests(prog: Any, ops: DialectOps, frames: Frames, nominal: Robot, cmap: ControllerMap,
@@ -225,8 +254,10 @@ def _requests(prog: Any, ops: DialectOps, frames: Frames, nominal: Robot, cmap: 
             refused[id(t)] = str(exc)
             continue
         F = user @ ops.pose_of(t) @ inverse(tool)
-        seed = (_previous_joints(t, ops, prog, frames, nominal, cmap, last_joints)
-                if "after" in t.extra else last_joints)
+        seed = last_joints
+        if "after" in t.extra:          # monitoring off: the branch nearest the previous target
+            before = _previous_joints(t, ops, prog, frames, nominal, cmap, last_joints)
+            seed = None if before is None else nearest_branch(nominal, F, before)
         rows[id(t)] = len(requests)
         requests.append(TargetRequest("pose", flange=F, config=t.config, seed=seed, tool=tool))
         tools.append((user, tool))
