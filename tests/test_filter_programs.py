@@ -124,8 +124,10 @@ def _flange_targets(dialect, path, frames, robot_name):
     return out
 
 
-#: What the written numbers resolve: (position [m], rotation [rad]).
-RESOLUTION = {"krl": (1e-7, 1e-6), "rapid": (1e-7, 2e-8), "urscript": (1e-7, 1e-7),
+#: What the written numbers resolve: (position [m], rotation [rad]); a tenth of the test's
+#: bound (pick_place.mod writes mm with 2 decimals and quaternions with 7: the filter
+#: writes no finer than the file).
+RESOLUTION = {"krl": (1e-7, 1e-6), "rapid": (1e-6, 5e-8), "urscript": (1e-7, 1e-7),
               "fanuc-ls": (1e-6, 2e-5)}
 
 

@@ -45,3 +45,20 @@ kincal filter polyscope_export.script --robot ur5_cal.yaml --nominal ur5 \
     -o filtered/polyscope_export.script
 diff polyscope_export.script filtered/polyscope_export.script || true
 # --8<-- [end:polyscope]
+
+# --8<-- [start:rapid]
+kincal simulate irb120 -o irb_train.csv --truth irb_truth.yaml -n 60 --noise 0.01mm --seed 2
+kincal calibrate irb120 --data irb_train.csv -o irb120_cal.yaml > irb_calibrate.txt
+cp -r examples/tutorials/files/cell7_backup .
+kincal filter cell7_backup --robot irb120_cal.yaml --nominal irb120 -o cell7_filtered
+diff -r cell7_backup/RAPID/TASK1 cell7_filtered || true
+# --8<-- [end:rapid]
+
+# --8<-- [start:fanuc]
+kincal simulate m10ia -o m10_train.csv --truth m10_truth.yaml -n 60 --noise 0.01mm --seed 3
+kincal calibrate m10ia --data m10_train.csv -o m10ia_cal.yaml > m10_calibrate.txt
+cp examples/tutorials/files/zelle3.ls examples/tutorials/files/fanuc_frames.yaml .
+kincal filter zelle3.ls --robot m10ia_cal.yaml --nominal m10ia --frames fanuc_frames.yaml \
+    -o filtered/zelle3.ls || echo "exit status $?"
+diff zelle3.ls filtered/zelle3.ls || true
+# --8<-- [end:fanuc]

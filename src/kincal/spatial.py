@@ -110,6 +110,50 @@ def matrix_to_rpy(R: ArrayLike) -> Array:
     return np.stack([np.arctan2(-m12, m11), np.arctan2(-R[..., 2, 0], m00), yaw], -1)
 
 
+def rpy_near(R: ArrayLike, near: ArrayLike, pole: float = 0.0) -> Array:
+    """The ``(roll, pitch, yaw)`` [rad] of one rotation ``R`` (3, 3) closest to ``near``.
+
+    ``R = Rz(yaw) Ry(pitch) Rx(roll)`` has two exact solutions, ``(r, p, y)`` from
+    :func:`matrix_to_rpy` and ``(r + pi, pi - p, y + pi)``, each angle free by whole
+    turns; the one with the least ``sum((angle - near)**2)`` is returned, so a small
+    change of the rotation is a small change of the numbers wherever the numbers allow it.
+
+    At gimbal lock (``|pitch| = pi/2``) only ``yaw - roll`` (pitch ``+pi/2``) or
+    ``yaw + roll`` (pitch ``-pi/2``) is defined.  When the rotation lies within ``pole``
+    [rad] of that lock (its tool x axis within ``pole`` of the vertical: ``pole`` is the
+    resolution of the written angles, below which the file cannot tell), pitch is set
+    to exactly ``+-pi/2`` and the defined sum or difference ``s`` is split evenly against
+    ``near``: ``d = wrap(s - s_near)``, ``yaw = yaw_near + d/2``, ``roll = roll_near -+
+    d/2`` (the least-squares split).  Off the lock the split is fixed by the rotation:
+    a rotation whose x axis leaves the vertical by ``t`` in a new direction moves roll
+    and yaw by that direction's angle, whatever the representation.
+    """
+    Rm = np.asarray(R, dtype=float)
+    r0, p0, y0 = (float(v) for v in np.asarray(near, dtype=float))
+    roll, pitch, yaw = (float(v) for v in matrix_to_rpy(Rm))
+    two_pi = 2.0 * math.pi
+
+    def closest(a: float, ref: float) -> float:
+        return a + two_pi * round((ref - a) / two_pi)
+
+    if math.pi / 2 - abs(pitch) <= pole:
+        sign = 1.0 if pitch > 0 else -1.0
+        # R Ry(-sign pi/2) = Rz(s) with s = yaw - sign * roll
+        M = Rm @ roty(-sign * math.pi / 2)
+        s = math.atan2(M[1, 0] - M[0, 1], M[0, 0] + M[1, 1])
+        d = float(wrap_angle(s - (y0 - sign * r0)))
+        return np.array([r0 - sign * d / 2, closest(sign * math.pi / 2, p0), y0 + d / 2])
+    best: Array | None = None
+    cost = math.inf
+    for r, p, y in ((roll, pitch, yaw), (roll + math.pi, math.pi - pitch, yaw + math.pi)):
+        cand = np.array([closest(r, r0), closest(p, p0), closest(y, y0)])
+        c = float(np.sum((cand - np.array([r0, p0, y0])) ** 2))
+        if c < cost:
+            best, cost = cand, c
+    assert best is not None
+    return best
+
+
 def quat_to_matrix(q: ArrayLike) -> Array:
     """Rotation of a quaternion ``[w, x, y, z]`` (normalised first)."""
     w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)

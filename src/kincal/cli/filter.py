@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import re
 import sys
 from pathlib import Path
@@ -30,10 +31,20 @@ from kincal.errors import KincalError
 _SHOWN = 40
 
 
-def _outputs(program: str, output: str, texts: dict[str, str]) -> dict[str, str]:
-    """Output path per input file: ``-o OUT.src`` also writes ``OUT.dat`` beside it."""
+def _outputs(program: str, output: str, texts: dict[str, str],
+             several: bool = False) -> dict[str, str]:
+    """Output path per input file: ``-o OUT.src`` also writes ``OUT.dat`` beside it; a
+    program of several files or a folder (RAPID modules) is written into the folder ``-o``
+    with the same relative paths."""
     out = Path(output)
     mapping: dict[str, str] = {}
+    if several:     # by file name when the names differ, else relative to the common folder
+        common = Path(os.path.commonpath([str(Path(f).resolve().parent) for f in texts]))
+        unique = len({Path(f).name for f in texts}) == len(texts) and not Path(program).is_dir()
+        for f in texts:
+            mapping[f] = str(out / (Path(f).name if unique else
+                                    Path(f).resolve().relative_to(common)))
+        texts = {}
     for f in texts:
         p = Path(f)
         if p.resolve() == Path(program).resolve() or len(texts) == 1:
@@ -61,8 +72,10 @@ def _is_program(dialect: str, texts: dict[str, str]) -> bool:
 
 @app.command("filter")
 def filter_cmd(
-    program: Annotated[str, typer.Argument(help="Robot program: KRL .src (its .dat beside it), "
-                                           "RAPID .mod/.prg, URScript .script, FANUC .ls.")],
+    programs: Annotated[list[str], typer.Argument(
+        metavar="PROGRAM", help="Robot program: KRL .src (its .dat beside it), RAPID "
+        ".mod/.prg (several modules, or a folder: a controller backup's task or a "
+        "RobotStudio project; -o is then a folder), URScript .script, FANUC .ls.")],
     robot: Annotated[str, typer.Option("--robot", help="The calibrated robot (from `kincal "
                                        "calibrate -o`).")],
     nominal: Annotated[str, typer.Option("--nominal", help="The controller's nominal robot "
@@ -75,7 +88,8 @@ def filter_cmd(
                                          "rapid, urscript, fanuc-ls.")] = "auto",
     frames: Annotated[str | None, typer.Option("--frames", help="YAML with the controller's "
                                                "tool and base/user frames by number (KRL "
-                                               "TOOL_DATA/BASE_DATA, FANUC UTOOL/UFRAME).")
+                                               "TOOL_DATA/BASE_DATA, FANUC UTOOL/UFRAME) "
+                                               "or name (RAPID tooldata / wobjdata).")
                       ] = None,
     joint_targets: Annotated[str, typer.Option("--joint-targets", help="taught: joint targets "
                                                "stay (taught on the real robot); offline: "
@@ -99,13 +113,16 @@ def filter_cmd(
     from kincal.io import atomic_write_bytes, atomic_write_text, check_outputs, write_json
 
     out = out_console(json_out)
-    check_outputs({"-o": output, "--csv": csv_out, "--json": json_out},
-                  {"PROGRAM": [program], "--robot": [robot], "--nominal": [nominal],
+    several = len(programs) > 1 or Path(programs[0]).is_dir()
+    program: str | list[str] = programs if len(programs) > 1 else programs[0]
+    check_outputs({"-o": None if several else output, "--csv": csv_out, "--json": json_out},
+                  {"PROGRAM": programs, "--robot": [robot], "--nominal": [nominal],
                    "--frames": frames, "--result": result})
     if joint_targets not in ("taught", "offline"):
         raise KincalError(f"option --joint-targets: use taught or offline, not {joint_targets!r}")
-    if not Path(program).is_file():
-        raise KincalError("no such program file", source=program)
+    for p in programs:
+        if not (Path(p).is_file() or Path(p).is_dir()):
+            raise KincalError("no such program file", source=p)
     cal = serial(load(robot, base_link, tip_link), "filter")
     nom = serial(load(nominal, base_link, tip_link), "filter")
     fr = read_frames(frames)
@@ -117,8 +134,8 @@ def filter_cmd(
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
     if not res.reports and not _is_program(res.dialect, res.originals):
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
-                          "written)", source=program)
-    targets = _outputs(program, output, res.texts)
+                          "written)", source=programs[0])
+    targets = _outputs(programs[0], output, res.texts, several)
     texts = dict(res.texts)
     if res.dialect == "krl":            # DEF name( and DEFDAT name follow the file name
         from kincal.compensation.programs.krl import rename_module
@@ -131,7 +148,8 @@ def filter_cmd(
     n_f = sum(r.status == "filtered" for r in rows)
     shifts = [r.shift_mm for r in rows if r.status == "filtered"]
     n_p = sum(r.status == "partial" for r in rows)
-    table = Table(title=f"{escape(Path(program).name)} ({res.dialect}): {len(rows)} targets, "
+    shown_name = ", ".join(Path(p).name for p in programs)
+    table = Table(title=f"{escape(shown_name)} ({res.dialect}): {len(rows)} targets, "
                         f"{n_f} filtered, {len(res.failed)} not filtered"
                         + (f", {n_p} partial" if n_p else ""))
     for col in ("target", "line", "kind", "status", "shift [mm]", "shift [deg]",

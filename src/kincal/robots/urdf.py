@@ -91,7 +91,7 @@ from kincal.io import atomic_write_text, read_text
 from kincal.robots.chain import ChainBuilder, Robot, elementary_matrix
 from kincal.robots.gravity import PointMass
 from kincal.robots.urdf_text import mask_comments, set_origin
-from kincal.spatial import exp_so3, matrix_to_rpy, rotx, roty, rotz
+from kincal.spatial import exp_so3, matrix_to_rpy, rotx, roty, rotz, rpy_near
 
 Array = NDArray[np.float64]
 
@@ -107,6 +107,9 @@ CHAIN_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
 #: rotations about the frame's own axes after the nominal rotation (a revolute joint
 #: has two of the three, see :func:`_error_axes`).
 ORIGIN_FIELDS = ("x", "y", "z", "rx", "ry", "rz")
+#: A calibrated origin number within this of the file's [m or rad] is the file's number
+#: (a picometre / picoradian: far below any calibration, far above rounding noise).
+UNCHANGED = 1e-12
 
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\Z")
 _MAX_LISTED = 10
@@ -709,6 +712,17 @@ def _fmt(values: Sequence[float] | NDArray[np.float64]) -> str:
                     for v in values)
 
 
+def _unchanged_kept(new: Sequence[float] | Array, old: Sequence[float]) -> Array:
+    """``new`` with every number within :data:`UNCHANGED` of the file's ``old`` one set to
+    it exactly, so rounding noise of the origin's recomposition (1e-13 .. 1e-26) is not
+    written into a number the calibration did not change; the others rounded to 13
+    decimals, below which the recomposition's digits are noise."""
+    n = np.array(new, dtype=float)
+    o = np.asarray(old, dtype=float)
+    # a changed number to 13 decimals (0.30005, not 0.3000499999999999): 5e-14 m or rad
+    return np.where(np.abs(n - o) <= UNCHANGED, o, np.round(n, 13))
+
+
 def _origin_attrs(T: Array) -> dict[str, str]:
     return {"xyz": _fmt(T[:3, 3]), "rpy": _fmt(rpy_of(T[:3, :3]))}
 
@@ -878,7 +892,8 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
             else:
                 F[:3, :3] = exp_so3(np.asarray(u, dtype=float) * c)
             T = T @ F
-        xyz, rpy = T[:3, 3], rpy_of(T[:3, :3])
+        xyz = _unchanged_kept(T[:3, 3], j.xyz)
+        rpy = _unchanged_kept(rpy_near(T[:3, :3], j.rpy, UNCHANGED), j.rpy)
         if np.allclose(xyz, j.xyz, rtol=0, atol=0) and np.allclose(rpy, j.rpy, rtol=0, atol=0):
             continue                        # untouched: not a byte of it changes
         out_text = set_origin(out_text, j.name, xyz, rpy, _fmt)
@@ -888,10 +903,8 @@ def write_calibrated_urdf(original_urdf: str | os.PathLike[str] | None, robot: R
     added: list[str] = []
 
     def frame_joint(prefix: str, parent: str, child: str, xyzrpy: Array) -> None:
-        T = np.eye(4)
-        for kind, val in zip(("Tx", "Ty", "Tz", "Rz", "Ry", "Rx"), xyzrpy, strict=True):
-            T = T @ elementary_matrix(kind, val)
-        a = _origin_attrs(T)
+        # Trans(x, y, z) Rz Ry Rx is a URDF origin as it is: xyz, rpy = (rx, ry, rz)
+        a = {"xyz": _fmt(xyzrpy[:3]), "rpy": _fmt(xyzrpy[[5, 4, 3]])}
         added.append(f'  <joint name="{_unique(f"{prefix}_joint", joint_names)}" type="fixed">\n'
                      f'    <origin xyz="{a["xyz"]}" rpy="{a["rpy"]}"/>\n'
                      f'    <parent link="{parent}"/>\n    <child link="{child}"/>\n  </joint>')

@@ -32,7 +32,7 @@ from kincal.compensation.programs.numbers import (
     style_of,
 )
 from kincal.errors import KincalError
-from kincal.spatial import matrix_to_rpy, xyzrpy_to_matrix
+from kincal.spatial import rpy_near, xyzrpy_to_matrix
 
 Array = NDArray[np.float64]
 
@@ -199,14 +199,15 @@ def pose_mm_deg(x: float, y: float, z: float, roll: float, pitch: float, yaw: fl
     return xyzrpy_to_matrix([x * 1e-3, y * 1e-3, z * 1e-3, roll * d, pitch * d, yaw * d])
 
 
-def xyz_rpy_mm_deg(T: Array, near: tuple[float, float, float]
+def xyz_rpy_mm_deg(T: Array, near: tuple[float, float, float], pole_deg: float = 5e-5
                    ) -> tuple[float, float, float, float, float, float]:
     """The inverse of :func:`pose_mm_deg`: ``x, y, z`` [mm] and ``roll, pitch, yaw``
-    [deg] of ``T``, each angle moved by whole turns to within 180 deg of ``near``
-    (the target's own roll, pitch, yaw), so a rewritten number stays in its range."""
-    rpy = np.degrees(matrix_to_rpy(T[:3, :3]))
-    roll, pitch, yaw = (float(a + 360.0 * np.round((o - a) / 360.0))
-                        for a, o in zip(rpy, near, strict=True))
+    [deg] of ``T``, the representation of its rotation closest to ``near`` (the target's
+    own roll, pitch, yaw): both Euler solutions and whole turns, and at pitch +-90 deg the
+    split of roll and yaw that changes them least (:func:`kincal.spatial.rpy_near`;
+    ``pole_deg``: half a unit of the written angles' last decimal)."""
+    roll, pitch, yaw = (float(a) for a in np.degrees(
+        rpy_near(T[:3, :3], np.radians(near), np.radians(pole_deg))))
     return (float(T[0, 3] * 1e3), float(T[1, 3] * 1e3), float(T[2, 3] * 1e3), roll, pitch,
             yaw)
 

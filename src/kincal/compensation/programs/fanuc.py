@@ -18,10 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kincal.compensation.configuration import fanuc_configuration
+from kincal.compensation.configuration import Configuration, fanuc_configuration
 from kincal.compensation.programs.base import (
     Array,
     ProgramTarget,
+    Slot,
     fail,
     number_slot,
     pose_mm_deg,
@@ -35,9 +36,16 @@ _POINT = re.compile(r"^P\[(\d+)(?:\s*:\s*\"([^\"]*)\")?\]\s*\{", re.MULTILINE)
 _GROUP = re.compile(r"\bGP(\d+)\s*:")
 _CART = re.compile(r"\b([XYZWPR])\s*=\s*(\S+)\s*(mm|deg)\b")
 _JOINT = re.compile(r"\bJ([1-9])\s*=\s*(\S+)\s*(mm|deg)\b")
-_UF = re.compile(r"\bUF\s*:\s*(\d+)")
-_UT = re.compile(r"\bUT\s*:\s*(\d+)")
-_CONFIG = re.compile(r"\bCONFIG\s*:\s*'([^']*)'")
+_UF = re.compile(r"\bUF\s*:\s*(\w+)")
+_UT = re.compile(r"\bUT\s*:\s*(\w+)")
+#: The configuration string: ``CONFIG`` (English), ``KONFIG`` (German controllers); any
+#: keyword before the one quoted field of a group is read as it.
+_CONFIG = re.compile(r"\b([A-Z]+)\s*:\s*'([^']*)'")
+#: Another representation of the position (``RX = ... mm`` ... ``RR = ... deg``).
+_OTHER_REPR = re.compile(r"\bR[XYZWPR]\s*=")
+#: Extended axes in the robot's own group (``E1= ... mm``).
+_EXTENDED = re.compile(r"\bE([1-9])\s*=")
+_UNTAUGHT = re.compile(r"=\s*\*+")
 _USE = re.compile(r"(?<![A-Z])P\[(\d+)")
 
 
@@ -55,76 +63,117 @@ def _section(text: str, name: str) -> tuple[int, int]:
     return m.end(), (nxt.start() if nxt else len(text))
 
 
-def read_ls(path: str) -> LsProgram:
-    """Read a ``.ls`` program's points (group 1) and which of them ``/MN`` uses."""
-    text = read_program_text(path)
+def _used_points(text: str) -> set[int]:
+    """Point numbers the ``/MN`` section's instructions name (comment lines ``!`` and
+    lines commented out with ``//`` skipped)."""
     mn0, mn1 = _section(text, "MN")
-    used = set()
+    used: set[int] = set()
     if mn0 >= 0:
         for mn_line in text[mn0:mn1].splitlines():
+            if re.match(r"\s*\d*:\s*//", mn_line):
+                continue
             code = (mn_line.split("!", 1)[0] if re.match(r"\s*\d*:\s*!", mn_line)
                     else mn_line)
             used |= {int(n) for n in _USE.findall(code)}
+    return used
+
+
+def _not_filterable(chunk: str) -> str:
+    """Why a GP1 group cannot be filtered (``""``: it can)."""
+    uf, ut = _UF.search(chunk), _UT.search(chunk)
+    if (uf is not None and uf.group(1) == "F") or (ut is not None and ut.group(1) == "F") \
+            or _UNTAUGHT.search(chunk):
+        return ("not taught: the point has no position yet (UF : F, UT : F, "
+                "X = ********); the controller stops at a motion to it")
+    if _OTHER_REPR.search(chunk):
+        return ("a position in the RX ... RR representation: kincal reads only X ... R "
+                "and J1 ... J6 points")
+    ext = _EXTENDED.search(chunk)
+    if ext is not None and _CART.search(chunk):
+        return (f"the robot's group carries extended axis E{ext.group(1)}: an integrated "
+                "axis moves the robot, which kincal does not model")
+    return ""
+
+
+def _configuration(path: str, text: str, name: str, start: int, chunk: str,
+                   slots: dict[str, Slot]) -> Configuration | None:
+    """The point's ``CONFIG`` / ``KONFIG`` string as a configuration; its turn numbers
+    become slots (``turn1``, ``turn4``, ``turn6``).  An empty string asks for none."""
+    cf = _CONFIG.search(chunk)
+    if cf is None or not cf.group(2).strip():
+        return None
+    parts = [p.strip() for p in cf.group(2).split(",")]
+    try:
+        turns = [int(p) for p in parts[1:4]]
+    except ValueError:
+        turns = []
+    if len(parts) != 4 or len(turns) != 3:
+        raise fail(path, text, start + cf.start(2),
+                   f"{name}: {cf.group(1)} must be 'F U T, t1, t4, t6', got {cf.group(2)!r}")
+    base = start + cf.start(2)
+    for key, nm in zip(("turn1", "turn4", "turn6"),
+                       list(re.finditer(r"[+-]?\d+", cf.group(2)))[-3:], strict=True):
+        slots[key] = number_slot(path, text, base + nm.start(), base + nm.end(),
+                                 f"{name} {cf.group(1)}")
+    return fanuc_configuration(parts[0], (turns[0], turns[1], turns[2]))
+
+
+def _point(path: str, text: str, m: re.Match[str], p1: int) -> ProgramTarget:
+    """One ``P[n]{ ... };`` of the ``/POS`` section (its GP1 group)."""
+    end = text.find("};", m.end(), p1)
+    if end < 0:
+        raise fail(path, text, m.start(), f"point P[{m.group(1)}] is not closed with '}};'")
+    groups = list(_GROUP.finditer(text, m.end(), end))
+    g1 = next((g for g in groups if g.group(1) == "1"), None)
+    if g1 is None:
+        raise fail(path, text, m.start(), f"point P[{m.group(1)}] has no GP1 group")
+    nxt = next((g.start() for g in groups if g.start() > g1.start()), end)
+    seg = (g1.end(), nxt)
+    name = f"P[{m.group(1)}" + (f':"{m.group(2)}"]' if m.group(2) is not None else "]")
+    chunk = text[seg[0]:seg[1]]
+    why = _not_filterable(chunk)
+    if why:
+        line, col = position(text, m.start())
+        return ProgramTarget(name, path, line, col, "pose", {}, note=why)
+    uf, ut = _UF.search(chunk), _UT.search(chunk)
+    if uf is None or ut is None:
+        raise fail(path, text, g1.start(), f"{name}: GP1 needs 'UF : n, UT : n'")
+    cart = {c.group(1): c for c in _CART.finditer(chunk)}
+    joints = {c.group(1): c for c in _JOINT.finditer(chunk)}
+    if cart:
+        missing = [k for k in "XYZWPR" if k not in cart]
+        if missing:
+            raise fail(path, text, g1.start(), f"{name}: missing {', '.join(missing)}")
+        slots = {k.lower(): number_slot(path, text, seg[0] + c.start(2), seg[0] + c.end(2),
+                                        f"{name} {k}") for k, c in cart.items()}
+        conf = _configuration(path, text, name, seg[0], chunk, slots)
+        line, col = position(text, min(s.start for s in slots.values()))
+        return ProgramTarget(name, path, line, col, "pose", slots, conf, ut.group(1),
+                             uf.group(1))
+    if joints:
+        slots = {f"j{k}": number_slot(path, text, seg[0] + c.start(2), seg[0] + c.end(2),
+                                      f"{name} J{k}") for k, c in joints.items()}
+        if len(slots) < 6:
+            raise fail(path, text, g1.start(), f"{name}: needs J1 ... J6")
+        line, col = position(text, min(s.start for s in slots.values()))
+        return ProgramTarget(name, path, line, col, "joints",
+                             {k: slots[k] for k in JOINT_KEYS}, None, ut.group(1), uf.group(1))
+    raise fail(path, text, g1.start(), f"{name}: GP1 has neither X ... R nor J1 ... J6")
+
+
+def read_ls(path: str) -> LsProgram:
+    """Read a ``.ls`` program's points (group 1) and which of them ``/MN`` uses.
+
+    A point that cannot be filtered (not taught, another position representation,
+    extended axes in the robot's group) is read with its reason as ``note``."""
+    text = read_program_text(path)
+    used = _used_points(text)
     p0, p1 = _section(text, "POS")
     targets: list[ProgramTarget] = []
     if p0 < 0:
         return LsProgram({path: text}, targets)
     for m in _POINT.finditer(text, p0, p1):
-        end = text.find("};", m.end(), p1)
-        if end < 0:
-            raise fail(path, text, m.start(), f"point P[{m.group(1)}] is not closed with '}};'")
-        body = (m.end(), end)
-        groups = list(_GROUP.finditer(text, *body))
-        g1 = next((g for g in groups if g.group(1) == "1"), None)
-        if g1 is None:
-            raise fail(path, text, m.start(), f"point P[{m.group(1)}] has no GP1 group")
-        nxt = next((g.start() for g in groups if g.start() > g1.start()), end)
-        seg = (g1.end(), nxt)
-        name = f"P[{m.group(1)}" + (f':"{m.group(2)}"]' if m.group(2) is not None else "]")
-        chunk = text[seg[0]:seg[1]]
-        uf, ut = _UF.search(chunk), _UT.search(chunk)
-        if uf is None or ut is None:
-            raise fail(path, text, g1.start(), f"{name}: GP1 needs 'UF : n, UT : n'")
-        cart = {c.group(1): c for c in _CART.finditer(chunk)}
-        joints = {c.group(1): c for c in _JOINT.finditer(chunk)}
-        if cart:
-            missing = [k for k in "XYZWPR" if k not in cart]
-            if missing:
-                raise fail(path, text, g1.start(), f"{name}: missing {', '.join(missing)}")
-            slots = {k.lower(): number_slot(path, text, seg[0] + c.start(2), seg[0] + c.end(2),
-                                            f"{name} {k}") for k, c in cart.items()}
-            cf = _CONFIG.search(chunk)
-            conf = None
-            if cf is not None:
-                parts = [p.strip() for p in cf.group(1).split(",")]
-                try:
-                    turns = [int(p) for p in parts[1:4]]
-                except ValueError:
-                    turns = []
-                if len(parts) != 4 or len(turns) != 3:
-                    raise fail(path, text, seg[0] + cf.start(1),
-                               f"{name}: CONFIG must be 'F U T, t1, t4, t6', got {cf.group(1)!r}")
-                conf = fanuc_configuration(parts[0], (turns[0], turns[1], turns[2]))
-                base = seg[0] + cf.start(1)
-                for key, nm in zip(("turn1", "turn4", "turn6"),
-                                   list(re.finditer(r"[+-]?\d+", cf.group(1)))[-3:], strict=True):
-                    slots[key] = number_slot(path, text, base + nm.start(), base + nm.end(),
-                                             f"{name} CONFIG")
-            first = min(s.start for s in slots.values())
-            line, col = position(text, first)
-            t = ProgramTarget(name, path, line, col, "pose", slots, conf, ut.group(1),
-                              uf.group(1))
-        elif joints:
-            slots = {f"j{k}": number_slot(path, text, seg[0] + c.start(2), seg[0] + c.end(2),
-                                          f"{name} J{k}") for k, c in joints.items()}
-            if len(slots) < 6:
-                raise fail(path, text, g1.start(), f"{name}: needs J1 ... J6")
-            first = min(s.start for s in slots.values())
-            line, col = position(text, first)
-            t = ProgramTarget(name, path, line, col, "joints",
-                              {k: slots[k] for k in JOINT_KEYS}, None, ut.group(1), uf.group(1))
-        else:
-            raise fail(path, text, g1.start(), f"{name}: GP1 has neither X ... R nor J1 ... J6")
+        t = _point(path, text, m, p1)
         t.used = int(m.group(1)) in used
         targets.append(t)
     return LsProgram({path: text}, targets)
@@ -138,7 +187,8 @@ def pose_of(t: ProgramTarget) -> Array:
 def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
     """X, Y, Z [mm], W, P, R [deg] of T, angles near the point's own."""
     w0, p0, r0 = t.values(("w", "p", "r")).tolist()
-    x, y, z, w, p, r = xyz_rpy_mm_deg(T, (w0, p0, r0))
+    pole = 0.5 * 10.0 ** -t.slots["p"].style.decimals      # half the last written decimal
+    x, y, z, w, p, r = xyz_rpy_mm_deg(T, (w0, p0, r0), pole)
     return {"x": x, "y": y, "z": z, "w": w, "p": p, "r": r}
 
 

@@ -21,7 +21,9 @@ A target used with two different tool/work-object pairs is not filtered.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,6 +32,7 @@ from kincal.compensation.configuration import abb_configuration
 from kincal.compensation.programs.base import (
     Array,
     Frames,
+    ProgramError,
     ProgramTarget,
     Slot,
     fail,
@@ -43,6 +46,8 @@ from kincal.spatial import homogeneous, quat_to_matrix
 JOINT_KEYS = ("j1", "j2", "j3", "j4", "j5", "j6")
 _DECL = re.compile(r"(?:\b(?:LOCAL|TASK)\s+)?\b(CONST|PERS|VAR)\s+(robtarget|jointtarget|tooldata|"
                    r"wobjdata)\s+([A-Za-z]\w*)\s*:=\s*", re.IGNORECASE)
+_DECL_BARE = re.compile(r"\b(?:PERS|VAR)\s+(?:robtarget|jointtarget|tooldata|wobjdata)\s+"
+                        r"([A-Za-z]\w*)\s*(?:\{[^}]*\})?\s*;", re.IGNORECASE)
 _MOVE = re.compile(r"\b(MoveJ|MoveL|MoveC|MoveAbsJ|MoveJDO|MoveLDO|MoveCDO|MoveJSync|MoveLSync|"
                    r"MoveCSync|TriggJ|TriggL|TriggC|MoveExtJ)\b\s*", re.IGNORECASE)
 
@@ -149,10 +154,16 @@ def matrix_to_quat(R: Array) -> Array:
 
 @dataclass
 class RapidProgram:
+    """A RAPID program: every module's text, the targets in declaration and use order,
+    the tools and work objects declared with a value (by lower-case name), and the
+    minimum decimals per kind of number (:func:`file_digits`)."""
+
     texts: dict[str, str]
     targets: list[ProgramTarget]
     tools: dict[str, Array]
     wobjs: dict[str, Array]
+    digits: dict[str, int] = field(default_factory=dict)
+    computed: set[str] = field(default_factory=set)
 
 
 def _robtarget(path: str, text: str, name: str, node: Any, at: int) -> ProgramTarget:
@@ -204,95 +215,314 @@ def _split_args(code: str, start: int) -> tuple[list[tuple[int, str]], int]:
     return args, i
 
 
-def read_rapid(path: str) -> RapidProgram:
-    """Read a RAPID module: its targets, tools and work objects."""
-    text = read_program_text(path)
-    code = code_of(text)
-    targets: list[ProgramTarget] = []
-    by_name: dict[str, ProgramTarget] = {}
-    tools: dict[str, Array] = {"tool0": np.eye(4)}
-    wobjs: dict[str, Array] = {"wobj0": np.eye(4)}
+#: Suffixes of RAPID program and system modules.
+MODULE_SUFFIXES = (".mod", ".modx", ".sys", ".sysx", ".prg")
+
+
+def module_files(path: str | Sequence[str]) -> list[str]:
+    """The module files of a program given as one file, several files or a folder.
+
+    A folder is a controller backup (``RAPID/TASK1/PROGMOD`` and ``SYSMOD``: the one task
+    folder's modules) or a folder of modules (every module below it, sorted).  A backup
+    with several tasks (a MultiMove or YuMi system: one robot per task) must be given
+    as the one task's folder."""
+    paths = [path] if isinstance(path, str) else list(path)
+    out: list[str] = []
+    for p in paths:
+        folder = Path(p)
+        if not folder.is_dir():
+            out.append(str(p))
+            continue
+        tasks = sorted({d.parent for d in folder.rglob("*")
+                        if d.is_dir() and d.name.upper() in ("PROGMOD", "SYSMOD")})
+        if len(tasks) > 1:
+            names = ", ".join(str(t.relative_to(folder)) for t in tasks)
+            raise ProgramError(f"holds {len(tasks)} RAPID tasks ({names}): give the folder of "
+                               "the task of the calibrated robot", source=str(p))
+        root = tasks[0] if tasks else folder
+        found = sorted(str(f) for f in root.rglob("*")
+                       if f.is_file() and f.suffix.lower() in MODULE_SUFFIXES)
+        if not found:
+            raise ProgramError("no RAPID module (.mod, .modx, .sys, .prg) in this folder",
+                               source=str(p))
+        out += found
+    return out
+
+
+#: Motion instructions: (number of robtarget arguments, positional index of the tool).
+_SIGNATURE = {"movej": (1, 3), "movel": (1, 3), "moveabsj": (1, 3), "movejdo": (1, 3),
+              "moveldo": (1, 3), "movejsync": (1, 3), "movelsync": (1, 3), "movec": (2, 4),
+              "movecdo": (2, 4), "movecsync": (2, 4), "triggj": (1, 4), "triggl": (1, 4),
+              "triggc": (2, 5)}
+_CONF = re.compile(r"\bConf([JL])\s*\\\s*(On|Off)\b", re.IGNORECASE)
+_RELATIVE = ("offs", "reltool")
+
+
+def _declarations(path: str, text: str, code: str, prog: RapidProgram,
+                  by_name: dict[str, ProgramTarget]) -> None:
+    """Pass 1 over one module: its robtargets, jointtargets, tools and work objects."""
+    for m in _DECL_BARE.finditer(code):                # declared without a value
+        prog.computed.add(m.group(1).lower())
     for m in _DECL.finditer(code):
         kind, name = m.group(2).lower(), m.group(3)
         at = m.end()
         if at >= len(code) or code[at] != "[":
-            continue                                   # a value computed by a function
+            prog.computed.add(name.lower())           # a value computed by the program
+            continue
         node, _ = parse_list(path, text, code, at)
-        if kind == "robtarget":
-            t = _robtarget(path, text, name, node, at)
+        if kind in ("robtarget", "jointtarget"):
+            t = (_robtarget if kind == "robtarget" else _jointtarget)(path, text, name, node,
+                                                                       at)
             t.used = False
-            targets.append(t)
-            by_name[name.lower()] = t
-        elif kind == "jointtarget":
-            t = _jointtarget(path, text, name, node, at)
-            t.used = False
-            targets.append(t)
+            prog.targets.append(t)
             by_name[name.lower()] = t
         elif kind == "tooldata":
             if not isinstance(node, list) or len(node) < 2:
                 raise fail(path, text, at, "a tooldata is [robhold, [[x, y, z], [q]], load]")
-            if str(node[0]).upper() == "FALSE":
-                tools[name.lower()] = np.full((4, 4), np.nan)   # stationary tool
-            else:
-                tools[name.lower()] = _frame(path, text, node[1], at, "tooldata tframe")
+            prog.tools[name.lower()] = (np.full((4, 4), np.nan)      # stationary tool
+                                        if str(node[0]).upper() == "FALSE" else
+                                        _frame(path, text, node[1], at, "tooldata tframe"))
         else:
             if not isinstance(node, list) or len(node) != 5:
                 raise fail(path, text, at, "a wobjdata is [robhold, ufprog, ufmec, uframe, "
                                            "oframe]")
             uf = _frame(path, text, node[3], at, "wobjdata uframe")
             of = _frame(path, text, node[4], at, "wobjdata oframe")
-            wobjs[name.lower()] = (np.full((4, 4), np.nan) if str(node[0]).upper() == "TRUE"
-                                   else uf @ of)
-    for m in _MOVE.finditer(code):
+            prog.wobjs[name.lower()] = (np.full((4, 4), np.nan)
+                                        if str(node[0]).upper() == "TRUE" else uf @ of)
+
+
+def _head(arg: str) -> str:
+    """The name an argument starts with (after an ``Name :=`` prefix)."""
+    a = re.sub(r"^\s*[A-Za-z]\w*\s*:=", "", arg)
+    m = re.match(r"\s*([A-Za-z]\w*)", a)
+    return m.group(1) if m else ""
+
+
+_PROC = re.compile(r"^[ \t]*(?:LOCAL[ \t]+)?PROC[ \t]+([A-Za-z]\w*)[^\n]*\n(.*?)^[ \t]*ENDPROC\b",
+                   re.IGNORECASE | re.MULTILINE | re.DOTALL)
+
+
+#: A statement that is a name (and arguments): a procedure call when the name is a PROC.
+_CALL = re.compile(r"^[ \t]*([A-Za-z]\w*)[ \t]*(?:;|[ \t\\][^;\n]*;)", re.MULTILINE)
+
+
+@dataclass
+class _Proc:
+    """One procedure: its module and the span of its body in the module's text."""
+
+    path: str
+    start: int
+    end: int
+
+
+class _Motions:
+    """Pass 2: the motion instructions in program order, with the configuration
+    monitoring (``ConfJ`` / ``ConfL``) they run under.
+
+    Program order is followed statically: from ``main``, each procedure's motions and
+    configuration switches in textual order, a call of a procedure (a statement that is
+    its name) walked where it stands (branches and loops are not evaluated; a procedure
+    already being walked is not entered again); then the procedures no walk reached, and
+    code outside procedures, in module order."""
+
+    def __init__(self, prog: RapidProgram, by_name: dict[str, ProgramTarget],
+                 codes: dict[str, str]) -> None:
+        self.prog = prog
+        self.by_name = by_name
+        self.codes = codes
+        self.monitor = {"j": True, "l": True}          # On after PP to main
+        self.prev: ProgramTarget | None = None
+        self.seen_missing: dict[str, ProgramTarget] = {}
+        self.uses: dict[int, list[tuple[str, ProgramTarget | None]]] = {}
+        self.procs: dict[str, _Proc] = {}
+        for f, code in codes.items():
+            for m in _PROC.finditer(code):
+                self.procs.setdefault(m.group(1).lower(), _Proc(f, m.start(2), m.end(2)))
+        self.walked: set[str] = set()
+
+    def run(self) -> None:
+        """Walk the program: ``main`` first, then whatever it did not reach."""
+        if "main" in self.procs:
+            self._walk("main", [])
+        for name in self.procs:
+            if name not in self.walked:
+                self._walk(name, [])
+        for f, code in self.codes.items():             # statements outside any procedure
+            inside = [(p.start, p.end) for p in self.procs.values() if p.path == f]
+            self._span(f, 0, len(code), [], inside)
+
+    def _walk(self, name: str, stack: list[str]) -> None:
+        proc = self.procs[name]
+        self.walked.add(name)
+        self._span(proc.path, proc.start, proc.end, stack + [name], [])
+
+    def _span(self, path: str, start: int, end: int, stack: list[str],
+              skip: list[tuple[int, int]]) -> None:
+        code, text = self.codes[path], self.prog.texts[path]
+        events = [(m.start(), "conf", m) for m in _CONF.finditer(code, start, end)]
+        events += [(m.start(), "move", m) for m in _MOVE.finditer(code, start, end)]
+        events += [(m.start(), "call", m) for m in _CALL.finditer(code, start, end)
+                   if m.group(1).lower() in self.procs]
+        for at, what, m in sorted(events, key=lambda e: e[0]):
+            if any(a <= at < b for a, b in skip):
+                continue
+            if what == "conf":
+                self.monitor[m.group(1).lower()] = m.group(2).lower() == "on"
+            elif what == "call":
+                if m.group(1).lower() not in stack:
+                    self._walk(m.group(1).lower(), stack)
+            elif m.group(1).lower() in _SIGNATURE:
+                self._move(path, text, code, m)
+
+    def _move(self, path: str, text: str, code: str, m: re.Match[str]) -> None:
         instr = m.group(1).lower()
+        n_targets, tool_at = _SIGNATURE[instr]
         args, _ = _split_args(code, m.end())
-        n_targets = 2 if instr in ("movec", "movecdo", "movecsync", "triggc") else 1
+        positional = [(off, a) for off, a in args if not a.lstrip().startswith("\\")]
         wobj = "wobj0"
-        tool = None
         for _, a in args:
             w = re.search(r"\\WObj\s*:=\s*([A-Za-z]\w*)", a, re.IGNORECASE)
             if w:
-                wobj = w.group(1).lower()
-        for _, a in args[n_targets:]:
-            head = re.match(r"\s*([A-Za-z]\w*)", a)
-            if head and head.group(1).lower() in tools:
-                tool = head.group(1).lower()
-                break
-        for off, a in args[:n_targets]:
+                wobj = w.group(1)
+        tool = _head(positional[tool_at][1]) if len(positional) > tool_at else ""
+        key = (tool or "?", wobj)
+        kind = "j" if instr in ("movej", "movejdo", "movejsync", "triggj") else "l"
+        # "" when the configuration is monitored, else the instruction that switched it off
+        unmonitored = "" if instr == "moveabsj" or self.monitor[kind] else f"Conf{kind.upper()}"
+        for off, a in positional[:n_targets]:
             stripped = a.lstrip()
             at = off + len(a) - len(stripped)
-            if stripped.startswith("["):
-                node, _ = parse_list(path, text, code, at)
-                ln = position(text, at)[0]
-                t = (_jointtarget if instr == "moveabsj" else _robtarget)(
-                    path, text, f"line {ln}", node, at)
-                t.tool_key, t.base_key = tool or "tool0", wobj
-                targets.append(t)
+            t = self._target(path, text, code, instr, stripped, at)
+            if t is None:
+                self.prev = None
                 continue
-            head = re.match(r"([A-Za-z]\w*)\s*(\\.*)?$", stripped.rstrip())
-            if head is None:
-                continue                                # Offs(...), RelTool(...): computed
-            point = by_name.get(head.group(1).lower())
-            if point is None:
-                continue
-            key = (tool or "tool0", wobj)
-            if point.used and (point.tool_key, point.base_key) != key:
-                point.note = (f"used with {point.tool_key}/{point.base_key} and with "
+            if t.slots:
+                if t.used and (str(t.tool_key).lower(), str(t.base_key).lower()) != \
+                        (key[0].lower(), key[1].lower()):
+                    t.note = (f"used with {t.tool_key}/{t.base_key} and with "
                               f"{key[0]}/{key[1]}")
-            point.used = True
-            point.tool_key, point.base_key = key
-    return RapidProgram({path: text}, targets, tools, wobjs)
+                t.tool_key, t.base_key = key
+            t.used = True
+            self.uses.setdefault(id(t), []).append((unmonitored, self.prev))
+            self.prev = t
+
+    def _target(self, path: str, text: str, code: str, instr: str, arg: str, at: int
+                ) -> ProgramTarget | None:
+        """The target an argument names or writes (None: nothing the filter follows)."""
+        ln, col = position(text, at)
+        if arg.startswith("["):
+            node, _ = parse_list(path, text, code, at)
+            t = (_jointtarget if instr == "moveabsj" else _robtarget)(
+                path, text, f"line {ln}", node, at)
+            t.used = False
+            self.prog.targets.append(t)
+            return t
+        head = re.match(r"([A-Za-z]\w*)\s*(\(|\\|$)", arg.rstrip())
+        if head is None:
+            return None
+        name = head.group(1)
+        if head.group(2) == "(":
+            base = re.match(r"[A-Za-z]\w*\s*\(\s*([A-Za-z]\w*)", arg)
+            ref = base.group(1) if base else "?"
+            if name.lower() in _RELATIVE:
+                note = (f"relative: {name}({ref}, ...) is computed at run time from {ref}, "
+                        "and follows its filtered value")
+            else:
+                note = f"computed at run time by {name}(...): not filtered"
+            return self._listed(path, ln, col, f"{name}({ref}...) line {ln}", note)
+        point = self.by_name.get(name.lower())
+        if point is not None:
+            return point
+        if name.lower() in self.prog.computed:
+            note = (f"{name} is assigned at run time (declared without a value): "
+                    "not filtered")
+        else:
+            note = (f"{name} is declared in no module read ({self._files()}): give its "
+                    "module too")
+        return self._listed(path, ln, col, name, note)
+
+    def _listed(self, path: str, line: int, col: int, name: str, note: str) -> ProgramTarget:
+        known = self.seen_missing.get(name.lower())
+        if known is not None:
+            return known
+        t = ProgramTarget(name, path, line, col, "pose", {}, note=note)
+        self.prog.targets.append(t)
+        self.seen_missing[name.lower()] = t
+        return t
+
+    def _files(self) -> str:
+        return ", ".join(Path(f).name for f in self.prog.texts)
+
+    def finish(self) -> None:
+        """Targets reached only with configuration monitoring off: no configuration
+        (the controller takes the solution nearest to the previous position)."""
+        for t in self.prog.targets:
+            uses = self.uses.get(id(t), [])
+            if t.kind != "pose" or not t.slots or not uses or any(not off for off, _ in uses):
+                continue
+            t.config = None
+            t.extra["after"] = uses[0][1]
+            t.extra["warning"] = f"{uses[0][0]}\\Off: branch nearest the previous target"
+
+
+def file_digits(targets: Sequence[ProgramTarget]) -> dict[str, int]:
+    """Minimum decimals per kind of number: the finest the program writes (RAPID drops
+    trailing zeros, so one number's decimals say little), at least 2 for mm and deg and
+    6 for a quaternion, so a correction is not rounded away."""
+    finest = {"pos": 2, "quat": 6, "joint": 2}
+    for t in targets:
+        for k, slot in t.slots.items():
+            kind = ("pos" if k in ("x", "y", "z") else "quat" if k.startswith("q") else
+                    "joint" if k.startswith("j") else "")
+            if kind:
+                finest[kind] = max(finest[kind], slot.style.decimals)
+    return finest
+
+
+def read_rapid(path: str | Sequence[str]) -> RapidProgram:
+    """Read a RAPID program: one module, several modules, or a folder of them
+    (:func:`module_files`).  Declarations are shared by all modules (a tool in
+    ``CalibData.mod`` serves a motion in ``MainModule.mod``); motions are followed in
+    module and textual order."""
+    files = module_files(path)
+    prog = RapidProgram({}, [], {"tool0": np.eye(4)}, {"wobj0": np.eye(4)})
+    codes: dict[str, str] = {}
+    by_name: dict[str, ProgramTarget] = {}
+    for f in files:
+        text = read_program_text(f)
+        prog.texts[f] = text
+        codes[f] = code_of(text)
+        _declarations(f, text, codes[f], prog, by_name)
+    motions = _Motions(prog, by_name, codes)
+    motions.run()
+    motions.finish()
+    prog.digits = file_digits(prog.targets)
+    return prog
 
 
 def frames(prog: RapidProgram, t: ProgramTarget, fr: Frames) -> tuple[Array, Array]:
-    """(work object, tool) of a target [m]; a held work object or stationary tool is refused."""
+    """(work object, tool) of a target [m]: declared in a module read, else from
+    ``--frames`` by name (``tool: {tGripper: ...}``, ``base: {wTable: ...}``, the work
+    object's user frame times object frame).  An unknown one, a held work object or a
+    stationary tool is refused for this target."""
     from kincal.errors import KincalError
 
-    tool = prog.tools.get(str(t.tool_key).lower())
-    wobj = prog.wobjs.get(str(t.base_key).lower())
-    where = f"{t.name} ({t.file}:{t.line})"
-    if tool is None or wobj is None:
-        raise KincalError(f"{where}: unknown tool {t.tool_key!r} or work object {t.base_key!r}")
+    where = f"{t.name} ({Path(t.file).name}:{t.line})"
+    found: list[Array] = []
+    for which, table, key in (("tool", prog.tools, t.tool_key),
+                              ("work object", prog.wobjs, t.base_key)):
+        k = str(key).lower()
+        named = {n.lower(): v for n, v in (fr.base if which == "work object"
+                                            else fr.tool).items()}
+        value = table.get(k, named.get(k))
+        if value is None:
+            files = ", ".join(Path(f).name for f in prog.texts)
+            raise KincalError(f"{where}: {which} {key!r} is declared in no module read "
+                              f"({files}) nor in --frames: give the module that declares it "
+                              "(RobotStudio: CalibData.mod) or --frames")
+        found.append(value)
+    tool, wobj = found
     if np.isnan(tool).any() or np.isnan(wobj).any():
         raise KincalError(f"{where}: a stationary tool or a robot-held work object is not "
                           "supported")
@@ -314,9 +544,13 @@ def pose_values(t: ProgramTarget, T: Array) -> dict[str, float]:
             "q1": q[0], "q2": q[1], "q3": q[2], "q4": q[3]}
 
 
-def digits(key: str) -> int:
-    """Minimum decimals: 4 for mm and deg, 9 for quaternion components, none for confdata."""
-    return 0 if key.startswith("cf") else 9 if key.startswith("q") else 4
+def digits(prog: RapidProgram, key: str) -> int:
+    """Minimum decimals of a rewritten number: the program's own (:func:`file_digits`),
+    none for confdata."""
+    if key.startswith("cf"):
+        return 0
+    kind = "pos" if key in ("x", "y", "z") else "quat" if key.startswith("q") else "joint"
+    return prog.digits.get(kind, 4)
 
 
 def config_values(t: ProgramTarget, axes: Array, signs: Array) -> dict[str, float]:
