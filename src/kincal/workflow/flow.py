@@ -234,6 +234,16 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                                    {**solver_options, "prior": prior_s or None}, mapper)
     train, before, after, comps = _training_comparison(robot, res)
     accuracy = _accuracy(res, cv, before) if procedure == "lm" else None
+    if accuracy is not None:        # the floor outside the region, and a warning before use
+        from kincal.identify.extrapolation import extrapolation_warning, region_test
+
+        test = region_test(robot, blocks, lambda bl: _calibrate(
+            robot, bl, free_names, fixed, procedure, None, options))
+        accuracy = accuracy.with_floor_growth(test.floor_growth_m if test else None)
+        e0 = comps[0].before.get("position_m", comps[0].before.get("coincidence_m"))
+        warnings += [w for w in [extrapolation_warning(accuracy, res.robot, test, 0.0 if e0 is
+                                                       None else float(np.sqrt(np.mean(
+                                                           np.square(e0)))))] if w]
     heldout: list[Any] = []
     if holdouts:
         comp, heldout = _holdout_comparison(robot, res.robot, train, list(holdouts), before,
