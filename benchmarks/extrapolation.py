@@ -19,9 +19,9 @@ Splits (real data in ``../shared/data``, each skipped when missing):
 * Motoman grid: train on 2/3 of the poses whose joints all lie in the inner 60 % of the
   grid's joint ranges; hold out the other third of them and every pose outside;
 * TIAGo: train on one day, hold out the other (FIGAROH's protocol), and both days pooled,
-  inner 60 % of the joint ranges as above;
+  inner 80 % of the joint ranges as above (60 % leaves 7 postures of 99);
 * Panda two-socket: train on the ``front`` placement, hold out ``left`` (measured: ball
-  distance to its socket's mean; predicted: the TCP's error in the base frame);
+  distance to its socket's mean; predicted: :func:`~kincal.identify.accuracy.predict_spread`);
 * UR10 (IPA): train on series B (joint configurations), hold out series C (random poses),
   every 4th row of each (position of the T-Mac only);
 * simulated PUMA 560 with known truth: 60 poses in a +-1 deg or +-3 deg joint box, held
@@ -131,14 +131,14 @@ def tiago() -> list[dict[str, Any]]:
                            subset(a, np.arange(len(a.q))), subset(v, np.arange(len(v.q))))]
     pooled = PositionMeasurement(np.vstack([a.q, v.q]), np.vstack([a.positions, v.positions]),
                                  1e-3, a.name)
-    tr, te = inner_split(pooled.q)
-    rows.append(position_split("TIAGo", "both days: inner 60 % of the joint ranges -> rest",
+    tr, te = inner_split(pooled.q, 0.8)
+    rows.append(position_split("TIAGo", "both days: inner 80 % of the joint ranges -> rest",
                                robot, subset(pooled, tr), subset(pooled, te)))
     return rows
 
 
 def panda() -> list[dict[str, Any]]:
-    from kincal.identify.accuracy import predict
+    from kincal.identify.accuracy import predict, predict_spread
     from kincal.measure.artifacts import (
         ArtifactGeometry,
         ArtifactMeasurement,
@@ -177,10 +177,11 @@ def panda() -> list[dict[str, Any]]:
             out[m] = np.linalg.norm(p[m] - p[m].mean(axis=0), axis=1)
         return out
 
-    pred = predict(flow.accuracy, res.robot, h.q, point=probe)
+    pred = predict(flow.accuracy, res.robot, h.q)
+    spread_pred = predict_spread(flow.accuracy, res.robot, h.q, site_of)
     return [row_of("Panda two-socket", "placement front -> left (spread about the socket)",
                    len(train.q), spread(robot, probe0), spread(res.robot, probe),
-                   pred.predicted_m, pred.outside, flow)]
+                   spread_pred, pred.outside, flow)]
 
 
 def _ur10_block(path: Path, every: int) -> PositionMeasurement:

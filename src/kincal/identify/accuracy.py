@@ -80,7 +80,7 @@ Array = NDArray[np.float64]
 
 __all__ = ["predicted_position_std", "predicted_rms", "TrainingRegion", "AccuracyModel",
            "Prediction", "accuracy_model", "predict", "floor_from_training",
-           "floor_from_cross_validation"]
+           "floor_from_cross_validation", "predict_spread"]
 
 
 def _position_block(result: CalibrationResult, block: str | None) -> Any:
@@ -640,6 +640,41 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - s**2, 0.0, None) + floor**2)
         pred.worse_than_nominal = d < math.sqrt(2.0) * s
     return pred
+
+
+def predict_spread(model: AccuracyModel, robot: Robot, q: ArrayLike, groups: ArrayLike
+                   ) -> Array:
+    """(N,) predicted RMS distance of the measured point from the mean of its group [m]:
+    what an artifact's held-out *spread* (seatings of one socket about their mean) is.
+
+    ``P_i = p_e(q_i) + R_e(q_i) m``; with ``G_i = dP_i / d(theta, m)`` over the estimated
+    robot parameters and the point's estimated coordinates, ``C`` their covariance and
+    ``n`` the size of configuration ``i``'s group,
+    ``spread_i^2 = (G_i - mean_group G) C (G_i - mean_group G)^T + floor_i^2 (1 - 1/n)``:
+    what moves every seating of a socket alike (base, socket position) does not spread it.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    g = np.asarray(groups).reshape(-1)
+    if len(g) != len(q):
+        raise KincalError(f"predicted spread: {len(g)} group labels for {len(q)} "
+                          "configurations")
+    T, Jp = _fk_and_param_jacobian(robot, q)
+    J = Jp[:, :, robot.param_indices(list(model.parameters))] if model.parameters else \
+        np.zeros((len(q), 6, 0))
+    R = T[:, :3, :3]
+    G = np.concatenate([J[:, :3, :] - np.cross((R @ model.point)[:, :, None], J[:, 3:, :],
+                                               axis=1), R], axis=2)
+    p = len(model.parameters)
+    cross = model.cross_covariance if model.cross_covariance is not None else \
+        np.zeros((p, 3))
+    C = np.block([[model.covariance, cross], [cross.T, model.point_covariance]])
+    floor = model.floor_at(q)
+    var = np.zeros(len(q))
+    for label in np.unique(g):
+        k = g == label
+        D = G[k] - G[k].mean(axis=0)
+        var[k] = propagated_variance(D, C) + floor[k] ** 2 * (1.0 - 1.0 / k.sum())
+    return np.sqrt(np.clip(var, 0.0, None))
 
 
 def _instrument_view(inst: Mapping[str, Any], robot: Robot, q: Array, values: Any) -> Array:

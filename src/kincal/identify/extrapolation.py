@@ -112,8 +112,8 @@ def _rms(x: Array) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0
 
 
-def _errors(robot: Robot, blocks: Sequence[PositionMeasurement], res: CalibrationResult | None,
-            values: Sequence[Array]) -> Array:
+def _errors(robot: Robot, blocks: Sequence[PositionMeasurement], values: Sequence[Array]
+            ) -> Array:
     out = [np.ravel(b.errors(robot, v)["position_m"]) for b, v in zip(blocks, values,
                                                                       strict=True)]
     return np.concatenate(out) if out else np.zeros(0)
@@ -159,10 +159,8 @@ def region_test(robot: Robot, blocks: Sequence[Any],
         return None
     q_out = np.vstack([b.q for b in outs])
     std = predict(model, res.robot, q_out).std_position_m
-    e = _errors(res.robot, outs, res, [res.theta[res.problem.block_slice(b.name)]
-                                       for b in ins])
-    e_nom = _errors(robot, outs, reg, [reg.theta[reg.problem.block_slice(b.name)]
-                                       for b in ins])
+    e = _errors(res.robot, outs, [res.theta[res.problem.block_slice(b.name)] for b in ins])
+    e_nom = _errors(robot, outs, [reg.theta[reg.problem.block_slice(b.name)] for b in ins])
     measured, pstd, floor = _rms(e), _rms(std), float(model.floor_m)
     d = model.region.distance(q_out) if model.region is not None else np.zeros(len(q_out))
     d2 = float(np.mean(d**2))
@@ -188,9 +186,10 @@ def extrapolation_warning(model: AccuracyModel, robot: Robot,
 
     out = []
     if test is not None and test.worse_than_nominal:
-        out.append(f"fitted on the inner half of its training poses, this calibration was "
-                   f"worse than the nominal robot on the outer half ({test.measured_rms_m * 1e3:.3g}"
-                   f" mm RMS against {test.nominal_rms_m * 1e3:.3g} mm)")
+        out.append("fitted on the inner half of its training poses, this calibration was "
+                   "worse than the nominal robot on the outer half "
+                   f"({test.measured_rms_m * 1e3:.3g} mm RMS against "
+                   f"{test.nominal_rms_m * 1e3:.3g} mm)")
     while per_joint > 2 and per_joint ** robot.n > MAX_GRID:
         per_joint -= 1
     try:
