@@ -25,7 +25,8 @@ Splits (real data in ``../shared/data``, each skipped when missing):
 * UR10 (IPA): train on series B (joint configurations), hold out series C (random poses),
   every 4th row of each (position of the T-Mac only);
 * simulated PUMA 560 with known truth: 60 poses in a +-1 deg or +-3 deg joint box, held
-  out 30 poses inside it and 200 in +-90 deg; 8 robots each, pooled.
+  out 30 poses inside it and 200 in +-90 deg; 8 robots each, pooled; and in a +-10 deg
+  box with an unmodelled cyclic joint error (0.02 deg), 6 robots.
 
 Run::
 
@@ -87,8 +88,12 @@ def _rms(x: np.ndarray) -> float:
 def row_of(name: str, split: str, n_train: int, nominal: np.ndarray, calibrated: np.ndarray,
            predicted: np.ndarray, outside: np.ndarray, flow: Any) -> dict[str, Any]:
     """One table row from per-pose errors [m] and the outside mask."""
+    flows = getattr(flow, "flows", [flow])
+    warned = sum(any(w.startswith("extrapolation:") for w in f.warnings) for f in flows)
     out: dict[str, Any] = {"data": name, "split": split, "train": n_train,
-                           "trusted": bool(flow.trusted), "warnings": list(flow.warnings)}
+                           "trusted": bool(flow.trusted), "warnings": list(flow.warnings),
+                           "extrapolation_warned": f"{warned} of {len(flows)}"
+                           if len(flows) > 1 else "yes" if warned else "no"}
     for key, m in (("in", ~outside), ("out", outside)):
         out[f"n_{key}"] = int(m.sum())
         out[f"nominal_{key}"] = _rms(nominal[m])
@@ -138,7 +143,7 @@ def tiago() -> list[dict[str, Any]]:
 
 
 def panda() -> list[dict[str, Any]]:
-    from kincal.identify.accuracy import predict, predict_spread
+    from kincal.identify.accuracy import predict
     from kincal.measure.artifacts import (
         ArtifactGeometry,
         ArtifactMeasurement,
@@ -177,8 +182,13 @@ def panda() -> list[dict[str, Any]]:
             out[m] = np.linalg.norm(p[m] - p[m].mean(axis=0), axis=1)
         return out
 
-    pred = predict(flow.accuracy, res.robot, h.q)
-    spread_pred = predict_spread(flow.accuracy, res.robot, h.q, site_of)
+    pred = predict(flow.accuracy, res.robot, h.q, point=probe)
+    try:
+        from kincal.identify.accuracy import predict_spread
+    except ImportError:         # kincal before predict_spread: the TCP's error in the base frame
+        spread_pred = pred.predicted_m
+    else:
+        spread_pred = predict_spread(flow.accuracy, res.robot, h.q, site_of)
     return [row_of("Panda two-socket", "placement front -> left (spread about the socket)",
                    len(train.q), spread(robot, probe0), spread(res.robot, probe),
                    spread_pred, pred.outside, flow)]
@@ -211,16 +221,21 @@ def ur10() -> list[dict[str, Any]]:
                            robot, b, c)]
 
 
-def simulated(half_deg: float, seeds: int = 8) -> list[dict[str, Any]]:
+def simulated(half_deg: float, seeds: int = 8, cyclic_deg: float = 0.0
+              ) -> list[dict[str, Any]]:
     """PUMA 560 with known errors: 60 training poses in a +-``half_deg`` box about the
     middle of the joint ranges, held out 30 inside it and 200 in +-90 deg (pooled over
-    ``seeds`` robots; the mean squared errors are pooled, so each RMS is over all)."""
+    ``seeds`` robots: each RMS is over all their poses).  ``cyclic_deg``: the truth also
+    has a joint error ``cyclic_deg sin(2 q_j + j)`` the model does not have."""
+    from types import SimpleNamespace
+
     robot = load_robot("puma560")
     lim = robot.joint_limits
     c = 0.5 * (lim[:, 0] + lim[:, 1])
     big = np.minimum(0.8 * 0.5 * (lim[:, 1] - lim[:, 0]), np.radians(90.0))
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("nom", "cal", "pred", "out")}
-    flows = []
+    flows: list[Any] = []
+    worse = 0
     for seed in range(seeds):
         rng = np.random.default_rng(seed)
         true = perturb_robot(robot, rng)
@@ -228,30 +243,36 @@ def simulated(half_deg: float, seeds: int = 8) -> list[dict[str, Any]]:
         qt = c + rng.uniform(-1, 1, (60, robot.n)) * small
         qv = np.vstack([c + rng.uniform(-1, 1, (30, robot.n)) * small,
                         c + rng.uniform(-1, 1, (200, robot.n)) * big])
-        inst = [1.5, 0.3, 0.2, 0.4, 0.1, -0.2]
-        marker = [0.003, -0.004, 0.06]
-        bt = simulate_positions(true, qt, rng, 1e-5, inst, marker, name="tracker")
-        bv = simulate_positions(true, qv, rng, 1e-5, inst, marker, name="tracker")
-        flow = run_flow(robot, [bt], [bv], validation_frames="training", max_iter=400)
+
+        def measured(q: np.ndarray, rng: Any = rng, true: Any = true) -> PositionMeasurement:
+            dq = np.radians(cyclic_deg) * np.sin(2 * q + np.arange(robot.n))
+            b = simulate_positions(true, q + dq, rng, 1e-5, [1.5, 0.3, 0.2, 0.4, 0.1, -0.2],
+                                   [0.003, -0.004, 0.06], name="tracker")
+            return PositionMeasurement(q, b.positions, 1e-5, "tracker")
+
+        flow = run_flow(robot, [measured(qt)], [measured(qv)], validation_frames="training",
+                        max_iter=400)
         (f,) = flow.heldout
-        parts["nom"].append(np.asarray(f.before["position_m"]).reshape(len(qv), -1)[:, 0])
+        nominal = np.asarray(f.before["position_m"]).reshape(len(qv), -1)[:, 0]
+        out = f.prediction.outside
+        worse += _rms(f.point_errors[out]) > _rms(nominal[out]) + 1e-4
+        parts["nom"].append(nominal)
         parts["cal"].append(f.point_errors)
         parts["pred"].append(f.prediction.predicted_m)
-        parts["out"].append(f.prediction.outside)
+        parts["out"].append(out)
         flows.append(flow)
-
-    class Pooled:
-        trusted = all(fl.trusted for fl in flows)
-        warnings = sorted({w for fl in flows for w in fl.warnings})
-
+    pooled = SimpleNamespace(trusted=all(fl.trusted for fl in flows), flows=flows,
+                             warnings=sorted({w for fl in flows for w in fl.warnings}))
     cat = {k: np.concatenate(v) for k, v in parts.items()}
-    return [row_of("simulated PUMA 560", f"+-{half_deg:g} deg box -> +-90 deg ({seeds} robots)",
-                   60, cat["nom"], cat["cal"], cat["pred"], cat["out"].astype(bool), Pooled)]
+    what = f" + cyclic joint error {cyclic_deg:g} deg" if cyclic_deg else ""
+    return [row_of("simulated PUMA 560" + what, f"+-{half_deg:g} deg box -> +-90 deg "
+                   f"({seeds} robots; {worse} worse than nominal outside by > 0.1 mm)", 60,
+                   cat["nom"], cat["cal"], cat["pred"], cat["out"].astype(bool), pooled)]
 
 
 CASES: dict[str, Callable[[], list[dict[str, Any]]]] = {
     "motoman": motoman, "tiago": tiago, "panda": panda, "ur10": ur10,
-    "sim": lambda: simulated(1.0) + simulated(3.0)}
+    "sim": lambda: simulated(1.0) + simulated(3.0) + simulated(10.0, 6, 0.02)}
 
 
 def table(rows: Sequence[dict[str, Any]]) -> str:
@@ -264,7 +285,7 @@ def table(rows: Sequence[dict[str, Any]]) -> str:
 
     lines = ["| data | split | train | held in / out | nominal in / out [mm] | "
              "calibrated in / out [mm] | predicted in / out [mm] | predicted / measured "
-             "in / out | trusted |", "|" + "---|" * 9]
+             "in / out | trusted | warns before use |", "|" + "---|" * 10]
     for r in rows:
         lines.append(
             f"| {r['data']} | {r['split']} | {r['train']} | {r['n_in']} / {r['n_out']} | "
@@ -272,7 +293,7 @@ def table(rows: Sequence[dict[str, Any]]) -> str:
             f"{mm(r['calibrated_out'])} | {mm(r['predicted_in'])} / {mm(r['predicted_out'])} | "
             f"{ratio(r['predicted_in'], r['calibrated_in'])} / "
             f"{ratio(r['predicted_out'], r['calibrated_out'])} | "
-            f"{'yes' if r['trusted'] else 'no'}{' (warned)' if r['warnings'] else ''} |")
+            f"{'yes' if r['trusted'] else 'no'} | {r['extrapolation_warned']} |")
     return "\n".join(lines)
 
 
@@ -281,7 +302,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--only", default=",".join(CASES), help="comma-separated: "
                     + ", ".join(CASES))
     ap.add_argument("--json", help="also write the rows here")
+    ap.add_argument("--data", help="the shared data folder (default ../shared/data)")
     args = ap.parse_args(argv)
+    if args.data:
+        globals()["DATA"] = Path(args.data)
     rows: list[dict[str, Any]] = []
     for key in [k.strip() for k in args.only.split(",") if k.strip()]:
         if key not in CASES:
@@ -296,7 +320,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{key}: {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     print(table(rows))
     for r in rows:
-        for w in r["warnings"]:
+        for w in sorted({w[:160] + ("..." if len(w) > 160 else "") for w in r["warnings"]
+                         if w.startswith("extrapolation:")}):
             print(f"- {r['data']}, {r['split']}: {w}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")

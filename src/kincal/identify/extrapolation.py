@@ -26,8 +26,8 @@ held-out error outside by 1.4-1.7x (TIAGo, UR10): the parameters absorb part of 
 unmodelled error inside the region only.
 
 **Extrapolation warning** (:func:`extrapolation_warning`).  The calibrated model's
-predicted parameter error over the robot's joint ranges (a grid,
-:func:`~kincal.identify.prediction.workspace_grid`) against its unmodelled floor: when the
+predicted parameter error over the robot's joint ranges (400 configurations drawn
+uniformly in them, 10 % margin) against its unmodelled floor: when the
 RMS ``std`` over the grid exceeds both the floor and the nominal robot's RMS error on the
 training data (the size of the correction), the training data did not determine the
 model for the rest of the workspace (the error there is set by the directions the data
@@ -158,7 +158,7 @@ def region_test(robot: Robot, blocks: Sequence[Any],
     except (KincalError, np.linalg.LinAlgError, ValueError):
         return None
     q_out = np.vstack([b.q for b in outs])
-    std = predict(model, res.robot, q_out).std_position_m
+    std = predict(model.with_region(None), res.robot, q_out).std_position_m  # no hull test
     e = _errors(res.robot, outs, [res.theta[res.problem.block_slice(b.name)] for b in ins])
     e_nom = _errors(robot, outs, [reg.theta[reg.problem.block_slice(b.name)] for b in ins])
     measured, pstd, floor = _rms(e), _rms(std), float(model.floor_m)
@@ -172,17 +172,17 @@ def region_test(robot: Robot, blocks: Sequence[Any],
 
 def extrapolation_warning(model: AccuracyModel, robot: Robot,
                           test: RegionTest | None = None, nominal_rms_m: float = 0.0,
-                          per_joint: int = 3) -> str:
+                          samples: int = 400) -> str:
     """A sentence when the calibrated ``robot`` may be worse than nominal outside its
     training region ("" otherwise; module docstring).
 
-    ``std`` over a grid of ``per_joint`` values per joint across the robot's joint ranges
-    (unlimited revolute joints: +-pi; fewer values for robots with many joints) against
+    ``std`` over ``samples`` configurations drawn uniformly in the robot's joint ranges
+    (shrunk by 10 % at both ends; unlimited revolute joints: +-pi; seed 0) against
     the larger of the floor ``model.floor_m`` and ``nominal_rms_m``, the nominal robot's
     RMS error on the training data (what the calibration corrects); and the region
     ``test``'s verdict.
     """
-    from kincal.identify.prediction import MAX_GRID, workspace_grid
+    from kincal.measure.simulate import random_configurations
 
     out = []
     if test is not None and test.worse_than_nominal:
@@ -190,11 +190,9 @@ def extrapolation_warning(model: AccuracyModel, robot: Robot,
                    "worse than the nominal robot on the outer half "
                    f"({test.measured_rms_m * 1e3:.3g} mm RMS against "
                    f"{test.nominal_rms_m * 1e3:.3g} mm)")
-    while per_joint > 2 and per_joint ** robot.n > MAX_GRID:
-        per_joint -= 1
     try:
-        grid = workspace_grid(robot, per_joint)
-        std = predict(model, robot, grid).std_position_m
+        grid = random_configurations(robot, samples, np.random.default_rng(0), margin=0.1)
+        std = predict(model.with_region(None), robot, grid).std_position_m    # no hull test
     except KincalError:
         std = np.zeros(0)
     bar = max(float(model.floor_m), float(nominal_rms_m))
