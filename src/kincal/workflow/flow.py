@@ -723,6 +723,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         if flow.tolerances is not None:
             doc["tolerances"] = flow.tolerances.to_dict()
         doc["held_by_prior"] = [w.to_dict() for w in flow.weak]
+        doc["warnings"] = list(flow.warnings)
         if flow.accuracy is not None:
             doc["accuracy_model"] = flow.accuracy.to_dict()
         if flow.heldout:
