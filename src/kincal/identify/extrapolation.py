@@ -148,6 +148,7 @@ def region_test(robot: Robot, blocks: Sequence[Any],
     if not parts:
         return None
     ins, outs = [p[0] for p in parts], [p[1] for p in parts]
+    q_out = np.vstack([b.q for b in outs])
     try:
         res = fit(list(ins))
         if not res.converged:
@@ -155,12 +156,13 @@ def region_test(robot: Robot, blocks: Sequence[Any],
         model = accuracy_model(res)
         own = [n for b in ins for n in b.parameters().names]
         reg = calibrate(robot, list(ins), free=own, tol_step=1e-12, max_iter=200)
-    except (KincalError, np.linalg.LinAlgError, ValueError):
+        std = predict(model.with_region(None), res.robot, q_out).std_position_m  # no hull
+        e = _errors(res.robot, outs, [res.theta[res.problem.block_slice(b.name)]
+                                      for b in ins])
+        e_nom = _errors(robot, outs, [reg.theta[reg.problem.block_slice(b.name)]
+                                      for b in ins])
+    except (KincalError, np.linalg.LinAlgError, ValueError, IndexError):
         return None
-    q_out = np.vstack([b.q for b in outs])
-    std = predict(model.with_region(None), res.robot, q_out).std_position_m  # no hull test
-    e = _errors(res.robot, outs, [res.theta[res.problem.block_slice(b.name)] for b in ins])
-    e_nom = _errors(robot, outs, [reg.theta[reg.problem.block_slice(b.name)] for b in ins])
     measured, pstd, floor = _rms(e), _rms(std), float(model.floor_m)
     d = model.region.distance(q_out) if model.region is not None else np.zeros(len(q_out))
     d2 = float(np.mean(d**2))
