@@ -27,6 +27,21 @@ use it later; :func:`predict` evaluates it at any configurations:
   without them, from the training residuals, ``floor^2 = RMS_train^2 M / (M - p)`` (the
   leverage correction, ``M`` residuals, ``p`` estimated parameters).  The predicted RMS
   error at a configuration is ``sqrt(std^2 + floor^2)``;
+* the **floor outside the training region** (``floor_growth_m``): what no parameter
+  explains grows where the model extrapolates, since the estimated parameters absorb
+  part of the unmodelled error inside the region only (real data: held-out poses outside
+  the region are 1.4-1.7x worse than the parameter covariance and the training floor
+  predict, TIAGo and UR10 in ``benchmarks/extrapolation.py``).  At a distance ``d``
+  outside the training joint ranges (:meth:`TrainingRegion.distance`, in training
+  half-ranges) the floor is ``sqrt(floor^2 + (g d)^2)``; the growth ``g`` [m per
+  half-range] is measured on the training data themselves by a *region test*
+  (:mod:`kincal.identify.extrapolation`): fit the inner half of the poses, predict the
+  outer half, ``g^2 = max(0, mean e^2 - mean std^2 - floor^2) / mean d^2`` over the outer
+  poses (``e`` their measured error, ``std`` the inner fit's predicted parameter error,
+  ``d`` their distance from the inner fit's region).  Linear growth is an assumption:
+  on the real splits it gives predicted / measured 0.8-1.2 outside, on simulated
+  robots with a cyclic joint error the unmodelled term is over-predicted by up to 2x
+  far out (it saturates); a constant floor under-predicted by up to 4x there;
 * the **training region**: the joint ranges of the training data and the convex hull of
   the measured point's training positions; outside it the model extrapolates
   (``outside_joint_ranges``, ``outside_hull``);
@@ -65,7 +80,7 @@ Array = NDArray[np.float64]
 
 __all__ = ["predicted_position_std", "predicted_rms", "TrainingRegion", "AccuracyModel",
            "Prediction", "accuracy_model", "predict", "floor_from_training",
-           "floor_from_cross_validation"]
+           "floor_from_cross_validation", "predict_spread"]
 
 
 def _position_block(result: CalibrationResult, block: str | None) -> Any:
@@ -200,6 +215,21 @@ class TrainingRegion:
         outside = (q < self.joint_min - 1e-9) | (q > self.joint_max + 1e-9)
         return np.asarray(np.any(outside, axis=1), dtype=np.bool_)
 
+    def distance(self, q: ArrayLike) -> Array:
+        """(N,) how far configurations lie outside the training joint ranges, in units
+        of each joint's training half-range ``h_j`` (at least 0.01 rad / m):
+        ``max_j excess_j / h_j``, ``excess_j`` joint ``j``'s distance from its range taken
+        modulo ``2 pi`` (a revolute joint a turn away is at the same angle; prismatic
+        strokes are far below 2 pi m); 0 inside."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        lo, hi = self.joint_min, self.joint_max
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        off = np.abs(np.remainder(q - mid + np.pi, 2 * np.pi) - np.pi)
+        excess = np.where(half >= np.pi, 0.0, np.maximum(off - half, 0.0))
+        if not q.shape[1]:
+            return np.zeros(len(q))
+        return np.asarray(np.max(excess / np.maximum(half, 1e-2), axis=1), dtype=float)
+
     def outside_hull(self, p: ArrayLike) -> NDArray[np.bool_]:
         """(N,) True where a point lies outside the training hull (False without one)."""
         p = np.atleast_2d(np.asarray(p, dtype=float))
@@ -246,6 +276,9 @@ class AccuracyModel:
         floor_m: the unmodelled floor (RMS length of the 3-D error) [m].
         floor_source: ``"cross-validation"`` or ``"training residuals"``.
         region: the :class:`TrainingRegion`.
+        floor_growth_m: growth ``g`` of the floor with the distance outside the training
+            joint ranges [m per training half-range] (the region test's,
+            :func:`kincal.identify.extrapolation.region_test`); None when unknown (0).
         instrument: the training session's instrument, for predictions of what it would
             measure: ``{"block": name, "values": its frame and marker (9) [m, rad],
             "nine": their names, "parameters": the estimated robot and block parameters,
@@ -264,6 +297,17 @@ class AccuracyModel:
     floor_source: str = "training residuals"
     region: TrainingRegion | None = None
     instrument: Mapping[str, Any] | None = None
+    floor_growth_m: float | None = None
+
+    def floor_at(self, q: ArrayLike) -> Array:
+        """(N,) the unmodelled floor at configurations ``q`` [m]:
+        ``sqrt(floor^2 + (g d)^2)``, ``d`` their distance outside the training joint
+        ranges (:meth:`TrainingRegion.distance`), ``g`` :attr:`floor_growth_m`."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        g = float(self.floor_growth_m or 0.0)
+        d = self.region.distance(q) if self.region is not None and g > 0 else \
+            np.zeros(len(q))
+        return np.sqrt(float(self.floor_m) ** 2 + (g * d) ** 2)
 
     def to_dict(self) -> dict[str, Any]:
         """The result JSON's ``accuracy_model`` (SI).  ``parameters`` / ``covariance`` /
@@ -280,6 +324,7 @@ class AccuracyModel:
                 "point_covariance": self.point_covariance.tolist(),
                 "cross_covariance": cross.tolist(), "floor_m": self.floor_m,
                 "floor_source": self.floor_source,
+                "floor_growth_m": self.floor_growth_m,
                 "instrument": None if self.instrument is None else {
                     "block": self.instrument["block"],
                     "values": list(map(float, self.instrument["values"])),
@@ -311,7 +356,8 @@ class AccuracyModel:
                 np.asarray(doc.get("point_covariance", np.zeros((3, 3))), dtype=float),
                 None if cross is None else np.asarray(cross, dtype=float).reshape(-1, 3),
                 float(doc.get("floor_m", 0.0)), str(doc.get("floor_source", "")), region,
-                doc.get("instrument"))
+                doc.get("instrument"),
+                None if doc.get("floor_growth_m") is None else float(doc["floor_growth_m"]))
         except (KeyError, TypeError, ValueError) as exc:
             raise KincalError(f"its accuracy_model is not readable ({exc.__class__.__name__}: "
                               f"{exc})", source=source) from None
@@ -320,6 +366,12 @@ class AccuracyModel:
         import dataclasses
 
         return dataclasses.replace(self, floor_m=float(floor_m), floor_source=source)
+
+    def with_floor_growth(self, growth_m: float | None) -> AccuracyModel:
+        import dataclasses
+
+        return dataclasses.replace(self, floor_growth_m=None if growth_m is None
+                                   else float(growth_m))
 
     def with_region(self, region: TrainingRegion | None) -> AccuracyModel:
         import dataclasses
@@ -334,7 +386,8 @@ class Prediction:
     Attributes:
         std_position_m: (N,) from the parameter covariance [m].
         std_orientation_rad: (N,) of the flange orientation [rad].
-        predicted_m: (N,) ``sqrt(std^2 + floor^2)``: the expected RMS error [m].
+        predicted_m: (N,) ``sqrt(std^2 + floor^2)``: the expected RMS error [m] (the
+            floor grows outside the training joint ranges, :meth:`AccuracyModel.floor_at`).
         outside_joint_ranges, outside_hull: (N,) where the model extrapolates.
         correction_m: (N,) ``|P_cal - P_nom|`` [m] (None without a nominal robot).
         nominal_predicted_m: (N,) the nominal model's expected error [m] (or None).
@@ -570,10 +623,10 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
     Jw = J[:, 3:, :]
     std_w = np.sqrt(np.clip(propagated_variance(Jw, C), 0.0, None))
     P = T[:, :3, 3] + a
-    floor = float(model.floor_m)
     reg = model.region
     out_j = reg.outside_joint_ranges(q) if reg is not None else np.zeros(len(q), bool)
     out_h = reg.outside_hull(P) if reg is not None else np.zeros(len(q), bool)
+    floor = model.floor_at(q)
     pred = Prediction(std, std_w, np.sqrt(std**2 + floor**2), out_j, out_h,
                       P if y is None else y, worse_than_nominal=np.zeros(len(q), dtype=bool))
     if nominal is not None:
@@ -587,6 +640,41 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - s**2, 0.0, None) + floor**2)
         pred.worse_than_nominal = d < math.sqrt(2.0) * s
     return pred
+
+
+def predict_spread(model: AccuracyModel, robot: Robot, q: ArrayLike, groups: ArrayLike
+                   ) -> Array:
+    """(N,) predicted RMS distance of the measured point from the mean of its group [m]:
+    what an artifact's held-out *spread* (seatings of one socket about their mean) is.
+
+    ``P_i = p_e(q_i) + R_e(q_i) m``; with ``G_i = dP_i / d(theta, m)`` over the estimated
+    robot parameters and the point's estimated coordinates, ``C`` their covariance and
+    ``n`` the size of configuration ``i``'s group,
+    ``spread_i^2 = (G_i - mean_group G) C (G_i - mean_group G)^T + floor_i^2 (1 - 1/n)``:
+    what moves every seating of a socket alike (base, socket position) does not spread it.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    g = np.asarray(groups).reshape(-1)
+    if len(g) != len(q):
+        raise KincalError(f"predicted spread: {len(g)} group labels for {len(q)} "
+                          "configurations")
+    T, Jp = _fk_and_param_jacobian(robot, q)
+    J = Jp[:, :, robot.param_indices(list(model.parameters))] if model.parameters else \
+        np.zeros((len(q), 6, 0))
+    R = T[:, :3, :3]
+    G = np.concatenate([J[:, :3, :] - np.cross((R @ model.point)[:, :, None], J[:, 3:, :],
+                                               axis=1), R], axis=2)
+    p = len(model.parameters)
+    cross = model.cross_covariance if model.cross_covariance is not None else \
+        np.zeros((p, 3))
+    C = np.block([[model.covariance, cross], [cross.T, model.point_covariance]])
+    floor = model.floor_at(q)
+    var = np.zeros(len(q))
+    for label in np.unique(g):
+        k = g == label
+        D = G[k] - G[k].mean(axis=0)
+        var[k] = propagated_variance(D, C) + floor[k] ** 2 * (1.0 - 1.0 / k.sum())
+    return np.sqrt(np.clip(var, 0.0, None))
 
 
 def _instrument_view(inst: Mapping[str, Any], robot: Robot, q: Array, values: Any) -> Array:

@@ -233,7 +233,8 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     cv = _cross_validation_summary(robot, blocks, selection, cross_validate, tols.sigma,
                                    {**solver_options, "prior": prior_s or None}, mapper)
     train, before, after, comps = _training_comparison(robot, res)
-    accuracy = _accuracy(res, cv, before) if procedure == "lm" else None
+    accuracy = _accuracy_outside(robot, blocks, res, _accuracy(res, cv, before) if procedure ==
+                                 "lm" else None, comps, warnings, (free_names, fixed, options))
     heldout: list[Any] = []
     if holdouts:
         comp, heldout = _holdout_comparison(robot, res.robot, train, list(holdouts), before,
@@ -354,6 +355,29 @@ def _accuracy(res: Any, cv: Mapping[str, Any] | None,
         model = model.with_floor(floor_from_cross_validation(model, res.robot, q, rms),
                                  "cross-validation")
     return model
+
+
+def _accuracy_outside(robot: Any, blocks: list[Any], res: Any, accuracy: Any,
+                      comps: Sequence[Any], warnings: list[str],
+                      fit_options: tuple[Any, list[str], Mapping[str, Any]]) -> Any:
+    """The accuracy model with the floor's growth outside the training region, measured
+    by the region test on the training data (same fit options), and the extrapolation
+    warning before use (appended to ``warnings``;
+    :mod:`~kincal.identify.extrapolation`)."""
+    if accuracy is None:
+        return None
+    from kincal.identify.extrapolation import extrapolation_warning, region_test
+
+    free_names, fixed, options = fit_options
+    test = region_test(robot, blocks, lambda bl: _calibrate(
+        robot, bl, free_names, fixed, "lm", None, options))
+    accuracy = accuracy.with_floor_growth(test.floor_growth_m if test else None)
+    e0 = comps[0].before.get("position_m", comps[0].before.get("coincidence_m"))
+    nominal = 0.0 if e0 is None else float(np.sqrt(np.mean(np.square(e0))))
+    warning = extrapolation_warning(accuracy, res.robot, test, nominal)
+    if warning:
+        warnings.append(warning)
+    return accuracy
 
 
 def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
@@ -699,6 +723,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         if flow.tolerances is not None:
             doc["tolerances"] = flow.tolerances.to_dict()
         doc["held_by_prior"] = [w.to_dict() for w in flow.weak]
+        doc["warnings"] = list(flow.warnings)
         if flow.accuracy is not None:
             doc["accuracy_model"] = flow.accuracy.to_dict()
         if flow.heldout:
