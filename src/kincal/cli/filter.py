@@ -17,7 +17,7 @@ import os
 import re
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -68,6 +68,19 @@ _PROGRAM = {"krl": r"^[ \t]*(?:GLOBAL[ \t]+)?DEF(?:FCT|DAT)?[ \t]+\w",
 def _is_program(dialect: str, texts: dict[str, str]) -> bool:
     pattern = re.compile(_PROGRAM.get(dialect, "$^"), re.IGNORECASE | re.MULTILINE)
     return any(pattern.search(t) for t in texts.values())
+
+
+def _targets_csv(rows: list[Any]) -> str:
+    """The ``--csv`` table: one row per target (mm, deg; SI names in the header)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["target", "file", "line", "kind", "status", "shift_mm", "shift_deg",
+                "predicted_std_mm", "warnings", "reason"])
+    for r in rows:
+        w.writerow([r.name, r.file, r.line, r.kind, r.status, f"{r.shift_mm:.6f}",
+                    f"{r.shift_deg:.6f}", "" if math.isnan(r.predicted_std_mm)
+                    else f"{r.predicted_std_mm:.6f}", ";".join(r.warnings), r.reason])
+    return buf.getvalue()
 
 
 @app.command("filter")
@@ -178,15 +191,7 @@ def filter_cmd(
                   f"{max(shifts):.4f} mm")
     out.print("filtered program -> " + ", ".join(escape(o) for o in targets.values()))
     if csv_out:
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["target", "file", "line", "kind", "status", "shift_mm", "shift_deg",
-                    "predicted_std_mm", "warnings", "reason"])
-        for r in rows:
-            w.writerow([r.name, r.file, r.line, r.kind, r.status, f"{r.shift_mm:.6f}",
-                        f"{r.shift_deg:.6f}", "" if math.isnan(r.predicted_std_mm)
-                        else f"{r.predicted_std_mm:.6f}", ";".join(r.warnings), r.reason])
-        atomic_write_text(csv_out, buf.getvalue())
+        atomic_write_text(csv_out, _targets_csv(rows))
     if json_out:
         write_json(json_out, res.to_dict(outputs=list(targets.values())))
     if res.failed:
