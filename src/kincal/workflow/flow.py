@@ -213,6 +213,9 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     _check_validation_options(procedure, cross_validate, select)
     robot, blocks, holdouts, notes = _share_marker(robot, blocks, holdouts, shared_marker)
     free_names, fixed, tols = _selection_and_tolerances(robot, blocks, free, fix, prior)
+    from kincal.measure.data_checks import block_joint_problems, joint_data_line
+
+    data_line = joint_data_line(block_joint_problems(robot, [*blocks, *holdouts]))
     prefer = [f"tool.{c}" for c in "xyz"] if shared_marker else []
     solver_options = {"free": free_names, "fixed": fixed, "method": method, "stages": stages,
                       "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100,
@@ -242,7 +245,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     from kincal.identify.checks import judge
     from kincal.identify.weak import weak_parameters
 
-    verdict = judge(res, tols.sigma)
+    verdict = judge(res, tols.sigma, data=[data_line] if data_line else [])
     warnings += verdict.warnings()
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=verdict,
@@ -269,8 +272,11 @@ def _selection_and_tolerances(robot: Any, blocks: Sequence[Any], free: str | Non
     (``--prior``) of the stacked problem."""
     from kincal.measure.base import stack
 
+    from kincal.identify.checks import require_free
+
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
+    require_free(prob.names, free_names, fixed, free, fix)
     return free_names, fixed, tolerances_of(robot, prob, prior)
 
 
