@@ -9,9 +9,9 @@ prismatic ones), before any fit, and name the file, the line and the joint:
   lower_j))``: 1 % of the joint's range, at least 1e-3 rad (0.057 deg) or 1e-4 m.  A
   controller's soft limits let a joint overshoot a little and robot files round their
   limits (the TIAGo's torso reads 350.2 mm against its 350 mm limit); a reading in
-  another unit, in another joint's column or of another robot is off by far more.  A joint without limits (infinite) is not checked,
-  nor a robot without any.  Such a reading is a wrong unit, a wrong column, another robot
-  or a robot file whose limits are wrong: a fit to it cannot be used as it is.
+  another unit, in another joint's column or of another robot is off by far more (and a
+  robot file whose limits are wrong is worth knowing about).  A joint without limits
+  (infinite) is not checked, nor a robot without any.
 * **The other angle unit** (revolute joints only; a file's joint columns are read in
   one unit each, ``q2_rad`` or ``q2_deg``):
 
@@ -21,20 +21,23 @@ prismatic ones), before any fit, and name the file, the line and the joint:
     joint cannot move over more than its range; degree values of any real motion (tens of
     degrees) do.
   - *radians read as degrees*: *every* revolute column of the file read in a degree
-    unit stays within +-pi (+-3.1416 "degrees"), the file moves some joint at all (a
-    spread above 0.01 deg, so one repeated pose is not flagged) and the robot's joints
-    could move far more (at least one revolute range wider than 30 deg).  A calibration
-    moves its joints over tens of degrees: an arm that stayed within +-3.14 deg on every
-    axis is a file of radians under ``_deg`` headers.
+    unit stays within +-2 pi (+-6.283 "degrees": radian readings of joints with limits
+    up to one turn either way), the file moves some joint at all (a spread above 0.01
+    deg, so one repeated pose is not flagged) and the robot's joints could move far more
+    (at least one revolute range wider than 30 deg).  A calibration moves its joints over
+    tens of degrees: an arm that stayed within +-6.3 deg on every axis is a file of
+    radians under ``_deg`` headers.
 
-  Values read in other units (``mrad``, ``arcsec`` ...) are judged by the same rule of
-  their dimension (radian-like or degree-like by their size: ``mrad``, ``urad`` are not
-  judged).
+  Columns read in other angle units (``mrad``, ``arcsec`` ...) are not judged; a column
+  without a known unit (blocks built in memory) is judged as radians.  A continuous
+  joint (no limits) whose readings wind over more than one turn, all within +-360, would
+  be taken for degrees: calibration chains have none.
 
 :func:`joint_data_problems` returns one sentence per problem (first offending row of
 each joint); :func:`joint_data_line` joins them into the one line a command prints.
 Callers decide what a problem means: ``calibrate`` refuses the calibration (exit 1, no
-robot written unless ``--force``), ``validate`` and ``fk`` refuse or say so loudly.
+robot written unless ``--force``), ``validate`` refuses before it computes (exit 1, one
+line), ``fk`` / ``jacobian`` print the answer and then exit 1 with the line.
 """
 
 from __future__ import annotations
@@ -46,12 +49,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kincal.errors import CheckFailedError
 from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
 __all__ = ["LIMIT_SLACK", "LIMIT_SHARE", "JointProblem", "limit_problems", "unit_problems",
-           "joint_data_problems", "joint_data_line", "block_joint_problems"]
+           "joint_data_problems", "joint_data_line", "block_joint_problems",
+           "command_line_joints", "refuse_joint_data"]
 
 #: Readings this far beyond a limit are always accepted [rad for revolute, m for prismatic].
 LIMIT_SLACK = {"revolute": 1e-3, "prismatic": 1e-4}
@@ -88,8 +93,10 @@ def _show(value: float, kind: str) -> str:
     return f"{math.degrees(value):.4g} deg" if kind == "revolute" else f"{value * 1e3:.4g} mm"
 
 
-def _where(lines: Sequence[int] | None, row: int) -> str:
-    return f"line {int(lines[row])}" if lines is not None else f"row {row + 1}"
+def _where(lines: Sequence[int] | None, row: int, rows: int) -> str:
+    if lines is not None:
+        return f"line {int(lines[row])}: "
+    return f"row {row + 1}: " if rows > 1 else ""
 
 
 def limit_problems(robot: Robot, q: Array, source: str,
@@ -122,7 +129,7 @@ def limit_problems(robot: Robot, q: Array, source: str,
         lim = (f"[{_show(lo, joint.kind) if math.isfinite(lo) else '-inf'}, "
                f"{_show(hi, joint.kind) if math.isfinite(hi) else 'inf'}]")
         out.append(JointProblem(source, "limits",
-                                f"{_where(lines, i)}: joint {joint.name} = "
+                                f"{_where(lines, i, q.shape[0])}joint {joint.name} = "
                                 f"{_show(float(q[i, j]), joint.kind)} is beyond its limits "
                                 f"{lim}{more}", (joint.name,)))
     return out
@@ -178,17 +185,17 @@ def unit_problems(robot: Robot, q: Array, source: str,
             "--units)", tuple(names)))
     deg = [j for j in rev if fam[j] == "deg"]
     if deg and len(deg) == len(rev):
-        small = all(float(np.max(np.abs(q[:, j]))) <= math.radians(math.pi) * 1.0001
+        small = all(float(np.max(np.abs(q[:, j]))) <= math.radians(2 * math.pi) * 1.0001
                     for j in deg)
         moved = max(float(np.ptp(q[:, j])) for j in deg) > math.radians(0.01)
         widths = [float(robot.joints[j].upper - robot.joints[j].lower) for j in deg]
         could = any(not math.isfinite(w) or w > math.radians(30) for w in widths)
         if small and moved and could:
-            names = ", ".join(robot.joints[j].name for j in deg[:3])
+            shown = ", ".join(robot.joints[j].name for j in deg[:3])
             out.append(JointProblem(
                 source, "unit",
-                f"every revolute joint column ({names}{' ...' if len(deg) > 3 else ''}, "
-                f"read in deg) stays within +-3.1416 deg: the values look like radians "
+                f"every revolute joint column ({shown}{' ...' if len(deg) > 3 else ''}, "
+                f"read in deg) stays within +-6.283 deg: the values look like radians "
                 f"(write the columns as _rad, or give --units)",
                 tuple(robot.joints[j].name for j in deg)))
     return out
@@ -229,10 +236,36 @@ def block_joint_problems(robot: Robot, blocks: Sequence[object]) -> list[JointPr
     return out
 
 
+def command_line_joints(robot: Robot, q: Array, option: str = "--q", deg: bool = False
+                        ) -> str:
+    """The one line for joint values given on the command line beyond the limits
+    (``""`` when they are inside): ``option --q: joint q2 = 1146 deg is beyond its limits
+    [-45 deg, 225 deg] (numbers without a unit are read as radians: --deg reads
+    degrees)``."""
+    found = limit_problems(robot, np.atleast_2d(np.asarray(q, dtype=float)), f"option {option}")
+    if not found:
+        return ""
+    hint = "" if deg else (" (numbers without a unit are read as radians: --deg reads "
+                           "degrees)")
+    return joint_data_line(found) + hint
+
+
+def refuse_joint_data(robot: Robot, blocks: Sequence[object]) -> None:
+    """Raise :class:`~kincal.errors.CheckFailedError` (exit 1) with the one line of
+    :func:`block_joint_problems` when the blocks' joint data have a problem."""
+    line = joint_data_line(block_joint_problems(robot, blocks))
+    if line:
+        raise CheckFailedError(f"joint data this robot cannot have produced: {line}")
+
+
 def joint_data_line(problems: Sequence[JointProblem], limit: int = 2) -> str:
-    """One line: the first ``limit`` problems, and how many more."""
+    """One line: the first ``limit`` problems (each source named once), and how many more."""
     if not problems:
         return ""
-    head = "; ".join(p.line() for p in problems[:limit])
+    parts: list[str] = []
+    last = None
+    for p in problems[:limit]:
+        parts.append(p.words if p.source == last else p.line())
+        last = p.source
     more = len(problems) - limit
-    return head + (f"; and {more} more" if more > 0 else "")
+    return "; ".join(parts) + (f"; and {more} more" if more > 0 else "")

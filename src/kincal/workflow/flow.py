@@ -270,9 +270,8 @@ def _selection_and_tolerances(robot: Any, blocks: Sequence[Any], free: str | Non
                               ) -> tuple[list[str] | None, list[str], Any]:
     """The free and fixed parameter names of ``--free``/``--fix`` and the tolerances
     (``--prior``) of the stacked problem."""
-    from kincal.measure.base import stack
-
     from kincal.identify.checks import require_free
+    from kincal.measure.base import stack
 
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
