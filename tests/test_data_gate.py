@@ -276,8 +276,25 @@ def test_no_redundancy_is_refused(files, capsys, tmp_path, name, configurations)
 def test_distinct_equations_count_each_configuration_once(files):
     blocks = read_blocks([files["same"]], PUMA)
     assert distinct_equations(blocks) == (3, 1)
+    r = np.ones(3 * 212)
+    assert distinct_equations(blocks, r) == (3, 1)              # copies: one row
+    r[3:] += np.repeat(np.arange(1, 212), 3) * 1e-3             # new noise each time
+    assert distinct_equations(blocks, r) == (3 * 212, 1)        # a repeatability test
     blocks = read_blocks([files["good"]], PUMA)
     assert distinct_equations(blocks) == (180, 60)
+
+
+def test_one_pose_seen_from_several_stations_is_redundant(tmp_path):
+    """A range instrument (one distance per station): 30 poses, 4 stations, 120 rows with
+    each pose 4 times; 32 parameters are estimated and the fit is redundant."""
+    path = tmp_path / "r.csv"
+    assert invoke("simulate", "puma560", "-o", path, "-i", "range", "--poses", "30",
+                  "--seed", "4") == 0
+    blocks = read_blocks([path], PUMA)
+    flow = run_flow(PUMA, blocks)
+    assert distinct_equations(blocks) == (30, 30)               # the poses alone: 30
+    assert distinct_equations(blocks, flow.result.residuals)[0] == 120
+    assert flow.trusted, flow.verdict.line()
 
 
 # --------------------------------------------------------------------------- bad input

@@ -21,11 +21,12 @@ command line prints (exit status 1, no calibrated robot written unless ``--force
   revolute column whose values only make sense in the other angle unit
   (:mod:`kincal.measure.data_checks`; checked on every training and held-out file);
 * *nothing estimated*: no parameter was left to estimate;
-* *no redundancy*: ``E <= p``, with ``p`` the estimated parameters and ``E`` the
-  equations of *distinct* joint configurations (a block's residuals times its share of
-  distinct rows of ``q``: repeating a pose repeats its equations, it does not add any).
-  Then the fit passes through the data whatever they are and ``sigma0`` (1 by
-  convention) checks nothing;
+* *no redundancy*: ``E - p < 1``, with ``E`` the equations of *distinct*
+  measurements (:func:`distinct_equations`: a row copied, same joint readings and same
+  residuals, repeats its equations, it does not add any) and ``p`` the parameters
+  the data fix: the estimated ones, or with a prior the effective number ``p_eff``
+  (``result.effective_parameters``; the prior holds the rest).  Then the fit passes
+  through the data whatever they are and ``sigma0`` (1 by convention) checks nothing;
 * *a residual beyond what the noise and the tolerances can explain*: with ``d = E - p``
   degrees of freedom and whitened residuals (stated noise 1), ``sigma0^2 d`` is
   chi-square with ``d`` degrees of freedom when the stated noise is right, so
@@ -301,16 +302,21 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
                            "fixed or not identifiable from the data): the result is the "
                            "nominal robot", "nothing estimated"))
         return out
-    equations, configurations = distinct_equations(result.problem.blocks)
-    dof = equations - p
-    if dof <= 0:
+    equations, configurations = distinct_equations(result.problem.blocks,
+                                                   result.residuals)
+    p_eff = result.effective_parameters
+    fixed_by_data = p if p_eff is None else min(float(p_eff), p)
+    dof = equations - fixed_by_data
+    if dof < 1:
+        held = ("" if p_eff is None else
+                f" (of which the data, not the prior, fix {fixed_by_data:.3g})")
         out.append(Refusal(
             "redundancy", f"no redundancy: {equations} equations from {configurations} "
             f"distinct joint configuration{'s' if configurations != 1 else ''} for {p} "
-            "estimated parameters, so the fit passes through any data and sigma0 checks "
-            "nothing (measure more, different poses, or estimate fewer parameters)",
+            f"estimated parameters{held}, so the fit passes through any data and sigma0 "
+            "checks nothing (measure more, different poses, or estimate fewer parameters)",
             "no redundancy", {"equations": equations, "configurations": configurations,
-                              "estimated": p}))
+                              "estimated": p, "effective": fixed_by_data}))
         return out
     sigma0 = float(result.sigma0)
     limit = residual_bound(result, tolerances, dof)
@@ -318,30 +324,47 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
         out.append(Refusal(
             "residual", f"the model cannot explain the data: residuals {sigma0:.3g} times "
             f"the stated noise, beyond the {limit:.3g} that the noise and half the errors "
-            f"the tolerances allow can explain ({dof} degrees of freedom); likely causes: "
+            f"the tolerances allow can explain ({dof:.4g} degrees of freedom); likely causes: "
             f"{UNEXPLAINED_CAUSES}", f"sigma0 {sigma0:.3g} > {limit:.3g}",
             {"sigma0": sigma0, "bound": limit, "dof": dof}))
     return out
 
 
-def distinct_equations(blocks: Sequence[Any]) -> tuple[int, int]:
-    """``(E, K)``: the equations of distinct joint configurations, and how many distinct
-    configurations (module docstring).  A block's ``M`` residuals over ``N`` rows of
-    which ``K`` distinct give ``round(M K / N)`` equations."""
+def distinct_equations(blocks: Sequence[Any], residuals: Any = None) -> tuple[int, int]:
+    """``(E, K)``: the equations of distinct measurements, and how many distinct joint
+    configurations (module docstring).
+
+    A row (measurement) repeats another when its joint readings and its residuals are
+    the same (with ``residuals``, the stacked whitened residuals of the fit; else the
+    joint readings alone decide): a copied row adds no equation, while one pose seen
+    from several instrument stations, or measured again with new noise, does.  ``E``
+    sums the residuals of the first row of each kind."""
     equations = configurations = 0
+    start = 0
+    r_all = None if residuals is None else np.asarray(residuals, dtype=float)
     for b in blocks:
         m = int(b.num_residuals())
         q = np.asarray(getattr(b, "q", np.zeros((0, 0))), dtype=float)
-        if q.ndim != 2 or q.shape[0] == 0:
+        owner = np.asarray(b.residual_owner())
+        r = None if r_all is None else r_all[start:start + m]
+        start += m
+        if (q.ndim != 2 or q.shape[0] == 0 or m == 0 or owner.size != m
+                or owner.max() >= q.shape[0]):
             equations += m
             continue
-        k = int(np.unique(q, axis=0).shape[0]) if q.shape[1] else 1
-        configurations += k
-        equations += int(round(m * k / q.shape[0]))
+        configurations += int(np.unique(q, axis=0).shape[0]) if q.shape[1] else 1
+        n = q.shape[0]
+        count = np.bincount(owner, minlength=n).astype(float)
+        key = [q, count[:, None]]
+        if r is not None:                       # a row's residuals, by their sum and squares
+            key += [np.bincount(owner, weights=r, minlength=n)[:, None],
+                    np.bincount(owner, weights=r * r, minlength=n)[:, None]]
+        _, first = np.unique(np.round(np.hstack(key), 9), axis=0, return_index=True)
+        equations += int(count[first].sum())
     return equations, configurations
 
 
-def residual_bound(result: Any, tolerances: Mapping[str, float], dof: int) -> float | None:
+def residual_bound(result: Any, tolerances: Mapping[str, float], dof: float) -> float | None:
     """``sigma0_max`` of the module docstring for ``dof`` degrees of freedom; None when
     no robot geometry parameter has a tolerance (no stated model floor)."""
     prob = result.problem

@@ -213,9 +213,6 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     _check_validation_options(procedure, cross_validate, select)
     robot, blocks, holdouts, notes = _share_marker(robot, blocks, holdouts, shared_marker)
     free_names, fixed, tols = _selection_and_tolerances(robot, blocks, free, fix, prior)
-    from kincal.measure.data_checks import block_joint_problems, joint_data_line
-
-    data_line = joint_data_line(block_joint_problems(robot, [*blocks, *holdouts]))
     prefer = [f"tool.{c}" for c in "xyz"] if shared_marker else []
     solver_options = {"free": free_names, "fixed": fixed, "method": method, "stages": stages,
                       "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100,
@@ -245,12 +242,21 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     from kincal.identify.checks import judge
     from kincal.identify.weak import weak_parameters
 
-    verdict = judge(res, tols.sigma, data=[data_line] if data_line else [])
+    verdict = judge(res, tols.sigma, data=_joint_data(robot, [*blocks, *holdouts]))
     warnings += verdict.warnings()
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=verdict,
                       weak=weak_parameters(res), selection=selection, accuracy=accuracy,
                       heldout=heldout, notes=notes)
+
+
+def _joint_data(robot: Any, blocks: Sequence[Any]) -> list[str]:
+    """The one-line problems of the training and held-out files' joint readings
+    (:mod:`kincal.measure.data_checks`), for the verdict."""
+    from kincal.measure.data_checks import block_joint_problems, joint_data_line
+
+    line = joint_data_line(block_joint_problems(robot, blocks))
+    return [line] if line else []
 
 
 def _share_marker(robot: Any, blocks: list[Any], holdouts: Sequence[Any], shared: bool
