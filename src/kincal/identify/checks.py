@@ -308,7 +308,7 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
     fixed_by_data = p if p_eff is None else min(float(p_eff), p)
     dof = equations - fixed_by_data
     if dof < 1:
-        held = ("" if p_eff is None else
+        held = ("" if p_eff is None or fixed_by_data > p - 0.5 else
                 f" (of which the data, not the prior, fix {fixed_by_data:.3g})")
         out.append(Refusal(
             "redundancy", f"no redundancy: {equations} equations from {configurations} "

@@ -179,10 +179,10 @@ def unit_problems(robot: Robot, q: Array, source: str,
         out.append(JointProblem(
             source, "unit",
             f"joint column{'s' if len(names) > 1 else ''} {cols} (read in "
-            f"{units[wide[0][0]] or 'rad'}) span{'' if len(names) > 1 else 's'} up to "
-            f"{span:.4g} ({robot.joints[j].name}), more than one turn of a revolute joint "
-            f"(6.283 rad): the values look like degrees (write {names[0]}_deg ..., or give "
-            "--units)", tuple(names)))
+            f"{units[wide[0][0]] or 'rad'}): values spanning up to {span:.4g} "
+            f"({robot.joints[j].name}), more than one turn (6.283 rad) of a revolute joint: "
+            f"they look like degrees (write {names[0]}_deg ..., or give --units)",
+            tuple(names)))
     deg = [j for j in rev if fam[j] == "deg"]
     if deg and len(deg) == len(rev):
         small = all(float(np.max(np.abs(q[:, j]))) <= math.radians(2 * math.pi) * 1.0001
