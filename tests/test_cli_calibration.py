@@ -465,7 +465,7 @@ def _dh(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
 
 def test_export_to_urdf_and_yaml_keeps_the_forward_kinematics(capsys, tmp_path):
     """`kincal export` writes URDF and YAML; `kincal fk` of every file gives the same T."""
-    q = "0.3,-0.7,1.1,0.4,-0.9,2.0"
+    q = "0.3,-0.7,-1.1,0.4,-0.9,2.0"          # inside the joint limits
     urdf, yaml_ets, from_urdf = (tmp_path / n for n in ("puma.urdf", "puma_ets.yaml",
                                                          "from_urdf.yaml"))
     assert run(capsys, "export", "puma560", "-o", urdf)[0] == 0

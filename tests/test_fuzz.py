@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 from pathlib import Path
 
@@ -62,6 +63,9 @@ def contract(args: list[object], outputs: list[Path], inputs: list[Path]) -> int
     if code == 2:
         left = [p for p in outputs if p.exists()]
         assert not left, f"kincal {cmd}: exit 2 but wrote {left}"
+    if code == 1 and args[0] == "calibrate" and "--force" not in args and "-o" in args:
+        robot_file = Path(str(args[args.index("-o") + 1]))
+        assert not robot_file.exists(), f"kincal {cmd}: exit 1 but wrote {robot_file}"
     for p, snap in before.items():
         assert _snapshot(p) == snap, f"kincal {cmd}: changed the input {p}"
     return code
@@ -114,7 +118,9 @@ def measurement_text(draw: st.DrawFn, base: str) -> bytes:
     head = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
     for _ in range(draw(st.integers(1, 3))):
         op = draw(st.sampled_from(["cell", "drop line", "dup column", "ragged", "header cell",
-                                   "bom", "latin1", "crlf", "extra column", "drop tag"]))
+                                   "bom", "latin1", "crlf", "extra column", "drop tag",
+                                   "other angle unit", "beyond a limit", "swap joints",
+                                   "one row", "repeat a row"]))
         if op == "cell" and len(lines) > head + 1:
             i = draw(st.integers(head + 1, len(lines) - 1))
             cells = lines[i].split(",")
@@ -142,11 +148,42 @@ def measurement_text(draw: st.DrawFn, base: str) -> bytes:
         elif op == "drop tag" and lines and lines[0].startswith("#"):
             lines = lines[1:]
             head = max(0, head - 1)
+        else:
+            lines = _model_cannot_explain(draw, op, lines, head)
     text = "\n".join(lines) + "\n"
     enc = draw(st.sampled_from(["utf-8", "utf-8-sig", "latin-1", "crlf"]))
     if enc == "crlf":
         return text.replace("\n", "\r\n").encode()
     return text.encode(enc, errors="replace")
+
+
+def _model_cannot_explain(draw: st.DrawFn, op: str, lines: list[str], head: int
+                          ) -> list[str]:
+    """Files the readers accept but the model cannot explain (the gate's cases):
+    joint headers in the other angle unit, a reading beyond a joint limit, two joint
+    columns swapped, one row, one row repeated."""
+    if len(lines) <= head + 1:
+        return lines
+    rows = lines[head + 1:]
+    if op == "other angle unit":
+        swap = {"_deg": "_rad", "_rad": "_deg"}
+        lines[head] = ",".join(c[:-4] + swap.get(c[-4:], c[-4:]) for c in
+                               lines[head].split(","))
+    elif op == "beyond a limit":
+        i = draw(st.integers(head + 1, len(lines) - 1))
+        cells = lines[i].split(",")
+        cells[min(1, len(cells) - 1)] = draw(st.sampled_from(["300", "-300", "1e4", "5.2"]))
+        lines[i] = ",".join(cells)
+    elif op == "swap joints":
+        def swapped(ln: str) -> str:
+            c = ln.split(",")
+            return ",".join([c[1], c[0], *c[2:]]) if len(c) > 1 else ln
+        lines = lines[:head + 1] + [swapped(ln) for ln in rows]
+    elif op == "one row":
+        lines = lines[:head + 1] + rows[:draw(st.integers(1, 2))]
+    elif op == "repeat a row":
+        lines = lines[:head + 1] + [rows[0]] * draw(st.integers(2, 212))
+    return lines
 
 
 @FUZZ
@@ -399,3 +436,59 @@ def test_fixed_cases(good, tmp_path, args_of):
     args = args_of(good, tmp_path)
     code = contract(args, [tmp_path / "c.yaml"], [p for p in good.values()])
     assert code == 2
+
+
+# --------------------------------------------------------------------------- the gate
+def _rewrite(src: Path, dst: Path, change) -> Path:
+    lines = src.read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    dst.write_text("\n".join(change(lines[:head + 1], lines[head + 1:])) + "\n")
+    return dst
+
+
+def _to_radians(row: str) -> str:
+    c = row.split(",")
+    return ",".join([repr(math.radians(float(v))) for v in c[:6]] + c[6:])
+
+
+GATE_FILES = {
+    "degrees under _rad": lambda h, r: [*h[:-1], h[-1].replace("_deg", "_rad"), *r],
+    "radians under _deg": lambda h, r: [*h, *(_to_radians(x) for x in r)],
+    "q2 = 300 deg": lambda h, r: [*h, r[0], ",".join([r[1].split(",")[0], "300",
+                                                      *r[1].split(",")[2:]]), *r[2:]],
+    "joint columns swapped": lambda h, r: [*h, *(",".join([x.split(",")[1], x.split(",")[0],
+                                                           *x.split(",")[2:]]) for x in r)],
+    "one row": lambda h, r: [*h, r[0]],
+    "two rows": lambda h, r: [*h, *r[:2]],
+    "212 identical rows": lambda h, r: [*h, *[r[0]] * 212],
+}
+
+
+@pytest.mark.parametrize("case", sorted(GATE_FILES))
+def test_data_the_model_cannot_explain_is_refused(good, tmp_path, case):
+    """Exit 1, one line, no calibrated robot (issue: "never silently wrong"); with
+    ``--force`` the robot is written and the status is still 1."""
+    f = _rewrite(good["csv"], tmp_path / "data.csv", GATE_FILES[case])
+    out = tmp_path / "c.yaml"
+    code = contract(["calibrate", "puma560", "--data", f, "-o", out], [out], [f])
+    assert code == 1 and not out.exists()
+    assert contract(["calibrate", "puma560", "--data", f, "-o", out, "--force"], [out],
+                    [f]) == 1 and out.exists()
+
+
+@pytest.mark.parametrize("args, status", [
+    (["--free", ","], 2), (["--fix", "*"], 2), (["--loss-scale", "0"], 2),
+    (["--loss-scale", "-1"], 2), (["--loss-scale", "nan"], 2)])
+def test_nothing_to_estimate_is_bad_input(good, tmp_path, args, status):
+    out = tmp_path / "c.yaml"
+    assert contract(["calibrate", "puma560", "--data", good["csv"], "-o", out, *args], [out],
+                    [good["csv"]]) == status
+
+
+def test_joints_beyond_the_limits_elsewhere(good, tmp_path):
+    f = _rewrite(good["csv"], tmp_path / "data.csv", GATE_FILES["q2 = 300 deg"])
+    j = tmp_path / "v.json"
+    assert contract(["validate", "puma560", "--data", f, "--json", j], [j], [f]) == 1
+    assert not j.exists()
+    assert contract(["fk", "puma560", "--q", "10,20,30,40,50,60"], [], []) == 1
+    assert contract(["fk", "puma560", "--q", "10,20,30,40,50,60", "--deg"], [], []) == 0

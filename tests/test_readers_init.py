@@ -18,6 +18,7 @@ import yaml
 from cli_helpers import run
 
 from kincal.measure.files import write_table
+from kincal.measure.simulate import random_configurations
 from kincal.robots.files import load_serial_robot
 
 
@@ -32,8 +33,7 @@ def _tracker_file(path: Path, robot, q, shift: float, name: str | None, sigma: b
 
 def _files(tmp_path: Path, held_name: str | None, sigma: bool = True) -> tuple[Path, Path]:
     robot = load_serial_robot("puma560")
-    rng = np.random.default_rng(4)
-    q = rng.uniform(-1.5, 1.5, (40, 6))
+    q = random_configurations(robot, 40, np.random.default_rng(4))   # within the limits
     train, held = tmp_path / "train.csv", tmp_path / "held.csv"
     _tracker_file(train, robot, q, 0.0, "tracker", sigma)
     _tracker_file(held, robot, q[::-1].copy(), 0.5, held_name, sigma)   # the tracker moved
@@ -70,8 +70,7 @@ def test_shared_name_keeps_the_training_frames(tmp_path, capsys):
 
 def test_init_warns_for_no_sigma_and_a_joint_that_never_moves(tmp_path, capsys):
     robot = load_serial_robot("puma560")
-    rng = np.random.default_rng(5)
-    q = rng.uniform(-1.5, 1.5, (30, 6))
+    q = random_configurations(robot, 30, np.random.default_rng(5))
     q[:, 3] = np.radians(12.5)                                     # q4 never moves
     f = tmp_path / "m.csv"
     _tracker_file(f, robot, q, 0.0, "tracker", sigma=False)

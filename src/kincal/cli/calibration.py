@@ -12,6 +12,7 @@ nothing behind (the error is one line, exit code 2).  Sibling modules:
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -271,6 +272,9 @@ def calibrate_cmd(
                        stages=parse_stages(stages), validation_frames=validation_frames,
                        condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
                        prior=prior_value)
+    if not (math.isfinite(loss_scale) and loss_scale > 0):
+        raise KincalError(f"option --loss-scale: {loss_scale!r} is not a positive finite "
+                          "number of standard deviations")
     train_src, held_src = as_sources(data, validate_files, units=units, ignore=ignore,
                                      instrument=instrument,
                                      options=[*(option or []), *joint_names_option(joint_names)])
@@ -436,6 +440,9 @@ def validate_cmd(
     masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
+    from kincal.measure.data_checks import refuse_joint_data
+
+    refuse_joint_data(r, blocks)                  # exit 1, one line, nothing written
     val = validate_on_files(r, blocks, before, result, validation_frames)
     print_heldout(out, val.files, f"Errors of {r.name} on held-out data")
     if iso9283:

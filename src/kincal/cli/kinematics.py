@@ -122,7 +122,8 @@ def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, si: SiOpt = False,
 
         fk_fivebar(r, joint_vector(r, q, deg), json_out)
         return
-    T = r.fk(joint_vector(r, q, deg))
+    qv = joint_vector(r, q, deg)
+    T = r.fk(qv)
     from kincal.spatial import matrix_to_rpy
 
     rpy = matrix_to_rpy(T[:3, :3])
@@ -139,6 +140,18 @@ def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, si: SiOpt = False,
         write_json(json_out, {"T": T.tolist(), "position": T[:3, 3].tolist(),
                               "rpy": np.asarray(rpy).tolist(),
                               "units": {"length": "m", "angle": "rad"}})
+    _refuse_beyond_limits(r, qv, deg)
+
+
+def _refuse_beyond_limits(robot: Any, q: Any, deg: bool) -> None:
+    """Exit 1 with one line when ``--q`` lies beyond the joint limits (the answer was
+    printed: it is the kinematics of a configuration the robot cannot take)."""
+    from kincal.errors import CheckFailedError
+    from kincal.measure.data_checks import command_line_joints
+
+    line = command_line_joints(robot, q, "--q", deg)
+    if line:
+        raise CheckFailedError(line)
 
 
 @app.command()
@@ -152,7 +165,8 @@ def jacobian(robot: RobotArg, q: QOpt, deg: DegOpt = False,
     import numpy as np
 
     r = robot_arg(robot, base_link, tip_link)
-    J = r.jacobian(joint_vector(r, q, deg), frame=frame)
+    qv = joint_vector(r, q, deg)
+    J = r.jacobian(qv, frame=frame)
     if json_out != "-":
         u = Units(si)
         M = J.copy()
@@ -177,3 +191,4 @@ def jacobian(robot: RobotArg, q: QOpt, deg: DegOpt = False,
                               "columns": list(r.joint_names),
                               "units": "SI: m/s and rad/s per rad/s (revolute) or m/s "
                                        "(prismatic)"})
+    _refuse_beyond_limits(r, qv, deg)

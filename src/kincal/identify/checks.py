@@ -15,6 +15,42 @@ A calibration is *not trusted* when
 :func:`judge` returns a :class:`Verdict` whose :meth:`~Verdict.line` is the one line the
 command line prints (exit status 1, no calibrated robot written unless ``--force``).
 
+**Data the model cannot explain** (:class:`Refusal`, before the reasons above):
+
+* *joint data the robot cannot have produced*: readings beyond the joint limits, or a
+  revolute column whose values only make sense in the other angle unit
+  (:mod:`kincal.measure.data_checks`; checked on every training and held-out file);
+* *nothing estimated*: no parameter was left to estimate;
+* *no redundancy*: ``E - p < 1``, with ``E`` the equations of *distinct*
+  measurements (:func:`distinct_equations`: a row copied, same joint readings and same
+  residuals, repeats its equations, it does not add any) and ``p`` the parameters
+  the data fix: the estimated ones, or with a prior the effective number ``p_eff``
+  (``result.effective_parameters``; the prior holds the rest).  Then the fit passes
+  through the data whatever they are and ``sigma0`` (1 by convention) checks nothing;
+* *a residual beyond what the noise and the tolerances can explain*: with ``d = E - p``
+  degrees of freedom and whitened residuals (stated noise 1), ``sigma0^2 d`` is
+  chi-square with ``d`` degrees of freedom when the stated noise is right, so
+  ``sigma0 <= sqrt(chi2_d^-1(1 - RESIDUAL_TAIL) / d)`` but for one fit in 10^6.  Real
+  robots leave unmodelled errors (compliance, thermal drift, gear play), so the
+  residual may also hold a *model floor*: up to :data:`MODEL_FLOOR` (one half) of the
+  error the manufacturing tolerances produce on the nominal robot at the measured poses,
+  ``v_tol = (1/M) sum_j s_j^2 ||J_j||^2`` (whitened, robot geometry only, ``J_j`` the
+  Jacobian column of parameter ``j`` with tolerance ``s_j``).  The bound is
+
+      sigma0_max = sqrt(chi2_d^-1(1 - RESIDUAL_TAIL) / d) * sqrt(1 + MODEL_FLOOR^2 v_tol).
+
+  A good calibration takes most of the tolerance-level error out of the residual, so its
+  sigma0 stays well below the bound however optimistic the stated noise.  Measured on the
+  real data sets (sigma0 / bound): Motoman 6.70 / 909 (0.007), Panda two-socket 2.48 / 53.1
+  (0.047), TIAGo with its joint model 0.74 / 4.30 (0.17), TIAGo without a sigma column
+  (10 um stated, the worst) 178 / 439 (0.41).  Data that are not this robot's leave
+  residuals larger than its whole tolerance budget produces (simulated, stated noise
+  right): degrees under ``_rad`` headers on the PUMA 5.3e4 / 329 (161), one reading replaced
+  by 300 deg 6.3e3 / 362 (17.5), two joint columns swapped on a Panda two-socket 1.4e5 /
+  1.5e3 (92).  The margin is 2.4x on the good side, 17x on the bad side.  Without
+  tolerances (``v_tol = 0``, e.g. the folds of a cross-validation) there is no stated
+  floor and no residual check.
+
 An encoder offset is held to the same tolerances one step earlier: a robot's encoder
 zeros are set to a fraction of a degree, so an offset that moved more than its tolerance
 (but not beyond the bound) is a loud warning (:meth:`Verdict.warnings`): the zero was
@@ -26,13 +62,29 @@ the reasons the calibration is refused.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from scipy.stats import chi2
+
+from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
 from kincal.identify.tolerances import PLAUSIBLE
 
-__all__ = ["Verdict", "Implausible", "judge", "ABSURD_STD", "show_quantity", "OFFSET_ADVICE"]
+__all__ = ["Verdict", "Implausible", "Refusal", "judge", "ABSURD_STD", "show_quantity",
+           "OFFSET_ADVICE", "RESIDUAL_TAIL", "MODEL_FLOOR", "residual_bound",
+           "distinct_equations", "require_free", "UNEXPLAINED_CAUSES"]
+
+#: Tail probability of the chi-square test of the residual (module docstring).
+RESIDUAL_TAIL = 1e-6
+
+#: Share of the tolerance-level error a good model may leave in the residual.
+MODEL_FLOOR = 0.5
+
+#: What a residual beyond the bound usually means.
+UNEXPLAINED_CAUSES = ("joint values in another unit, swapped or reordered columns, another "
+                      "robot or tool link, or an instrument that moved during the measurements")
 
 #: What an encoder offset beyond its tolerance says (warning and refusal alike).
 OFFSET_ADVICE = ("the axis may have lost its zero (re-master it), or the probe, tool or "
@@ -94,6 +146,27 @@ class Implausible:
                 "tolerance": self.tolerance, "std": self.std, "reason": self.reason}
 
 
+@dataclass(frozen=True)
+class Refusal:
+    """Data the model cannot explain (module docstring): one reason to refuse.
+
+    Attributes:
+        kind: ``"data"`` (joint data), ``"nothing"`` (no parameter estimated),
+            ``"redundancy"`` or ``"residual"``.
+        sentence: the words of the one-line refusal.
+        short: a few words for tables.
+        numbers: what was measured (``sigma0``, ``bound``, ``dof`` ...), for the JSON.
+    """
+
+    kind: str
+    sentence: str
+    short: str
+    numbers: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "reason": self.sentence, **self.numbers}
+
+
 @dataclass
 class Verdict:
     """Whether a calibration can be trusted, and why not.
@@ -105,6 +178,7 @@ class Verdict:
         bound: the plausibility bound in tolerances.
         moved: encoder offsets beyond their tolerance but within the bound, worst first
             (trusted, with a warning).
+        refusals: data the model cannot explain (:class:`Refusal`), first to report.
     """
 
     converged: bool
@@ -112,14 +186,16 @@ class Verdict:
     implausible: list[Implausible] = field(default_factory=list)
     bound: float = PLAUSIBLE
     moved: list[Implausible] = field(default_factory=list)
+    refusals: list[Refusal] = field(default_factory=list)
 
     @property
     def trusted(self) -> bool:
-        return self.converged and not self.implausible
+        return self.converged and not self.implausible and not self.refusals
 
     def reasons(self, limit: int = 4) -> list[str]:
-        """Sentences: non-convergence, then the implausible estimates."""
-        out = []
+        """Sentences: the data the model cannot explain, non-convergence, then the
+        implausible estimates."""
+        out = [r.sentence for r in self.refusals]
         if not self.converged:
             stop = [m.strip() for m in self.message.split(";") if m.strip()]
             out.append("did not converge" + (f" ({stop[-1]})" if stop else ""))
@@ -142,6 +218,8 @@ class Verdict:
         """A few words for tables: ``"did not converge"``, ``"d[3] 42x its tolerance"``."""
         if self.trusted:
             return ""
+        if self.refusals:
+            return self.refusals[0].short
         if not self.converged:
             return "did not converge"
         p = self.implausible[0]
@@ -160,10 +238,12 @@ class Verdict:
         return {"trusted": self.trusted, "converged": self.converged,
                 "bound_tolerances": self.bound, "reasons": self.reasons(limit=1000),
                 "implausible": [p.to_dict() for p in self.implausible],
+                "refusals": [r.to_dict() for r in self.refusals],
                 "warnings": self.warnings()}
 
 
-def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE) -> Verdict:
+def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE,
+          data: Sequence[str] | None = None) -> Verdict:
     """The :class:`Verdict` of a :class:`~kincal.identify.solver.CalibrationResult`.
 
     Args:
@@ -171,6 +251,9 @@ def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE
         tolerances: ``{name: tolerance}`` [m / rad] (:class:`~kincal.identify.tolerances.
             Tolerances`' ``sigma``).
         bound: implausible beyond ``bound`` tolerances from nominal.
+        data: one-line problems of the joint data (:func:`kincal.measure.data_checks.
+            joint_data_line` of the training and held-out files); None: those of the
+            training blocks (``result.problem.blocks``) are found here.
 
     Only estimated parameters are judged (the others keep their nominal values); an
     encoder offset's change is taken in (-pi, pi] (``c`` and ``c + 2 pi k``: one robot).
@@ -198,4 +281,122 @@ def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE
     bad.sort(key=lambda x: -x[0])
     moved.sort(key=lambda x: -x[0])
     return Verdict(bool(result.converged), str(result.message), [b for _, b in bad], bound,
-                   [m for _, m in moved])
+                   [m for _, m in moved], _refusals(result, tolerances, data))
+
+
+def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] | None
+              ) -> list[Refusal]:
+    """The data the model cannot explain (module docstring), in the order they explain
+    each other: joint data, nothing estimated, no redundancy, the residual."""
+    if data is None:
+        from kincal.measure.data_checks import block_joint_problems, joint_data_line
+
+        line = joint_data_line(block_joint_problems(result.robot_initial,
+                                                    result.problem.blocks))
+        data = [line] if line else []
+    out = [Refusal("data", f"joint data this robot cannot have produced: {d}",
+                   "joint data") for d in data if d]
+    p = len(result.estimated)
+    if p == 0:
+        out.append(Refusal("nothing", "no parameter was estimated (every candidate was "
+                           "fixed or not identifiable from the data): the result is the "
+                           "nominal robot", "nothing estimated"))
+        return out
+    equations, configurations = distinct_equations(result.problem.blocks,
+                                                   result.residuals)
+    p_eff = result.effective_parameters
+    fixed_by_data = p if p_eff is None else min(float(p_eff), p)
+    dof = equations - fixed_by_data
+    if dof < 1:
+        held = ("" if p_eff is None or fixed_by_data > p - 0.5 else
+                f" (of which the data, not the prior, fix {fixed_by_data:.3g})")
+        out.append(Refusal(
+            "redundancy", f"no redundancy: {equations} equations from {configurations} "
+            f"distinct joint configuration{'s' if configurations != 1 else ''} for {p} "
+            f"estimated parameters{held}, so the fit passes through any data and sigma0 "
+            "checks nothing (measure more, different poses, or estimate fewer parameters)",
+            "no redundancy", {"equations": equations, "configurations": configurations,
+                              "estimated": p, "effective": fixed_by_data}))
+        return out
+    sigma0 = float(result.sigma0)
+    limit = residual_bound(result, tolerances, dof)
+    if limit is not None and not sigma0 <= limit:
+        out.append(Refusal(
+            "residual", f"the model cannot explain the data: residuals {sigma0:.3g} times "
+            f"the stated noise, beyond the {limit:.3g} that the noise and half the errors "
+            f"the tolerances allow can explain ({dof:.4g} degrees of freedom); likely causes: "
+            f"{UNEXPLAINED_CAUSES}", f"sigma0 {sigma0:.3g} > {limit:.3g}",
+            {"sigma0": sigma0, "bound": limit, "dof": dof}))
+    return out
+
+
+def distinct_equations(blocks: Sequence[Any], residuals: Any = None) -> tuple[int, int]:
+    """``(E, K)``: the equations of distinct measurements, and how many distinct joint
+    configurations (module docstring).
+
+    A row (measurement) repeats another when its joint readings and its residuals are
+    the same (with ``residuals``, the stacked whitened residuals of the fit; else the
+    joint readings alone decide): a copied row adds no equation, while one pose seen
+    from several instrument stations, or measured again with new noise, does.  ``E``
+    sums the residuals of the first row of each kind."""
+    equations = configurations = 0
+    start = 0
+    r_all = None if residuals is None else np.asarray(residuals, dtype=float)
+    for b in blocks:
+        m = int(b.num_residuals())
+        q = np.asarray(getattr(b, "q", np.zeros((0, 0))), dtype=float)
+        owner = np.asarray(b.residual_owner())
+        r = None if r_all is None else r_all[start:start + m]
+        start += m
+        if (q.ndim != 2 or q.shape[0] == 0 or m == 0 or owner.size != m
+                or owner.max() >= q.shape[0]):
+            equations += m
+            continue
+        configurations += int(np.unique(q, axis=0).shape[0]) if q.shape[1] else 1
+        n = q.shape[0]
+        count = np.bincount(owner, minlength=n).astype(float)
+        key = [q, count[:, None]]
+        if r is not None:                       # a row's residuals, by their sum and squares
+            key += [np.bincount(owner, weights=r, minlength=n)[:, None],
+                    np.bincount(owner, weights=r * r, minlength=n)[:, None]]
+        _, first = np.unique(np.round(np.hstack(key), 9), axis=0, return_index=True)
+        equations += int(count[first].sum())
+    return equations, configurations
+
+
+def residual_bound(result: Any, tolerances: Mapping[str, float], dof: float) -> float | None:
+    """``sigma0_max`` of the module docstring for ``dof`` degrees of freedom; None when
+    no robot geometry parameter has a tolerance (no stated model floor)."""
+    prob = result.problem
+    robot, extras = prob.split(np.asarray(result.theta, dtype=float))
+    cols = [j for j in range(prob.num_robot)
+            if prob.roles[j] not in NON_GEOMETRIC_ROLES and tolerances.get(prob.names[j])]
+    if not cols:
+        return None
+    s2 = np.array([float(tolerances[prob.names[j]]) ** 2 for j in cols])
+    total, rows = 0.0, 0
+    for b, e in zip(prob.blocks, extras, strict=True):
+        for _, r, Jr, _ in b.evaluate_chunks(robot, e):
+            total += float(np.sum(np.asarray(Jr)[:, cols] ** 2, axis=0) @ s2)
+            rows += int(np.size(r))
+    v_tol = total / max(rows, 1)
+    quantile = float(chi2.isf(RESIDUAL_TAIL, dof)) / dof
+    return math.sqrt(quantile * (1.0 + MODEL_FLOOR**2 * v_tol))
+
+
+def require_free(names: Sequence[str], free: Sequence[str] | None, fixed: Sequence[str],
+                 free_text: str | None, fix_text: str | None) -> None:
+    """Raise :class:`~kincal.errors.KincalError` (bad input, exit 2) when ``--free`` /
+    ``--fix`` leave no parameter to estimate (``free`` None: every parameter is a
+    candidate)."""
+    from kincal.errors import KincalError
+
+    left = [n for n in (names if free is None else free) if n not in set(fixed)]
+    if left:
+        return
+    if free is not None and not free:
+        raise KincalError(f"option --free {free_text!r}: names no parameter, so there is "
+                          "nothing to estimate (e.g. --free 'role:offset,tracker.*')")
+    what = f"--free {free_text!r} and --fix {fix_text!r}" if free_text else f"--fix {fix_text!r}"
+    raise KincalError(f"option {what}: every candidate parameter is fixed, so there is "
+                      "nothing to estimate")

@@ -243,12 +243,21 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     from kincal.identify.checks import judge
     from kincal.identify.weak import weak_parameters
 
-    verdict = judge(res, tols.sigma)
+    verdict = judge(res, tols.sigma, data=_joint_data(robot, [*blocks, *holdouts]))
     warnings += verdict.warnings()
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=verdict,
                       weak=weak_parameters(res), selection=selection, accuracy=accuracy,
                       heldout=heldout, notes=notes)
+
+
+def _joint_data(robot: Any, blocks: Sequence[Any]) -> list[str]:
+    """The one-line problems of the training and held-out files' joint readings
+    (:mod:`kincal.measure.data_checks`), for the verdict."""
+    from kincal.measure.data_checks import block_joint_problems, joint_data_line
+
+    line = joint_data_line(block_joint_problems(robot, blocks))
+    return [line] if line else []
 
 
 def _share_marker(robot: Any, blocks: list[Any], holdouts: Sequence[Any], shared: bool
@@ -268,10 +277,12 @@ def _selection_and_tolerances(robot: Any, blocks: Sequence[Any], free: str | Non
                               ) -> tuple[list[str] | None, list[str], Any]:
     """The free and fixed parameter names of ``--free``/``--fix`` and the tolerances
     (``--prior``) of the stacked problem."""
+    from kincal.identify.checks import require_free
     from kincal.measure.base import stack
 
     prob, _ = stack(robot, blocks)
     free_names, fixed = parse_selection(prob.names, prob.roles, free, fix)
+    require_free(prob.names, free_names, fixed, free, fix)
     return free_names, fixed, tolerances_of(robot, prob, prior)
 
 
