@@ -435,6 +435,8 @@ def validate_cmd(
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
     val = validate_on_files(r, blocks, before, result, validation_frames)
     print_heldout(out, val.files, f"Errors of {r.name} on held-out data")
+    for w in val.warnings:
+        out.print(f"[bold yellow]warning[/bold yellow]: {escape(w)}")
     if iso9283:
         val = dataclasses.replace(val, iso9283=_iso9283(out, r, before, blocks, val.extras))
     if json_out:

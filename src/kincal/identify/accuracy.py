@@ -34,10 +34,12 @@ use it later; :func:`predict` evaluates it at any configurations:
   instrument registered to it (``d = y_cal(q) - y_nom(q)``, when the model has the
   nominal registration), else at the TCP in the base frame (``d = P_cal(q) - P_nom(q)``,
   robot parameters): the calibration's correction ``d`` estimates the nominal model's
-  error, ``E|d_hat|^2 = |d|^2 + std^2``, so the nominal model's predicted squared error
-  is ``|d_hat|^2 - std^2`` (+ floor) and the calibrated
-  model is predicted *worse than nominal* where ``std^2 > |d_hat|^2 - std^2``, i.e.
-  ``|d_hat| < sqrt(2) std``: the correction is no larger than its own uncertainty.
+  error, and the calibrated model is predicted *worse than nominal* where
+  ``|d_hat| < sqrt(2) std``: the correction is no larger than its own uncertainty;
+* the **nominal model's predicted error**: its manufacturing tolerances ``s_j``
+  propagated to the point, ``sqrt(sum_j s_j^2 |G_j|^2 + floor^2)``
+  (:func:`nominal_spread`); a tolerance-based spread that cannot explode where the
+  calibrated model extrapolates (files without tolerances: ``|d_hat|^2 - std^2``).
 
 :func:`predicted_position_std` (through a measurement block, the instrument frame
 included) and :func:`predicted_rms` are the older, block-level forms.
@@ -65,7 +67,7 @@ Array = NDArray[np.float64]
 
 __all__ = ["predicted_position_std", "predicted_rms", "TrainingRegion", "AccuracyModel",
            "Prediction", "accuracy_model", "predict", "floor_from_training",
-           "floor_from_cross_validation"]
+           "floor_from_cross_validation", "nominal_spread"]
 
 
 def _position_block(result: CalibrationResult, block: str | None) -> Any:
@@ -252,6 +254,9 @@ class AccuracyModel:
             "covariance": over them, "nominal_values": the frame and marker registered to
             the nominal robot (for the comparison with it)}``; None when the calibration
             had no position block.
+        tolerances: ``{robot parameter: manufacturing tolerance}`` [m, rad], the spread of
+            the nominal robot's parameters about the real ones (its predicted error), or
+            None (older result files).
     """
 
     parameters: tuple[str, ...]
@@ -264,6 +269,7 @@ class AccuracyModel:
     floor_source: str = "training residuals"
     region: TrainingRegion | None = None
     instrument: Mapping[str, Any] | None = None
+    tolerances: Mapping[str, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The result JSON's ``accuracy_model`` (SI).  ``parameters`` / ``covariance`` /
@@ -288,6 +294,8 @@ class AccuracyModel:
                     else list(map(float, self.instrument["nominal_values"])),
                     "parameters": list(self.instrument["parameters"]),
                     "covariance": np.asarray(self.instrument["covariance"]).tolist()},
+                "tolerances": None if self.tolerances is None else {
+                    str(k): float(v) for k, v in self.tolerances.items()},
                 "note": "covariance of the estimated robot parameters and of the measured "
                         "point in the flange frame (m, rad); joint ranges (rad, m) and hull "
                         "(m, base frame) of the training data; floor: the unmodelled RMS "
@@ -305,13 +313,15 @@ class AccuracyModel:
                                     np.asarray(doc["joint_max"], dtype=float),
                                     None if hull is None else np.asarray(hull, dtype=float))
             cross = doc.get("cross_covariance")
+            tols = doc.get("tolerances")
             return AccuracyModel(
                 names, C, np.asarray(doc.get("point_m", [0.0, 0.0, 0.0]), dtype=float),
                 tuple(doc.get("point_parameters", (None, None, None))),
                 np.asarray(doc.get("point_covariance", np.zeros((3, 3))), dtype=float),
                 None if cross is None else np.asarray(cross, dtype=float).reshape(-1, 3),
                 float(doc.get("floor_m", 0.0)), str(doc.get("floor_source", "")), region,
-                doc.get("instrument"))
+                doc.get("instrument"),
+                None if tols is None else {str(k): float(v) for k, v in dict(tols).items()})
         except (KeyError, TypeError, ValueError) as exc:
             raise KincalError(f"its accuracy_model is not readable ({exc.__class__.__name__}: "
                               f"{exc})", source=source) from None
@@ -584,9 +594,41 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         else:
             d, s = np.linalg.norm(_points(nominal, q, m) - P, axis=1), std_tcp
         pred.correction_m = d
-        pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - s**2, 0.0, None) + floor**2)
+        spread = nominal_spread(model, nominal, q, m)
+        if spread is None:                      # older files: the correction's size
+            spread = np.sqrt(np.clip(d**2 - s**2, 0.0, None))
+        pred.nominal_predicted_m = np.sqrt(spread**2 + floor**2)
         pred.worse_than_nominal = d < math.sqrt(2.0) * s
     return pred
+
+
+def nominal_spread(model: AccuracyModel, nominal: Robot, q: ArrayLike,
+                   point: ArrayLike) -> Array | None:
+    """The nominal robot's predicted position error from its tolerances [m], (N,), or None
+    when ``model`` carries no tolerances.
+
+    The real robot's parameters lie about the nominal ones with standard deviations
+    ``s_j`` (the manufacturing tolerances, :mod:`kincal.identify.tolerances`), so the
+    nominal model's error at the point ``m`` (flange frame) has
+    ``E|dP|^2 = sum_j s_j^2 |G_j|^2`` with ``G = J_v - [R m]x J_w`` its position
+    Jacobian over those parameters: ``sqrt`` of that, bounded by what the tolerances
+    allow wherever the robot is (parameters without a tolerance, such as the base and
+    tool frames the instrument registration absorbs, add nothing).
+    """
+    tols = {n: float(v) for n, v in (model.tolerances or {}).items()
+            if n in nominal.param_names and np.isfinite(v) and v > 0}
+    if model.tolerances is None:
+        return None
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if not tols:
+        return np.zeros(len(q))
+    names = list(tols)
+    T, Jp = _fk_and_param_jacobian(nominal, q)
+    J = Jp[:, :, nominal.param_indices(names)]
+    a = T[:, :3, :3] @ np.asarray(point, dtype=float).reshape(3)
+    G = J[:, :3, :] - np.cross(a[:, :, None], J[:, 3:, :], axis=1)
+    s = np.array([tols[n] for n in names])
+    return np.asarray(np.sqrt(np.sum((G * s) ** 2, axis=(1, 2))), dtype=float)
 
 
 def _instrument_view(inst: Mapping[str, Any], robot: Robot, q: Array, values: Any) -> Array:
