@@ -594,7 +594,9 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         else:
             d, s = np.linalg.norm(_points(nominal, q, m) - P, axis=1), std_tcp
         pred.correction_m = d
-        spread = nominal_spread(model, nominal, q, m)
+        registered = inst if y is not None and inst is not None and \
+            inst.get("nominal_values") is not None else None
+        spread = nominal_spread(model, nominal, q, m, registered)
         if spread is None:                      # older files: the correction's size
             spread = np.sqrt(np.clip(d**2 - s**2, 0.0, None))
         pred.nominal_predicted_m = np.sqrt(spread**2 + floor**2)
@@ -603,17 +605,32 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
 
 
 def nominal_spread(model: AccuracyModel, nominal: Robot, q: ArrayLike,
-                   point: ArrayLike) -> Array | None:
+                   point: ArrayLike, registered: Mapping[str, Any] | None = None
+                   ) -> Array | None:
     """The nominal robot's predicted position error from its tolerances [m], (N,), or None
     when ``model`` carries no tolerances.
 
     The real robot's parameters lie about the nominal ones with standard deviations
-    ``s_j`` (the manufacturing tolerances, :mod:`kincal.identify.tolerances`), so the
-    nominal model's error at the point ``m`` (flange frame) has
-    ``E|dP|^2 = sum_j s_j^2 |G_j|^2`` with ``G = J_v - [R m]x J_w`` its position
-    Jacobian over those parameters: ``sqrt`` of that, bounded by what the tolerances
-    allow wherever the robot is (parameters without a tolerance, such as the base and
-    tool frames the instrument registration absorbs, add nothing).
+    ``s_j`` (the manufacturing tolerances, :mod:`kincal.identify.tolerances`): a
+    parameter error ``dtheta ~ N(0, diag s^2)``.
+
+    * In the robot's base frame, at the point ``m`` (flange frame):
+      ``E|dP|^2 = sum_j s_j^2 |G_j|^2`` with ``G = J_v - [R m]x J_w`` the position
+      Jacobian over those parameters.
+    * ``registered`` (:attr:`AccuracyModel.instrument` with ``nominal_values``) and at
+      least 4 configurations distinct to 1 mrad: what the instrument sees of the nominal robot,
+      its frame and marker registered to it on these configurations (the "before
+      (re-registered)" of a held-out file): with ``B = J_theta diag(s)`` the stacked
+      (3N, k) observation Jacobian over the toleranced parameters and ``J_phi`` (3N, 9)
+      over the frame and marker, the registration removes ``J_phi J_phi^+ B``, so
+      ``E|e_i|^2`` is the sum of squares of the 3 rows of pose ``i`` of
+      ``(I - J_phi J_phi^+) B``.  (Registered on the training data instead, the
+      spread far from it would grow with the registration's own extrapolation, which
+      is the instrument's, not the nominal robot's.)
+
+    Parameters without a tolerance (the base and tool frames) add nothing.  The spread
+    is bounded by what the tolerances allow wherever the robot is: it cannot explode
+    where a calibration extrapolates.
     """
     tols = {n: float(v) for n, v in (model.tolerances or {}).items()
             if n in nominal.param_names and np.isfinite(v) and v > 0}
@@ -623,11 +640,19 @@ def nominal_spread(model: AccuracyModel, nominal: Robot, q: ArrayLike,
     if not tols:
         return np.zeros(len(q))
     names = list(tols)
+    s = np.array([tols[n] for n in names])
+    if registered is not None and len(np.unique(q.round(3), axis=0)) >= 4:
+        block = PositionMeasurement(q, np.zeros((len(q), 3)), 1.0, str(registered["block"]))
+        _, Jr, Je = _jacobians_of(block, nominal,
+                                  np.asarray(registered["nominal_values"], dtype=float))
+        B = Jr[:, nominal.param_indices(names)] * s
+        E = B - Je[:, :9] @ np.linalg.lstsq(Je[:, :9], B, rcond=None)[0]
+        return np.asarray(np.sqrt(np.sum(E.reshape(len(q), 3, -1) ** 2, axis=(1, 2))),
+                          dtype=float)
     T, Jp = _fk_and_param_jacobian(nominal, q)
     J = Jp[:, :, nominal.param_indices(names)]
     a = T[:, :3, :3] @ np.asarray(point, dtype=float).reshape(3)
     G = J[:, :3, :] - np.cross(a[:, :, None], J[:, 3:, :], axis=1)
-    s = np.array([tols[n] for n in names])
     return np.asarray(np.sqrt(np.sum((G * s) ** 2, axis=(1, 2))), dtype=float)
 
 

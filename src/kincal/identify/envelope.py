@@ -8,19 +8,19 @@ An :class:`Envelope` holds
   tolerances (the nominal robot's predicted error) and the **training region** (joint
   ranges and the convex hull of the measured point's positions);
 * the **data** it came from: file names, their SHA-256 hashes and row counts;
-* the calibrated robot's **parameter values** (a fingerprint: a robot whose
-  parameters were changed afterwards is not the one the envelope describes; equal when
-  ``|p - p_env| <= 1e-9 (1 + |p_env|)``, the round-off of the files that carry it);
+* the **calibrated robot** as kincal estimated it (its YAML robot document, in the
+  parametrisation the covariance is over): the robot that carries the envelope may be
+  written in another one (a URDF, an elementary-transform chain) but must have the same
+  joints and the same forward kinematics, within :data:`SAME_KINEMATICS` m / rad at
+  configurations spread over the training joint ranges; a robot whose parameters were
+  changed after calibrating is not the one the envelope describes;
 * the date (UTC, ISO 8601) and the kincal version.
 
-It travels with the robot as ``robot.meta["calibration"]`` (the YAML robot file's
-``calibration:`` section; for a URDF or a UR kinematics file, the sidecar
-``NAME.envelope.yaml`` next to it, read by :func:`kincal.robots.files.load_robot`,
-which also holds the calibrated robot in the parametrisation the covariance is over);
-:func:`envelope_of` reads it back and checks it against the robot: the parameter
-fingerprint, or for a file in another parametrisation the same joints and the same
-forward kinematics (within :data:`SAME_KINEMATICS` m / rad at configurations spread
-over the training joint ranges).
+It travels with the robot as ``robot.meta["calibration"]``: the YAML robot file's
+``calibration:`` section; for a URDF (or a UR kinematics file) the sidecar
+``NAME.envelope.yaml`` next to it (:func:`kincal.robots.files.write_envelope_sidecar`),
+read by :func:`kincal.robots.files.load_robot`.  :func:`envelope_of` reads it back and
+checks it against the robot (one line for a corrupted or mismatched section).
 :func:`predict_with_envelope` gives the predicted error at any configurations and
 :func:`outside_line` the loud sentence a command prints when it is used outside the
 training region.
@@ -44,13 +44,12 @@ from kincal.errors import KincalError
 from kincal.identify.accuracy import AccuracyModel, Prediction, predict
 from kincal.robots.chain import Robot
 
-__all__ = ["ENVELOPE_FORMAT", "DataFile", "Envelope", "file_sha256", "make_envelope",
-           "envelope_of", "with_envelope", "predict_with_envelope", "outside_line"]
+__all__ = ["ENVELOPE_FORMAT", "SAME_KINEMATICS", "DataFile", "Envelope", "file_sha256",
+           "make_envelope", "envelope_of", "with_envelope", "robot_and_accuracy",
+           "predict_with_envelope", "outside_line"]
 
 #: Version of the ``calibration:`` section's layout.
 ENVELOPE_FORMAT = 1
-#: Relative tolerance of the parameter fingerprint (module docstring).
-_MATCH = 1e-9
 #: Largest difference of position [m] and rotation [rad] of two files of one robot.
 SAME_KINEMATICS = 1e-6
 
@@ -85,42 +84,35 @@ class Envelope:
 
     Attributes:
         accuracy: the calibration's accuracy model with its training region.
-        robot: the calibrated robot's name.
-        parameters: ``{name: value}`` of the calibrated robot [m, rad].
+        robot: the calibrated robot, in the parametrisation the covariance is over
+            (the one to predict with).
+        robot_doc: its YAML robot document (:func:`kincal.robots.files.robot_to_dict`).
         data: the training files.
         created: the date of the calibration (UTC, ISO 8601).
         kincal_version: the version of kincal that made it.
-        model_robot: the calibrated robot in the parametrisation the covariance is over,
-            when the file that carries the envelope uses another one (a URDF written from
-            a DH robot); None: the robot itself.
     """
 
     accuracy: AccuracyModel
-    robot: str
-    parameters: Mapping[str, float]
+    robot: Robot
+    robot_doc: Mapping[str, Any]
     data: tuple[DataFile, ...] = ()
     created: str = ""
     kincal_version: str = __version__
-    model_robot: Robot | None = None
-
-    def robot_for(self, robot: Robot) -> Robot:
-        """The robot to predict with: :attr:`model_robot`, else ``robot``."""
-        return self.model_robot if self.model_robot is not None else robot
 
     def to_dict(self) -> dict[str, Any]:
         """The ``calibration:`` section (plain YAML/JSON values, SI units)."""
         acc = self.accuracy.to_dict()
         acc.pop("note", None)
         return {"format": ENVELOPE_FORMAT, "created": self.created,
-                "kincal_version": self.kincal_version, "robot": self.robot,
+                "kincal_version": self.kincal_version,
                 "data": [d.to_dict() for d in self.data],
-                "parameters": {str(k): float(v) for k, v in self.parameters.items()},
-                "accuracy_model": acc,
+                "accuracy_model": acc, "robot": dict(self.robot_doc),
                 "note": "written by kincal calibrate: the training region (joint ranges [rad, "
                         "m], workspace hull [m]), the accuracy model (covariance of the "
                         "estimated parameters [m, rad], unmodelled floor [m], tolerances), "
-                        "the data it came from; kincal warns when the robot is used outside "
-                        "the region. Remove this section if you change the parameters."}
+                        "the data it came from, the calibrated robot (robot:); kincal warns "
+                        "when the robot is used outside the region. Remove this section if "
+                        "you change the robot."}
 
     @staticmethod
     def from_dict(doc: Any, source: str = "robot file") -> Envelope:
@@ -133,7 +125,9 @@ class Envelope:
             raise KincalError(f"{where} has format {fmt!r}, this kincal reads format "
                               f"{ENVELOPE_FORMAT} (written by another version?)", source=source)
         try:
-            params = {str(k): float(v) for k, v in dict(doc["parameters"]).items()}
+            robot_doc = doc["robot"]
+            if not isinstance(robot_doc, Mapping):
+                raise TypeError("robot is not a mapping")
             data = tuple(DataFile(str(d["file"]), str(d["sha256"]),
                                   None if d.get("rows") is None else int(d["rows"]))
                          for d in doc.get("data") or [])
@@ -145,29 +139,46 @@ class Envelope:
                               source=source) from None
         acc = AccuracyModel.from_dict(acc_doc, source)
         _check_shapes(acc, source)
-        return Envelope(acc, str(doc.get("robot", "")), params, data,
-                        str(doc.get("created", "")), str(doc.get("kincal_version", "")))
+        from kincal.robots.files import robot_from_dict
+
+        try:
+            twin = robot_from_dict(dict(robot_doc), source)
+        except KincalError as exc:
+            raise KincalError(f"{where}: its robot is not readable ({exc})") from None
+        if not isinstance(twin, Robot):
+            raise KincalError(f"{where}: its robot is not a serial robot", source=source)
+        missing = [n for n in acc.parameters if n not in twin.param_names]
+        if missing:
+            raise KincalError(f"{where}: its accuracy model has parameter {missing[0]!r} "
+                              "that its robot lacks", source=source)
+        reg = acc.region
+        if reg is not None and tuple(reg.joint_names) != tuple(twin.joint_names):
+            raise KincalError(f"{where}: its training region is for other joints "
+                              f"({', '.join(reg.joint_names)})", source=source)
+        return Envelope(acc, twin, dict(robot_doc), data, str(doc.get("created", "")),
+                        str(doc.get("kincal_version", "")))
 
     def check(self, robot: Robot, source: str = "robot file") -> None:
-        """Raise one line when the envelope does not describe ``robot``: other joints,
-        parameters it lacks, or parameter values changed after the calibration."""
-        where = "its calibration: section"
-        reg = self.accuracy.region
-        if reg is not None and tuple(reg.joint_names) != tuple(robot.joint_names):
-            raise KincalError(f"{where} is for another robot (joints "
-                              f"{', '.join(reg.joint_names)}, not "
+        """Raise one line when the envelope does not describe ``robot``: other joints, or
+        other forward kinematics (parameters changed after calibrating)."""
+        if tuple(robot.joint_names) != tuple(self.robot.joint_names):
+            raise KincalError("its calibration: section is for another robot (joints "
+                              f"{', '.join(self.robot.joint_names)}, not "
                               f"{', '.join(robot.joint_names)})", source=source)
-        values = dict(zip(robot.param_names, map(float, robot.param_values), strict=True))
-        for name in [*self.parameters, *self.accuracy.parameters]:
-            if name not in values:
-                raise KincalError(f"{where} is for another robot (no parameter {name!r})",
-                                  source=source)
-        for name, v in self.parameters.items():
-            if abs(values[name] - v) > _MATCH * (1.0 + abs(v)):
-                raise KincalError(
-                    f"{where} does not match the robot: {name} is {values[name]:.9g}, the "
-                    f"calibration gave {v:.9g} (parameters changed after calibrating; remove "
-                    "the section to use the robot without its envelope)", source=source)
+        reg = self.accuracy.region
+        lo = reg.joint_min if reg is not None else -np.ones(robot.n)
+        hi = reg.joint_max if reg is not None else np.ones(robot.n)
+        k = np.arange(1, 17)[:, None] * np.sqrt(np.arange(2, robot.n + 2))[None, :]
+        q = lo + (hi - lo) * np.mod(k, 1.0)          # spread over the ranges, deterministic
+        Ta, Tb = robot.fk(q), self.robot.fk(q)
+        dp = float(np.max(np.linalg.norm(Ta[:, :3, 3] - Tb[:, :3, 3], axis=1)))
+        dr = float(np.max(np.abs(Ta[:, :3, :3] - Tb[:, :3, :3])))
+        if dp > SAME_KINEMATICS or dr > SAME_KINEMATICS:
+            raise KincalError(
+                f"its calibration: section does not match the robot (forward kinematics "
+                f"differ by {dp * 1e3:.3g} mm / {dr:.3g} rad over the training region: "
+                "changed after calibrating? remove the section to use the robot without "
+                "it)", source=source)
 
 
 def _check_shapes(acc: AccuracyModel, source: str) -> None:
@@ -200,15 +211,18 @@ def make_envelope(accuracy: AccuracyModel, robot: Robot,
     counts = list(rows) if rows is not None else [None] * len(data)
     files = tuple(DataFile(Path(p).name, file_sha256(p), n)
                   for p, n in zip(data, counts, strict=True))
-    params = dict(zip(robot.param_names, map(float, robot.param_values), strict=True))
-    return Envelope(accuracy, robot.name, params, files, created, __version__)
+    from kincal.robots.files import robot_to_dict
+
+    bare = with_envelope(robot, None)
+    return Envelope(accuracy, bare, robot_to_dict(bare), files, created, __version__)
 
 
 def with_envelope(robot: Robot, envelope: Envelope | None) -> Robot:
     """``robot`` carrying ``envelope`` in ``meta["calibration"]`` (None: without one)."""
     import dataclasses
 
-    meta = {k: v for k, v in robot.meta.items() if k != "calibration"}
+    meta = {k: v for k, v in robot.meta.items()
+            if k not in ("calibration", "calibration_source")}
     if envelope is not None:
         meta["calibration"] = envelope.to_dict()
     return dataclasses.replace(robot, meta=meta)
@@ -219,46 +233,23 @@ def envelope_of(robot: Robot, source: str | None = None) -> Envelope | None:
 
     ``source`` names the file in the one-line errors (default: the robot's name).
     """
-    import dataclasses
-
     doc = robot.meta.get("calibration")
     if doc is None:
         return None
     src = source or str(robot.meta.get("calibration_source") or robot.name)
     env = Envelope.from_dict(doc, src)
-    twin_doc = robot.meta.get("calibration_twin")
-    if twin_doc is not None and any(n not in robot.param_names for n in env.parameters):
-        from kincal.robots.files import robot_from_dict
-
-        twin = robot_from_dict(twin_doc, src)
-        if not isinstance(twin, Robot):
-            raise KincalError("its calibration envelope is not of a serial robot", source=src)
-        env.check(twin, src)
-        _same_kinematics(robot, twin, env, src)
-        return dataclasses.replace(env, model_robot=twin)
     env.check(robot, src)
     return env
 
 
-def _same_kinematics(robot: Robot, twin: Robot, env: Envelope, source: str) -> None:
-    """One line unless ``robot`` and ``twin`` have the same joints and the same forward
-    kinematics (:data:`SAME_KINEMATICS`) over the training joint ranges."""
-    if tuple(robot.joint_names) != tuple(twin.joint_names):
-        raise KincalError("its calibration envelope is for another robot (joints "
-                          f"{', '.join(twin.joint_names)})", source=source)
-    reg = env.accuracy.region
-    lo = reg.joint_min if reg is not None else -np.ones(robot.n)
-    hi = reg.joint_max if reg is not None else np.ones(robot.n)
-    k = np.arange(1, 17)[:, None] * np.sqrt(np.arange(2, robot.n + 2))[None, :]
-    q = lo + (hi - lo) * np.mod(k, 1.0)             # spread over the ranges, deterministic
-    Ta, Tb = robot.fk(q), twin.fk(q)
-    dp = float(np.max(np.linalg.norm(Ta[:, :3, 3] - Tb[:, :3, 3], axis=1)))
-    dr = float(np.max(np.abs(Ta[:, :3, :3] - Tb[:, :3, :3])))
-    if dp > SAME_KINEMATICS or dr > SAME_KINEMATICS:
-        raise KincalError(f"its calibration envelope does not match the robot (forward "
-                          f"kinematics differ by {dp * 1e3:.3g} mm: the file was changed "
-                          "after calibrating; remove the envelope to use it without one)",
-                          source=source)
+def robot_and_accuracy(robot: Robot) -> tuple[Robot, AccuracyModel | None]:
+    """The robot to compute with and the accuracy model of the envelope it carries:
+    ``(envelope robot, its accuracy model)`` (same kinematics, the parametrisation of the
+    covariance), or ``(robot, None)`` without an envelope."""
+    env = envelope_of(robot)
+    if env is None:
+        return robot, None
+    return env.robot, env.accuracy
 
 
 def predict_with_envelope(robot: Robot, q: ArrayLike, nominal: Robot | None = None,
@@ -268,7 +259,7 @@ def predict_with_envelope(robot: Robot, q: ArrayLike, nominal: Robot | None = No
     env = envelope_of(robot)
     if env is None:
         return None
-    return predict(env.accuracy, env.robot_for(robot), q, nominal=nominal, point=point)
+    return predict(env.accuracy, env.robot, q, nominal=nominal, point=point)
 
 
 def outside_line(pred: Prediction, what: str = "poses", robot: str = "the robot",

@@ -432,10 +432,8 @@ def envelope_sidecar(path: str | os.PathLike[str]) -> Path:
 
 
 def _with_sidecar(robot: Robot, path: Path) -> Robot:
-    """``robot`` with ``meta["calibration"]`` (the envelope) and
-    ``meta["calibration_twin"]`` (the calibrated robot's YAML document, in the
-    parametrisation the envelope's covariance is over) from the sidecar next to ``path``
-    (:func:`write_envelope_sidecar`); unchanged without one."""
+    """``robot`` with ``meta["calibration"]`` (its envelope) from the sidecar next to
+    ``path`` (:func:`write_envelope_sidecar`); unchanged without one."""
     side = envelope_sidecar(path)
     if not side.is_file():
         return robot
@@ -446,29 +444,25 @@ def _with_sidecar(robot: Robot, path: Path) -> Robot:
         raise RobotFileError(f"invalid YAML (the calibration envelope of {path.name})",
                              source=str(side)) from None
     r = FieldReader(str(side))
-    twin = dict(r.mapping(r.mapping(data, "(top level)").get("robot"), "robot"))
-    section = r.mapping(twin.pop("calibration", None), "robot.calibration")
+    section = r.mapping(r.mapping(data, "(top level)").get("calibration"), "calibration")
     return dataclasses.replace(robot, meta={**dict(robot.meta), "calibration": dict(section),
-                                            "calibration_twin": twin,
                                             "calibration_source": str(side)})
 
 
 def write_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Path | None:
     """Write the calibration envelope of ``robot`` (``meta["calibration"]``) next to the
     URDF or UR kinematics file ``path`` it was written to (:func:`envelope_sidecar`),
-    atomically, as the YAML robot file of ``robot`` (its own parametrisation, which the
-    envelope's covariance is over) under ``robot:``; None (nothing written) when the
-    robot carries no envelope.  ROS tools and URDF readers never see the file."""
+    atomically; None (nothing written) when the robot carries no envelope.  ROS tools
+    and URDF readers never see the file; kincal reads it with the file it describes."""
     section = robot.meta.get("calibration")
     if not isinstance(section, Mapping) or str(path) == "-":
         return None
     side = envelope_sidecar(path)
     text = yaml.safe_dump({
         "describes": Path(path).name,
-        "note": "the calibration envelope of the file it describes (kincal reads it with "
-                "that file): the calibrated robot as kincal estimated it, its training "
-                "region, accuracy model and data; keep it next to that file",
-        "robot": robot_to_dict(robot)}, sort_keys=False, default_flow_style=None, width=100)
+        "note": "the calibration envelope of the file it describes: kincal reads it with "
+                "that file; keep the two together",
+        "calibration": dict(section)}, sort_keys=False, default_flow_style=None, width=100)
     atomic_write_text(side, text)
     return side
 

@@ -123,7 +123,7 @@ def validate_on_files(robot: Robot, blocks: Sequence[MeasurementModel],
         env = envelope_of(robot)
         if env is not None:
             accuracy, source = env.accuracy, "robot"
-            model_robot = env.robot_for(robot)
+            model_robot = env.robot
     files = validate_blocks(robot, blocks, before, extras, validation_frames,
                             extras_from_result(result, "before") if result else None,
                             accuracy if model_robot is robot else None)
