@@ -72,7 +72,9 @@ def filter_cmd(
                                                "target gets the calibrated model's predicted "
                                                "accuracy (std at its TCP) there, and targets "
                                                "outside the calibrated region (training "
-                                               "joint ranges and workspace) are flagged.")] = None,
+                                               "joint ranges and workspace) are flagged. "
+                                               "Default: the envelope the calibrated robot "
+                                               "file carries.")] = None,
     csv_out: Annotated[str | None, typer.Option("--csv", help="Also write the per-target "
                                                 "table as CSV.")] = None,
     json_out: JsonOpt = None, base_link: BaseLink = None, tip_link: TipLink = None,
@@ -100,6 +102,10 @@ def filter_cmd(
         from kincal.workflow.flow import accuracy_from_result
 
         accuracy = accuracy_from_result(result, cal)
+    else:                               # the envelope the calibrated robot carries
+        from kincal.identify.envelope import robot_and_accuracy
+
+        cal, accuracy = robot_and_accuracy(cal)
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
     if not res.reports:
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
