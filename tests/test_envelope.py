@@ -161,7 +161,7 @@ def test_urdf_stays_standard_and_its_sidecar_travels(calibrated: dict[str, Path]
     assert {e.tag for e in root.iter()} <= standard
     assert envelope_sidecar(urdf).is_file()
     try:
-        import yourdfpy                           # the oracle, when installed
+        import yourdfpy  # the oracle, when installed
 
         yourdfpy.URDF.load(str(urdf), load_meshes=False)
     except ImportError:

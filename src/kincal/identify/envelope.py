@@ -207,7 +207,7 @@ def make_envelope(accuracy: AccuracyModel, robot: Robot,
     """The :class:`Envelope` of a calibrated ``robot`` from its accuracy model and its
     training files (hashed here); ``created`` defaults to now (UTC)."""
     if created is None:
-        created = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+        created = _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
     counts = list(rows) if rows is not None else [None] * len(data)
     files = tuple(DataFile(Path(p).name, file_sha256(p), n)
                   for p, n in zip(data, counts, strict=True))

@@ -5,7 +5,8 @@ robot files, URDF files); :func:`kincal.parallel.files.load_fivebar` reads five-
 parallel robots.  :func:`load_any_robot` looks at the file's ``kind`` and hands it
 to the right one, so that ``kincal show fivebar`` and ``kincal show puma560`` work
 alike.  A calibrated robot's envelope (:mod:`kincal.identify.envelope`) is checked
-here: a corrupted section, or one that does not match the robot, is one line.  It lives above both layers because only here may both be imported.
+here: a corrupted section, or one that does not match the robot, is one line.  It
+lives above both layers because only here may both be imported.
 """
 
 from __future__ import annotations
