@@ -23,6 +23,8 @@ def envelope_report(out: Console, robot: Any, q: Any, what: str,
     it carries (unless ``quiet``) and a warning when any lies outside the training region
     (always); return the JSON entry ``{"predicted_error_m", "outside_training_region",
     "warning"}``, or None when the robot carries no envelope."""
+    if robot.meta.get("calibration") is None:      # no envelope: nothing heavy to import
+        return None
     import numpy as np
 
     from kincal.identify.envelope import outside_line, predict_with_envelope
