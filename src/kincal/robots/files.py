@@ -412,7 +412,7 @@ def load_robot(spec: str | os.PathLike[str], base_link: str | None = None,
             raise RobotFileError("no such URDF file", source=s)
         from kincal.robots.urdf import load_urdf
 
-        return _with_sidecar(load_urdf(path, base_link=base_link, tip_link=tip_link), path)
+        return with_envelope_sidecar(load_urdf(path, base_link=base_link, tip_link=tip_link), path)
     if path.suffix.lower() in (".yaml", ".yml") or path.is_file():
         if not path.is_file():
             raise RobotFileError("no such robot file", source=s)
@@ -431,9 +431,11 @@ def envelope_sidecar(path: str | os.PathLike[str]) -> Path:
     return p.with_name(p.stem + ".envelope.yaml")
 
 
-def _with_sidecar(robot: Robot, path: Path) -> Robot:
+def with_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Robot:
     """``robot`` with ``meta["calibration"]`` (its envelope) from the sidecar next to
-    ``path`` (:func:`write_envelope_sidecar`); unchanged without one."""
+    ``path`` (:func:`write_envelope_sidecar`): the URDF or UR kinematics file ``robot``
+    was read from; unchanged without one."""
+    path = Path(path)
     side = envelope_sidecar(path)
     if not side.is_file():
         return robot

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from kincal.parallel.fivebar import FiveBar
     from kincal.robots.chain import Robot
 
-__all__ = ["load_any_robot"]
+__all__ = ["load_any_robot", "check_envelope"]
 
 
 def load_any_robot(spec: str | os.PathLike[str], base_link: str | None = None,
@@ -41,8 +41,14 @@ def load_any_robot(spec: str | os.PathLike[str], base_link: str | None = None,
 
         return load_fivebar(spec)
     robot: Robot = load_robot(spec, base_link=base_link, tip_link=tip_link)
+    return check_envelope(robot)
+
+
+def check_envelope(robot: Robot) -> Robot:
+    """``robot``, after checking the calibration envelope it carries (if any): a
+    corrupted section or one that does not match the robot is one line naming the file."""
     if robot.meta.get("calibration") is not None:
         from kincal.identify.envelope import envelope_of
 
-        envelope_of(robot)      # a corrupted or mismatched envelope: one line, here
+        envelope_of(robot)
     return robot
