@@ -310,3 +310,51 @@ def test_with_envelope_none_strips_the_section() -> None:
     robot = load_robot("puma560")
     fake = with_envelope(robot, None)
     assert "calibration" not in fake.meta
+
+
+# --------------------------------------------------------------------------- UR, URDF robots
+def test_ur_kinematics_and_urdf_robots_carry_it(tmp_path: Path, capsys) -> None:
+    """A calibrated UR written as the ROS kinematics YAML has its envelope next to it, and
+    `kincal import ur` reads it back; a URDF robot's calibrated URDF likewise."""
+    code, _, _ = run(capsys, "simulate", "ur5e", "-o", tmp_path / "d.csv", "-n", "40",
+                     "--noise", "0.01mm", "--seed", "3")
+    assert code == 0
+    cal = tmp_path / "cal.yaml"
+    assert run(capsys, "calibrate", "ur5e", "--data", tmp_path / "d.csv", "-o", cal)[0] == 0
+    kin = tmp_path / "kin.yaml"
+    code, out, _ = run(capsys, "ur-kinematics", cal, "--nominal", "ur5e", "-o", kin)
+    assert code == 0 and (tmp_path / "kin.envelope.yaml").is_file()
+    back = tmp_path / "back.yaml"
+    assert run(capsys, "import", "ur", kin, "--nominal", "ur5e", "-o", back)[0] == 0
+    env, env0 = envelope_of(load_any_robot(back)), envelope_of(load_any_robot(cal))
+    assert env is not None and env0 is not None and env.to_dict() == env0.to_dict()
+
+    urdf_in = Path(__file__).resolve().parents[1] / "examples" / "tutorials" / "files" / \
+        "arm.urdf"
+    code, _, _ = run(capsys, "simulate", urdf_in, "--tip-link", "tool0", "-o",
+                     tmp_path / "arm.csv", "-n", "40", "--noise", "0.01mm", "--seed", "2")
+    assert code == 0
+    out_urdf = tmp_path / "arm_cal.urdf"
+    code, _, _ = run(capsys, "calibrate", urdf_in, "--tip-link", "tool0", "--data",
+                     tmp_path / "arm.csv", "-o", tmp_path / "arm_cal.yaml", "--urdf", out_urdf)
+    assert code == 0
+    robot = load_any_robot(out_urdf, tip_link="tool0")
+    assert envelope_of(robot) is not None
+    assert "envelope" not in out_urdf.read_text()       # the URDF itself stays plain
+
+
+@needs_data
+def test_compensate_uses_the_envelope(calibrated: dict[str, Path], tmp_path: Path,
+                                      capsys) -> None:
+    robot = load_any_robot(calibrated["yaml"])
+    for name, expect in (("inner", False), ("outer", True)):
+        q = np.loadtxt(calibrated[name], delimiter=",", skiprows=1, usecols=range(1, 8))[:5]
+        p = robot.fk(q)[:, :3, 3]
+        t = tmp_path / f"t_{name}.csv"
+        t.write_text(",".join(JOINTS + ["x_m", "y_m", "z_m"]) + "\n" + "".join(
+            ",".join(repr(float(v)) for v in [*qi, *pi]) + "\n" for qi, pi in zip(q, p, strict=True)))
+        code, out, _ = run(capsys, "compensate", calibrated["yaml"], "--targets", t, "-o",
+                           tmp_path / f"j_{name}.csv")
+        text = " ".join(out.split())
+        assert code == 0 and "predicted:" in text
+        assert ("5 of 5 targets lie outside the training region" in text) is expect

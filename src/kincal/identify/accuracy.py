@@ -583,7 +583,10 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
     floor = float(model.floor_m)
     reg = model.region
     out_j = reg.outside_joint_ranges(q) if reg is not None else np.zeros(len(q), bool)
-    out_h = reg.outside_hull(P) if reg is not None else np.zeros(len(q), bool)
+    # the hull is of the measured point's training positions: test that point, whatever
+    # TCP the prediction is for (a target's TCP may lie centimetres off the marker)
+    P_meas = T[:, :3, 3] + R @ model.point
+    out_h = reg.outside_hull(P_meas) if reg is not None else np.zeros(len(q), bool)
     pred = Prediction(std, std_w, np.sqrt(std**2 + floor**2), out_j, out_h,
                       P if y is None else y, worse_than_nominal=np.zeros(len(q), dtype=bool))
     if nominal is not None:
