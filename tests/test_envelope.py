@@ -351,8 +351,9 @@ def test_compensate_uses_the_envelope(calibrated: dict[str, Path], tmp_path: Pat
         q = np.loadtxt(calibrated[name], delimiter=",", skiprows=1, usecols=range(1, 8))[:5]
         p = robot.fk(q)[:, :3, 3]
         t = tmp_path / f"t_{name}.csv"
-        t.write_text(",".join(JOINTS + ["x_m", "y_m", "z_m"]) + "\n" + "".join(
-            ",".join(repr(float(v)) for v in [*qi, *pi]) + "\n" for qi, pi in zip(q, p, strict=True)))
+        rows = [",".join(repr(float(v)) for v in [*qi, *pi]) for qi, pi in
+                zip(q, p, strict=True)]
+        t.write_text("\n".join([",".join([*JOINTS, "x_m", "y_m", "z_m"]), *rows]) + "\n")
         code, out, _ = run(capsys, "compensate", calibrated["yaml"], "--targets", t, "-o",
                            tmp_path / f"j_{name}.csv")
         text = " ".join(out.split())
