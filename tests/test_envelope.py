@@ -359,3 +359,12 @@ def test_compensate_uses_the_envelope(calibrated: dict[str, Path], tmp_path: Pat
         text = " ".join(out.split())
         assert code == 0 and "predicted:" in text
         assert ("5 of 5 targets lie outside the training region" in text) is expect
+
+
+@needs_data
+def test_plan_on_a_calibrated_robot_says_where_it_leaves_the_region(
+        calibrated: dict[str, Path], tmp_path: Path, capsys) -> None:
+    code, out, _ = run(capsys, "plan", calibrated["yaml"], "-o", tmp_path / "p.csv",
+                       "--poses", "12")
+    assert code == 0 and "planned poses lie outside the training region" in " ".join(
+        out.split())
