@@ -368,3 +368,11 @@ def test_plan_on_a_calibrated_robot_says_where_it_leaves_the_region(
                        "--poses", "12")
     assert code == 0 and "planned poses lie outside the training region" in " ".join(
         out.split())
+
+
+@needs_data
+def test_changed_parameters_drop_the_envelope(calibrated: dict[str, Path]) -> None:
+    robot = load_any_robot(calibrated["yaml"])
+    assert "calibration" in robot.with_params(robot.param_values).meta
+    moved = robot.with_params({"a[2]": robot.params()["a[2]"] + 1e-3})
+    assert "calibration" not in moved.meta and envelope_of(moved) is None
