@@ -330,9 +330,15 @@ def plan(
     poses_csv = _write_plan_files(p, r, output, program, dwell, angle_unit, length_unit, report,
                                   f"{crit} ({p.design.method})", instrument, seed, sd)
     _print_plan(out, p, r, crit, program, output, poses_csv, angle_unit, length_unit, report)
+    _envelope_and_json(out, p, r, json_out, output, report)
+
+
+def _envelope_and_json(out: Any, p: Plan, r: Any, json_out: str | None, output: str,
+                       report: str | None) -> None:
+    """A calibrated robot: where the planned poses leave its present calibration's training
+    region (one warning); then the JSON document."""
     from kincal.cli.envelope_lines import envelope_report
 
-    # a calibrated robot: where the planned poses leave its present calibration's region
     trust = envelope_report(out, r, p.q, "planned poses", console_units().scale("m"),
                             quiet=True)
     if json_out:
