@@ -57,3 +57,9 @@ kincal simulate puma560 -o train.csv -n 60 --noise 0.01mm --seed 4
 kincal calibrate puma560 --data train.csv --select auto --folds 5 > selection.txt
 sed -n '/Model selection/,/^converged/p' selection.txt
 # --8<-- [end:select]
+
+# --8<-- [start:envelope]
+# the calibrated robot file carries its envelope: no --result needed
+kincal validate calibrated.yaml --data everywhere.csv --before puma560
+kincal fk calibrated.yaml --q 0,45,-60,10,80,0 --deg | tail -4
+# --8<-- [end:envelope]

@@ -22,7 +22,10 @@ Calibration
     :func:`validate` and :func:`cross_validate` on held-out data;
     :func:`accuracy_model` and :func:`predict_accuracy`: the predicted error of the
     calibrated model where it is used, and where it is extrapolating (after
-    calibrating; before measuring it is :func:`predict_plan_accuracy`).
+    calibrating; before measuring it is :func:`predict_plan_accuracy`);
+    :func:`envelope_of` / :func:`predict_with_envelope`: the training region and
+    accuracy model a calibrated robot file carries; :func:`validate_on_files`: what
+    ``kincal validate`` does, warning outside the training region.
 Putting it to use
     :func:`compensate` -> :class:`Compensation` (joint commands, filtered targets),
     :func:`solve_ik` -> :class:`IKSolutions`.
@@ -71,6 +74,9 @@ _API: dict[str, tuple[str, str]] = {
     "cross_validate": ("kincal.identify.validation", "cross_validate"),
     "accuracy_model": ("kincal.identify.accuracy", "accuracy_model"),
     "predict_accuracy": ("kincal.identify.accuracy", "predict"),
+    "envelope_of": ("kincal.identify.envelope", "envelope_of"),
+    "predict_with_envelope": ("kincal.identify.envelope", "predict_with_envelope"),
+    "validate_on_files": ("kincal.workflow.validation", "validate_on_files"),
     # using the calibration
     "compensate": ("kincal.compensation.compensate", "compensate"),
     "Compensation": ("kincal.compensation.compensate", "Compensation"),

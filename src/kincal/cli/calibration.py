@@ -445,6 +445,8 @@ def validate_cmd(
     refuse_joint_data(r, blocks)                  # exit 1, one line, nothing written
     val = validate_on_files(r, blocks, before, result, validation_frames)
     print_heldout(out, val.files, f"Errors of {r.name} on held-out data")
+    for w in val.warnings:
+        out.print(f"[bold yellow]warning[/bold yellow]: {escape(w)}")
     if iso9283:
         val = dataclasses.replace(val, iso9283=_iso9283(out, r, before, blocks, val.extras))
     if json_out:

@@ -96,10 +96,10 @@ def compensate_cmd(
         "--result", help="Result JSON of `kincal calibrate`: the predicted accuracy at every "
         "target (the calibration's covariance and unmodelled floor), the targets outside "
         "the calibrated region, and where the calibrated model is predicted worse than the "
-        "nominal one.")] = None,
+        "nominal one. Default: the envelope a calibrated robot file carries.")] = None,
     fallback: Annotated[str, typer.Option(
         "--fallback", metavar="none|nominal", help="nominal: where the calibrated model is "
-        "predicted worse than the nominal one (needs --result and --nominal), send the "
+        "predicted worse than the nominal one (needs --nominal and a prediction), send the "
         "target uncompensated (the nominal IK's joints; the target itself as filtered "
         "target). none (default): compensate every target, warn.")] = "none",
     units: UnitsOpt = None, ignore: IgnoreOpt = None,
@@ -138,15 +138,17 @@ def compensate_cmd(
         check_unit(angle_unit, "angle", "--angle-unit")
     if fallback not in ("none", "nominal"):
         raise KincalError(f"option --fallback: {fallback!r} is not none or nominal")
-    if fallback == "nominal" and (nom is None or result is None):
-        raise KincalError("--fallback nominal needs --nominal (the controller's model) and "
-                          "--result (the predicted accuracy)")
     if result:
         from kincal.workflow.flow import accuracy_from_result
 
         accuracy = accuracy_from_result(result, cal)
-    else:
-        accuracy = None
+    else:                               # the envelope the calibrated robot carries
+        from kincal.identify.envelope import robot_and_accuracy
+
+        cal, accuracy = robot_and_accuracy(cal)
+    if fallback == "nominal" and (nom is None or accuracy is None):
+        raise KincalError("--fallback nominal needs --nominal (the controller's model) and "
+                          "the predicted accuracy (--result, or a calibrated robot file)")
     T, seeds, table = read_targets(targets, cal, units, ignore)
     length_unit = length_unit or table.units.get("x", "m")
     angle_unit = angle_unit or table.units.get("rx", "rad" if length_unit == "m" else "deg")
@@ -199,8 +201,13 @@ def _print_prediction(out: Any, pred: Any, comp: Any, table: Any, cu: Any) -> No
     calibrated model is predicted worse than the nominal one, the fallback."""
     import numpy as np
 
+    from kincal.identify.envelope import outside_line
+
     for sentence in pred.summary("targets", unit=cu.scale("m")):
         out.print(f"predicted: {escape(sentence)}")
+    loud = outside_line(pred, "targets", "the calibrated robot", cu.scale("m"))
+    if loud:
+        out.print(f"[bold yellow]warning[/bold yellow]: {escape(loud)}")
     worse = np.flatnonzero(pred.worse_than_nominal)
     if worse.size:
         lines = ", ".join(str(int(table.lines[i])) for i in worse[:10])

@@ -65,6 +65,12 @@ def export_cmd(
         from kincal.robots.urdf import write_urdf
 
         base, tip = write_urdf(r, output, name)
+        from kincal.robots.files import write_envelope_sidecar
+
+        side = write_envelope_sidecar(r, output)     # the calibration envelope travels
+        if side is not None:
+            console.print(f"calibration envelope -> {escape(str(side))} (keep it next to "
+                          "the URDF)")
         console.print(f"{escape(r.name)} ({r.n} joints) -> {escape(output)} (URDF; chain "
                       f"{escape(base)} -> {escape(tip)}: use --base-link {escape(base)} "
                       f"--tip-link {escape(tip)} to load it)")

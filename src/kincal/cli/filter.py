@@ -70,6 +70,31 @@ def _is_program(dialect: str, texts: dict[str, str]) -> bool:
     return any(pattern.search(t) for t in texts.values())
 
 
+def _targets_table(rows: list[Any], res: Any, programs: list[str]
+                   ) -> tuple[Table, list[Any]]:
+    """The table of the filtered targets (at most ``_SHOWN`` rows: those with a warning or
+    not filtered first) and the rows it shows."""
+    n_f = sum(r.status == "filtered" for r in rows)
+    n_p = sum(r.status == "partial" for r in rows)
+    shown_name = ", ".join(Path(p).name for p in programs)
+    table = Table(title=f"{escape(shown_name)} ({res.dialect}): {len(rows)} targets, "
+                        f"{n_f} filtered, {len(res.failed)} not filtered"
+                        + (f", {n_p} partial" if n_p else ""))
+    for col in ("target", "line", "kind", "status", "shift [mm]", "shift [deg]",
+                "predicted std [mm]", "warnings"):
+        table.add_column(escape(col), justify="right" if "[" in col or col == "line" else "left")
+    shown = rows if len(rows) <= _SHOWN else [r for r in rows if r.warnings or
+                                              r.status in ("not filtered", "partial")][:_SHOWN]
+    for r in shown:
+        table.add_row(escape(r.name), str(r.line), r.kind, r.status,
+                      f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
+                      "-" if math.isnan(r.predicted_std_mm) else f"{r.predicted_std_mm:.4f}",
+                      escape(": ".join(x for x in (", ".join(r.warnings), r.reason if
+                                                   r.status in ("not filtered", "kept",
+                                                                "partial") else "") if x)))
+    return table, shown
+
+
 def _targets_csv(rows: list[Any]) -> str:
     """The ``--csv`` table: one row per target (mm, deg; SI names in the header)."""
     buf = io.StringIO()
@@ -113,7 +138,9 @@ def filter_cmd(
                                                "target gets the calibrated model's predicted "
                                                "accuracy (std at its TCP) there, and targets "
                                                "outside the calibrated region (training "
-                                               "joint ranges and workspace) are flagged.")] = None,
+                                               "joint ranges and workspace) are flagged. "
+                                               "Default: the envelope the calibrated robot "
+                                               "file carries.")] = None,
     csv_out: Annotated[str | None, typer.Option("--csv", help="Also write the per-target "
                                                 "table as CSV.")] = None,
     json_out: JsonOpt = None, base_link: BaseLink = None, tip_link: TipLink = None,
@@ -144,6 +171,10 @@ def filter_cmd(
         from kincal.workflow.flow import accuracy_from_result
 
         accuracy = accuracy_from_result(result, cal)
+    else:                               # the envelope the calibrated robot carries
+        from kincal.identify.envelope import robot_and_accuracy
+
+        cal, accuracy = robot_and_accuracy(cal)
     res = filter_program(program, cal, nom, dialect, fr, joint_targets == "offline", accuracy)
     if not res.reports and not _is_program(res.dialect, res.originals):
         raise KincalError(f"no motion target found: is this a {res.dialect} program? (nothing "
@@ -158,25 +189,8 @@ def filter_cmd(
     for f, o in targets.items():
         atomic_write_bytes(o, texts[f].encode("latin-1"))
     rows = res.reports
-    n_f = sum(r.status == "filtered" for r in rows)
     shifts = [r.shift_mm for r in rows if r.status == "filtered"]
-    n_p = sum(r.status == "partial" for r in rows)
-    shown_name = ", ".join(Path(p).name for p in programs)
-    table = Table(title=f"{escape(shown_name)} ({res.dialect}): {len(rows)} targets, "
-                        f"{n_f} filtered, {len(res.failed)} not filtered"
-                        + (f", {n_p} partial" if n_p else ""))
-    for col in ("target", "line", "kind", "status", "shift [mm]", "shift [deg]",
-                "predicted std [mm]", "warnings"):
-        table.add_column(escape(col), justify="right" if "[" in col or col == "line" else "left")
-    shown = rows if len(rows) <= _SHOWN else [r for r in rows if r.warnings or
-                                              r.status in ("not filtered", "partial")][:_SHOWN]
-    for r in shown:
-        table.add_row(escape(r.name), str(r.line), r.kind, r.status,
-                      f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
-                      "-" if math.isnan(r.predicted_std_mm) else f"{r.predicted_std_mm:.4f}",
-                      escape(": ".join(x for x in (", ".join(r.warnings), r.reason if
-                                                   r.status in ("not filtered", "kept",
-                                                                "partial") else "") if x)))
+    table, shown = _targets_table(rows, res, programs)
     out.print(table)
     if len(rows) > _SHOWN:
         out.print(f"({len(rows) - len(shown)} rows without warnings not shown; all rows in "

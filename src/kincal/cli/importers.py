@@ -76,6 +76,11 @@ def import_ur(
         raise KincalError("no such file", source=file)
     is_yaml = Path(file).suffix.lower() in (".yaml", ".yml")
     robot = read_kinematics_yaml(file, nom) if is_yaml else read_calibration_conf(file, nom)
+    if is_yaml:                         # its calibration envelope, written next to it
+        from kincal.robots.files import with_envelope_sidecar
+        from kincal.workflow.robots import check_envelope
+
+        robot = check_envelope(with_envelope_sidecar(robot, file))
     q = np.random.default_rng(0).uniform(-np.pi, np.pi, (500, robot.n))
     diff = np.linalg.norm(robot.fk(q)[:, :3, 3] - nom.fk(q)[:, :3, 3], axis=1)
     kin_text = kinematics_yaml(robot, nom) if kinematics else None
@@ -84,6 +89,9 @@ def import_ur(
     atomic_write_text(output, robot_yaml_text(robot))
     if kin_text is not None and kinematics:
         atomic_write_text(kinematics, kin_text)
+        from kincal.robots.files import write_envelope_sidecar
+
+        write_envelope_sidecar(robot, kinematics)
     out.print(f"{escape(Path(file).name)}: {robot.name} differs from nominal {nom.name} by "
               f"{np.sqrt(np.mean(diff ** 2)) * 1e3:.4f} mm RMS, {diff.max() * 1e3:.4f} mm max at "
               "the flange (500 random postures)")
@@ -120,6 +128,11 @@ def ur_kinematics(
     _round_trip_report(out, r, nom, text)
     atomic_write_text(output, text)
     out.print(f"kinematics YAML -> {escape(output)}")
+    from kincal.robots.files import write_envelope_sidecar
+
+    side = write_envelope_sidecar(r, output)         # the calibration envelope travels
+    if side is not None:
+        out.print(f"calibration envelope -> {escape(str(side))} (keep it next to it)")
     if json_out:
         from kincal.io import write_json
 

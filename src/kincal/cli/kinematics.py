@@ -124,6 +124,7 @@ def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, si: SiOpt = False,
         return
     qv = joint_vector(r, q, deg)
     T = r.fk(qv)
+    from kincal.cli.envelope_lines import envelope_report
     from kincal.spatial import matrix_to_rpy
 
     rpy = matrix_to_rpy(T[:3, :3])
@@ -136,10 +137,13 @@ def fk(robot: RobotArg, q: QOpt, deg: DegOpt = False, si: SiOpt = False,
         console.print(f"position \\[{u.length_unit}]: "
                       f"{', '.join(u.length(v) for v in T[:3, 3])}   "
                       f"rpy \\[{u.angle_unit}]: {', '.join(u.angle(v) for v in rpy)}")
+    trust = envelope_report(err_console if json_out == "-" else console, r, qv,
+                            "configurations", Units(si).scale("m"), quiet=json_out == "-")
     if json_out:
         write_json(json_out, {"T": T.tolist(), "position": T[:3, 3].tolist(),
                               "rpy": np.asarray(rpy).tolist(),
-                              "units": {"length": "m", "angle": "rad"}})
+                              "units": {"length": "m", "angle": "rad"},
+                              **({"calibration_envelope": trust} if trust else {})})
     _refuse_beyond_limits(r, qv, deg)
 
 

@@ -132,6 +132,13 @@ def ik(robot: RobotArg,
         data["branches"] = _branches(r, target, pose is not None)
     if json_out != "-":
         _print_ik(r, one, data, Units(si, deg))
+    if one.success:
+        from kincal.cli.envelope_lines import envelope_report
+
+        trust = envelope_report(err_console if json_out == "-" else console, r, one.q,
+                                "solutions", Units(si, deg).scale("m"), quiet=json_out == "-")
+        if trust:
+            data["calibration_envelope"] = trust
     if json_out:
         write_json(json_out, data)
     if not one.success:

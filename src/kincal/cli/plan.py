@@ -31,7 +31,7 @@ from kincal.cli.common import (
     point_vector,
     robot_arg,
 )
-from kincal.cli.options import SeedOpt, SiOpt, quantity, use_si
+from kincal.cli.options import SeedOpt, SiOpt, console_units, quantity, use_si
 from kincal.errors import KincalError
 
 if TYPE_CHECKING:
@@ -330,10 +330,22 @@ def plan(
     poses_csv = _write_plan_files(p, r, output, program, dwell, angle_unit, length_unit, report,
                                   f"{crit} ({p.design.method})", instrument, seed, sd)
     _print_plan(out, p, r, crit, program, output, poses_csv, angle_unit, length_unit, report)
+    _envelope_and_json(out, p, r, json_out, output, report)
+
+
+def _envelope_and_json(out: Any, p: Plan, r: Any, json_out: str | None, output: str,
+                       report: str | None) -> None:
+    """A calibrated robot: where the planned poses leave its present calibration's training
+    region (one warning); then the JSON document."""
+    from kincal.cli.envelope_lines import envelope_report
+
+    trust = envelope_report(out, r, p.q, "planned poses", console_units().scale("m"),
+                            quiet=True)
     if json_out:
         from kincal.io import write_json
 
-        write_json(json_out, p.to_dict(output=output, report=report))
+        doc = p.to_dict(output=output, report=report)
+        write_json(json_out, {**doc, "calibration_envelope": trust} if trust else doc)
 
 
 def _check_units(angle_unit: str, length_unit: str) -> None:

@@ -49,10 +49,12 @@ use it later; :func:`predict` evaluates it at any configurations:
   instrument registered to it (``d = y_cal(q) - y_nom(q)``, when the model has the
   nominal registration), else at the TCP in the base frame (``d = P_cal(q) - P_nom(q)``,
   robot parameters): the calibration's correction ``d`` estimates the nominal model's
-  error, ``E|d_hat|^2 = |d|^2 + std^2``, so the nominal model's predicted squared error
-  is ``|d_hat|^2 - std^2`` (+ floor) and the calibrated
-  model is predicted *worse than nominal* where ``std^2 > |d_hat|^2 - std^2``, i.e.
-  ``|d_hat| < sqrt(2) std``: the correction is no larger than its own uncertainty.
+  error, and the calibrated model is predicted *worse than nominal* where
+  ``|d_hat| < sqrt(2) std``: the correction is no larger than its own uncertainty;
+* the **nominal model's predicted error**: its manufacturing tolerances ``s_j``
+  propagated to the point, ``sqrt(sum_j s_j^2 |G_j|^2 + floor^2)``
+  (:func:`nominal_spread`); a tolerance-based spread that cannot explode where the
+  calibrated model extrapolates (files without tolerances: ``|d_hat|^2 - std^2``).
 
 :func:`predicted_position_std` (through a measurement block, the instrument frame
 included) and :func:`predicted_rms` are the older, block-level forms.
@@ -80,7 +82,8 @@ Array = NDArray[np.float64]
 
 __all__ = ["predicted_position_std", "predicted_rms", "TrainingRegion", "AccuracyModel",
            "Prediction", "accuracy_model", "predict", "floor_from_training",
-           "floor_from_cross_validation", "predict_spread"]
+           "floor_from_cross_validation", "predict_spread",
+           "nominal_spread"]
 
 
 def _position_block(result: CalibrationResult, block: str | None) -> Any:
@@ -285,6 +288,9 @@ class AccuracyModel:
             "covariance": over them, "nominal_values": the frame and marker registered to
             the nominal robot (for the comparison with it)}``; None when the calibration
             had no position block.
+        tolerances: ``{robot parameter: manufacturing tolerance}`` [m, rad], the spread of
+            the nominal robot's parameters about the real ones (its predicted error), or
+            None (older result files).
     """
 
     parameters: tuple[str, ...]
@@ -298,6 +304,7 @@ class AccuracyModel:
     region: TrainingRegion | None = None
     instrument: Mapping[str, Any] | None = None
     floor_growth_m: float | None = None
+    tolerances: Mapping[str, float] | None = None
 
     def floor_at(self, q: ArrayLike) -> Array:
         """(N,) the unmodelled floor at configurations ``q`` [m]:
@@ -333,6 +340,8 @@ class AccuracyModel:
                     else list(map(float, self.instrument["nominal_values"])),
                     "parameters": list(self.instrument["parameters"]),
                     "covariance": np.asarray(self.instrument["covariance"]).tolist()},
+                "tolerances": None if self.tolerances is None else {
+                    str(k): float(v) for k, v in self.tolerances.items()},
                 "note": "covariance of the estimated robot parameters and of the measured "
                         "point in the flange frame (m, rad); joint ranges (rad, m) and hull "
                         "(m, base frame) of the training data; floor: the unmodelled RMS "
@@ -350,6 +359,7 @@ class AccuracyModel:
                                     np.asarray(doc["joint_max"], dtype=float),
                                     None if hull is None else np.asarray(hull, dtype=float))
             cross = doc.get("cross_covariance")
+            tols = doc.get("tolerances")
             return AccuracyModel(
                 names, C, np.asarray(doc.get("point_m", [0.0, 0.0, 0.0]), dtype=float),
                 tuple(doc.get("point_parameters", (None, None, None))),
@@ -357,7 +367,8 @@ class AccuracyModel:
                 None if cross is None else np.asarray(cross, dtype=float).reshape(-1, 3),
                 float(doc.get("floor_m", 0.0)), str(doc.get("floor_source", "")), region,
                 doc.get("instrument"),
-                None if doc.get("floor_growth_m") is None else float(doc["floor_growth_m"]))
+                None if doc.get("floor_growth_m") is None else float(doc["floor_growth_m"]),
+                None if tols is None else {str(k): float(v) for k, v in dict(tols).items()})
         except (KeyError, TypeError, ValueError) as exc:
             raise KincalError(f"its accuracy_model is not readable ({exc.__class__.__name__}: "
                               f"{exc})", source=source) from None
@@ -625,7 +636,10 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
     P = T[:, :3, 3] + a
     reg = model.region
     out_j = reg.outside_joint_ranges(q) if reg is not None else np.zeros(len(q), bool)
-    out_h = reg.outside_hull(P) if reg is not None else np.zeros(len(q), bool)
+    # the hull is of the measured point's training positions: test that point, whatever
+    # TCP the prediction is for (a target's TCP may lie centimetres off the marker)
+    P_meas = T[:, :3, 3] + R @ model.point
+    out_h = reg.outside_hull(P_meas) if reg is not None else np.zeros(len(q), bool)
     floor = model.floor_at(q)
     pred = Prediction(std, std_w, np.sqrt(std**2 + floor**2), out_j, out_h,
                       P if y is None else y, worse_than_nominal=np.zeros(len(q), dtype=bool))
@@ -637,7 +651,12 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         else:
             d, s = np.linalg.norm(_points(nominal, q, m) - P, axis=1), std_tcp
         pred.correction_m = d
-        pred.nominal_predicted_m = np.sqrt(np.clip(d**2 - s**2, 0.0, None) + floor**2)
+        registered = inst if y is not None and inst is not None and \
+            inst.get("nominal_values") is not None else None
+        spread = nominal_spread(model, nominal, q, m, registered)
+        if spread is None:                      # older files: the correction's size
+            spread = np.sqrt(np.clip(d**2 - s**2, 0.0, None))
+        pred.nominal_predicted_m = np.sqrt(spread**2 + float(model.floor_m) ** 2)
         pred.worse_than_nominal = d < math.sqrt(2.0) * s
     return pred
 
@@ -675,6 +694,58 @@ def predict_spread(model: AccuracyModel, robot: Robot, q: ArrayLike, groups: Arr
         D = G[k] - G[k].mean(axis=0)
         var[k] = propagated_variance(D, C) + floor[k] ** 2 * (1.0 - 1.0 / k.sum())
     return np.sqrt(np.clip(var, 0.0, None))
+
+
+def nominal_spread(model: AccuracyModel, nominal: Robot, q: ArrayLike,
+                   point: ArrayLike, registered: Mapping[str, Any] | None = None
+                   ) -> Array | None:
+    """The nominal robot's predicted position error from its tolerances [m], (N,), or None
+    when ``model`` carries no tolerances.
+
+    The real robot's parameters lie about the nominal ones with standard deviations
+    ``s_j`` (the manufacturing tolerances, :mod:`kincal.identify.tolerances`): a
+    parameter error ``dtheta ~ N(0, diag s^2)``.
+
+    * In the robot's base frame, at the point ``m`` (flange frame):
+      ``E|dP|^2 = sum_j s_j^2 |G_j|^2`` with ``G = J_v - [R m]x J_w`` the position
+      Jacobian over those parameters.
+    * ``registered`` (:attr:`AccuracyModel.instrument` with ``nominal_values``) and at
+      least 4 configurations distinct to 1 mrad: what the instrument sees of the nominal robot,
+      its frame and marker registered to it on these configurations (the "before
+      (re-registered)" of a held-out file): with ``B = J_theta diag(s)`` the stacked
+      (3N, k) observation Jacobian over the toleranced parameters and ``J_phi`` (3N, 9)
+      over the frame and marker, the registration removes ``J_phi J_phi^+ B``, so
+      ``E|e_i|^2`` is the sum of squares of the 3 rows of pose ``i`` of
+      ``(I - J_phi J_phi^+) B``.  (Registered on the training data instead, the
+      spread far from it would grow with the registration's own extrapolation, which
+      is the instrument's, not the nominal robot's.)
+
+    Parameters without a tolerance (the base and tool frames) add nothing.  The spread
+    is bounded by what the tolerances allow wherever the robot is: it cannot explode
+    where a calibration extrapolates.
+    """
+    tols = {n: float(v) for n, v in (model.tolerances or {}).items()
+            if n in nominal.param_names and np.isfinite(v) and v > 0}
+    if model.tolerances is None:
+        return None
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if not tols:
+        return np.zeros(len(q))
+    names = list(tols)
+    s = np.array([tols[n] for n in names])
+    if registered is not None and len(np.unique(q.round(3), axis=0)) >= 4:
+        block = PositionMeasurement(q, np.zeros((len(q), 3)), 1.0, str(registered["block"]))
+        _, Jr, Je = _jacobians_of(block, nominal,
+                                  np.asarray(registered["nominal_values"], dtype=float))
+        B = Jr[:, nominal.param_indices(names)] * s
+        E = B - Je[:, :9] @ np.linalg.lstsq(Je[:, :9], B, rcond=None)[0]
+        return np.asarray(np.sqrt(np.sum(E.reshape(len(q), 3, -1) ** 2, axis=(1, 2))),
+                          dtype=float)
+    T, Jp = _fk_and_param_jacobian(nominal, q)
+    J = Jp[:, :, nominal.param_indices(names)]
+    a = T[:, :3, :3] @ np.asarray(point, dtype=float).reshape(3)
+    G = J[:, :3, :] - np.cross(a[:, :, None], J[:, 3:, :], axis=1)
+    return np.asarray(np.sqrt(np.sum((G * s) ** 2, axis=(1, 2))), dtype=float)
 
 
 def _instrument_view(inst: Mapping[str, Any], robot: Robot, q: Array, values: Any) -> Array:

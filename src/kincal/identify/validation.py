@@ -14,6 +14,9 @@ come from one of two protocols:
   seems: compare robots under the same protocol.
 
 With ``register=False`` and no ``extras`` the closed-form initial guesses are used.
+A calibrated robot that carries its envelope (:mod:`kincal.identify.envelope`) adds
+each block's predicted error and the poses outside its training region, and a warning
+(:class:`UserWarning`, one line) when it is used outside that region.
 A block without parameters of its own (an artifact whose socket points are the means
 of their rows and whose probe is known) is evaluated as it is.  An artifact's socket
 points and frames belong to its placements: held-out placements never have them in
@@ -145,7 +148,9 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
     Returns:
         ``{"overall": stats, "blocks": {name: stats}, "extras": {name: {param: value}}}``
         where ``stats`` has ``rms_k``, ``mean_k``, ``max_k`` for every error kind ``k``
-        of the blocks (``position_m``, ``orientation_rad``, ``distance_m`` ...) and ``n``.
+        of the blocks (``position_m``, ``orientation_rad``, ``distance_m`` ...) and ``n``;
+        with an envelope also ``"predicted": {name: Prediction}`` and ``"warnings"``
+        (one sentence per block used outside the training region).
     """
     if isinstance(blocks, MeasurementModel):
         blocks = [blocks]
@@ -160,7 +165,36 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
         for k, v in errs.items():
             pooled.setdefault(k, []).append(np.ravel(v))
     overall = error_statistics({k: np.concatenate(v) for k, v in pooled.items()})
-    return {"overall": overall, "blocks": per, "extras": used}
+    out: dict[str, Any] = {"overall": overall, "blocks": per, "extras": used}
+    if robot.meta.get("calibration") is not None:
+        out.update(_envelope_predictions(robot, blocks))
+    return out
+
+
+def _envelope_predictions(robot: Robot, blocks: Sequence[MeasurementModel]
+                          ) -> dict[str, Any]:
+    """The predicted error of each block with joint readings from the envelope ``robot``
+    carries, and one warning per block used outside its training region (also issued
+    as a :class:`UserWarning`)."""
+    import warnings
+
+    from kincal.identify.envelope import outside_line, predict_with_envelope
+
+    preds: dict[str, Any] = {}
+    lines: list[str] = []
+    for b in blocks:
+        q = getattr(b, "q", None)
+        if q is None or np.ndim(q) != 2 or np.shape(q)[1] != robot.n:
+            continue
+        pred = predict_with_envelope(robot, q)
+        if pred is None:
+            continue
+        preds[b.name] = pred
+        line = outside_line(pred, "poses", robot.name)
+        if line:
+            lines.append(f"{b.source_label}: {line}")
+            warnings.warn(lines[-1], UserWarning, stacklevel=3)
+    return {"predicted": preds, "warnings": lines}
 
 
 # --------------------------------------------------------------------------- folds

@@ -256,6 +256,10 @@ class Robot:
         out = object.__new__(type(self))
         out.__dict__.update({k: v for k, v in self.__dict__.items() if k != "_plan"})
         object.__setattr__(out, "param_values", vals)
+        if "calibration" in self.meta and not np.array_equal(vals, self.param_values):
+            # a calibration envelope describes these values only (kincal.identify.envelope)
+            object.__setattr__(out, "meta", {k: v for k, v in self.meta.items()
+                                             if k not in ("calibration", "calibration_source")})
         return out
 
     def frame_parameters(self, prefix: str) -> Array:

@@ -170,6 +170,9 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
         meta["tolerances"] = tol
     if isinstance(data.get("controller"), Mapping):    # read by kincal.robots.controller
         meta["controller"] = dict(data["controller"])
+    if data.get("calibration") is not None:             # read by kincal.identify.envelope
+        meta["calibration"] = dict(r.mapping(data["calibration"], "calibration"))
+        meta["calibration_source"] = r.source
     return meta
 
 
@@ -409,7 +412,7 @@ def load_serial_robot(spec: str | os.PathLike[str], base_link: str | None = None
             raise RobotFileError("no such URDF file", source=s)
         from kincal.robots.urdf import load_urdf
 
-        return load_urdf(path, base_link=base_link, tip_link=tip_link)
+        return with_envelope_sidecar(load_urdf(path, base_link=base_link, tip_link=tip_link), path)
     if path.suffix.lower() in (".yaml", ".yml") or path.is_file():
         if not path.is_file():
             raise RobotFileError("no such robot file", source=s)
@@ -419,6 +422,51 @@ def load_serial_robot(spec: str | os.PathLike[str], base_link: str | None = None
         return read_robot_yaml(lib)
     raise RobotFileError(f"unknown robot {s!r}: not a file and not a built-in robot "
                          f"(built-in: {', '.join(library_names())})")
+
+
+def envelope_sidecar(path: str | os.PathLike[str]) -> Path:
+    """The file next to a URDF or UR kinematics file that carries its calibration
+    envelope: ``NAME.envelope.yaml`` for ``NAME.urdf`` / ``NAME.yaml``."""
+    p = Path(path)
+    return p.with_name(p.stem + ".envelope.yaml")
+
+
+def with_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Robot:
+    """``robot`` with ``meta["calibration"]`` (its envelope) from the sidecar next to
+    ``path`` (:func:`write_envelope_sidecar`): the URDF or UR kinematics file ``robot``
+    was read from; unchanged without one."""
+    path = Path(path)
+    side = envelope_sidecar(path)
+    if not side.is_file():
+        return robot
+    text = read_text(side, "calibration envelope", RobotFileError)
+    try:
+        data = yaml_load(text)
+    except yaml.YAMLError:
+        raise RobotFileError(f"invalid YAML (the calibration envelope of {path.name})",
+                             source=str(side)) from None
+    r = FieldReader(str(side))
+    section = r.mapping(r.mapping(data, "(top level)").get("calibration"), "calibration")
+    return dataclasses.replace(robot, meta={**dict(robot.meta), "calibration": dict(section),
+                                            "calibration_source": str(side)})
+
+
+def write_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Path | None:
+    """Write the calibration envelope of ``robot`` (``meta["calibration"]``) next to the
+    URDF or UR kinematics file ``path`` it was written to (:func:`envelope_sidecar`),
+    atomically; None (nothing written) when the robot carries no envelope.  ROS tools
+    and URDF readers never see the file; kincal reads it with the file it describes."""
+    section = robot.meta.get("calibration")
+    if not isinstance(section, Mapping) or str(path) == "-":
+        return None
+    side = envelope_sidecar(path)
+    text = yaml.safe_dump({
+        "describes": Path(path).name,
+        "note": "the calibration envelope of the file it describes: kincal reads it with "
+                "that file; keep the two together",
+        "calibration": dict(section)}, sort_keys=False, default_flow_style=None, width=100)
+    atomic_write_text(side, text)
+    return side
 
 
 # --------------------------------------------------------------------------- writing
@@ -460,6 +508,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         doc["tolerances"] = dict(robot.meta["tolerances"])
     if isinstance(robot.meta.get("controller"), Mapping):
         doc["controller"] = dict(robot.meta["controller"])
+    if isinstance(robot.meta.get("calibration"), Mapping):
+        doc["calibration"] = dict(robot.meta["calibration"])
     ju = joint_units_of(robot)
     if ju is not None:
         doc["joint_units"] = ju

@@ -30,6 +30,7 @@ progress goes to an optional callback, warnings into :attr:`FlowResult.warnings`
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -233,22 +234,32 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     cv = _cross_validation_summary(robot, blocks, selection, cross_validate, tols.sigma,
                                    {**solver_options, "prior": prior_s or None}, mapper)
     train, before, after, comps = _training_comparison(robot, res)
-    accuracy = _accuracy_outside(robot, blocks, res, _accuracy(res, cv, before) if procedure ==
-                                 "lm" else None, comps, warnings, (free_names, fixed, options))
+    accuracy = _accuracy_outside(robot, blocks, res, _accuracy(res, cv, before, tols.sigma)
+                                 if procedure == "lm" else None, comps, warnings,
+                                 (free_names, fixed, options))
     heldout: list[Any] = []
     if holdouts:
         comp, heldout = _holdout_comparison(robot, res.robot, train, list(holdouts), before,
                                             after, validation_frames, warnings, accuracy)
         comps.append(comp)
-    from kincal.identify.checks import judge
     from kincal.identify.weak import weak_parameters
 
-    verdict = judge(res, tols.sigma, data=_joint_data(robot, [*blocks, *holdouts]))
-    warnings += verdict.warnings()
+    verdict = _verdict(res, tols, robot, [*blocks, *holdouts], warnings)
     return FlowResult(res, comps, seconds, warnings, robot, train, before, after, cv,
                       tolerances=tols, verdict=verdict,
                       weak=weak_parameters(res), selection=selection, accuracy=accuracy,
                       heldout=heldout, notes=notes)
+
+
+def _verdict(res: Any, tols: Any, robot: Any, blocks: Sequence[Any], warnings: list[str]
+             ) -> Any:
+    """The trust verdict (:func:`~kincal.identify.checks.judge`) with the files' joint
+    data checked; its warnings join ``warnings``."""
+    from kincal.identify.checks import judge
+
+    verdict = judge(res, tols.sigma, data=_joint_data(robot, blocks))
+    warnings += verdict.warnings()
+    return verdict
 
 
 def _joint_data(robot: Any, blocks: Sequence[Any]) -> list[str]:
@@ -347,9 +358,11 @@ def _training_comparison(robot: Any, res: Any) -> tuple[list[Any], dict[str, Arr
 
 
 def _accuracy(res: Any, cv: Mapping[str, Any] | None,
-              before: Mapping[str, Array] | None = None) -> Any:
+              before: Mapping[str, Array] | None = None,
+              tolerances: Mapping[str, float] | None = None) -> Any:
     """The calibration's :class:`~kincal.identify.accuracy.AccuracyModel`, with the
-    instrument registered to the nominal robot (``before``); its floor from the
+    instrument registered to the nominal robot (``before``) and the robot parameters'
+    ``tolerances`` (the nominal robot's predicted error); its floor from the
     cross-validated position RMS when cross-validation ran."""
     from kincal.identify.accuracy import accuracy_model, floor_from_cross_validation
 
@@ -357,6 +370,9 @@ def _accuracy(res: Any, cv: Mapping[str, Any] | None,
         model = accuracy_model(res)
     except (KincalError, ValueError, IndexError):
         return None
+    if tolerances is not None:
+        model = dataclasses.replace(model, tolerances={
+            n: float(v) for n, v in tolerances.items() if n in res.robot.param_names})
     inst = model.instrument
     if isinstance(inst, dict) and before and inst["block"] in before:
         inst["nominal_values"] = [float(v) for v in np.asarray(before[inst["block"]])[:9]]
@@ -674,6 +690,26 @@ def _untrusted_notice(flow: FlowResult, force: bool, planned: Mapping[str, str])
     return flow.verdict.line() + what
 
 
+def carrying_envelope(flow: FlowResult) -> tuple[Any, dict[str, Any] | None]:
+    """The calibrated robot carrying its envelope (:mod:`kincal.identify.envelope`: the
+    accuracy model with the training region, the training files' hashes, date, version)
+    and that envelope's document; without an accuracy model the robot carries none (not
+    even the one its nominal file may have had)."""
+    from kincal.identify.envelope import make_envelope, with_envelope
+
+    robot = flow.result.robot
+    if flow.accuracy is None:
+        return with_envelope(robot, None), None
+    paths: dict[str, int] = {}
+    for b in flow.train:
+        prov = getattr(b, "provenance", None)
+        if prov is not None and prov.path:
+            path = str(prov.path)
+            paths[path] = paths.get(path, 0) + len(np.atleast_1d(getattr(b, "q", [])))
+    env = make_envelope(flow.accuracy, robot, list(paths), list(paths.values()))
+    return with_envelope(robot, env), env.to_dict()
+
+
 def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None = None,
                    json_out: str | None = None, report: str | None = None,
                    inputs: Mapping[str, str] | None = None,
@@ -696,6 +732,7 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
     from kincal.robots.files import robot_yaml_text
 
     res = flow.result
+    calibrated, envelope = carrying_envelope(flow)
     inputs = dict(inputs or {})
     planned = {k: v for k, v in (("robot", output), ("urdf", urdf), ("report", report)) if v}
     notice = _untrusted_notice(flow, force, planned)
@@ -717,11 +754,11 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         contents["report"] = _render_report(res, flow.comparisons, inputs, truth, sections,
                                             notice)
     if output:
-        contents["robot"] = robot_yaml_text(res.robot)
+        contents["robot"] = robot_yaml_text(calibrated)
     if urdf and res.robot.meta.get("convention") != "urdf":
         from kincal.robots.urdf import urdf_text
 
-        contents["urdf"] = urdf_text(res.robot)[0]
+        contents["urdf"] = urdf_text(calibrated)[0]
     if json_out:
         more = dict(extra or {})
         if info is not None:
@@ -737,6 +774,8 @@ def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None
         doc["warnings"] = list(flow.warnings)
         if flow.accuracy is not None:
             doc["accuracy_model"] = flow.accuracy.to_dict()
+        if envelope is not None:
+            doc["envelope"] = envelope
         if flow.heldout:
             from kincal.workflow.heldout import BEFORE_DEFINITION
 
@@ -783,10 +822,15 @@ def write_outputs(flow: FlowResult, output: str | None = None, urdf: str | None 
             atomic_write_bytes(path, data)
         else:
             atomic_write_text(path, data)
+    calibrated = carrying_envelope(flow)[0]
     if urdf and "urdf" not in contents:
         from kincal.robots.urdf import write_calibrated_urdf
 
-        write_calibrated_urdf(None, flow.result.robot, urdf)
+        write_calibrated_urdf(None, calibrated, urdf)
+    if urdf:
+        from kincal.robots.files import write_envelope_sidecar
+
+        write_envelope_sidecar(calibrated, urdf)
     if json_out:
         atomic_write_text(json_out, str(contents["json"]))
     return {k: v for k, v in planned.items() if k != "json"}

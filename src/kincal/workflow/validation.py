@@ -4,7 +4,10 @@
 "before" column) on held-out blocks with the protocols of
 :func:`kincal.workflow.flow.validate_blocks`; given the result JSON of ``kincal
 calibrate``, the instrument frames and markers, the nominal robot's registration and
-the predicted accuracy come from it.  The errors are physical (m, rad); the pooled
+the predicted accuracy come from it; without it, the predicted accuracy and the training
+region come from the envelope the calibrated robot carries
+(:mod:`kincal.identify.envelope`), and :attr:`HeldOutValidation.warnings` says loudly
+which files it extrapolates on.  The errors are physical (m, rad); the pooled
 figures are :func:`kincal.report.metrics.error_metrics` of all files' errors together.
 :meth:`HeldOutValidation.to_dict` is the JSON document of ``kincal validate --json``.
 """
@@ -15,6 +18,8 @@ import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from kincal.identify.accuracy import AccuracyModel
 from kincal.measure.base import MeasurementModel
@@ -37,6 +42,8 @@ class HeldOutValidation:
         extras: ``{parameter: value}`` of the result JSON (instrument frames and
             markers of the same session), or None.
         iso9283: the ISO 9283 figures per file (``kincal validate --iso9283``), or None.
+        accuracy_from: where the accuracy model came from: ``"result"`` (the result
+            JSON), ``"robot"`` (the envelope the calibrated robot carries) or ``""``.
     """
 
     robot: str
@@ -45,6 +52,20 @@ class HeldOutValidation:
     accuracy: AccuracyModel | None = None
     extras: dict[str, float] | None = None
     iso9283: dict[str, Any] | None = None
+    accuracy_from: str = ""
+
+    @property
+    def warnings(self) -> list[str]:
+        """One loud sentence per file with poses outside the training region."""
+        from kincal.identify.envelope import outside_line
+
+        out = []
+        for f in self.files:
+            if f.prediction is not None:
+                line = outside_line(f.prediction, "poses", self.robot)
+                if line:
+                    out.append(f"{f.file}: {line}")
+        return out
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``kincal validate --json``: the pooled metrics (after and,
@@ -60,6 +81,8 @@ class HeldOutValidation:
         if self.compared_before:
             doc["overall_before"] = error_metrics(merge_errors([f.before for f in files]))
         if self.accuracy is not None:
+            doc["accuracy_from"] = self.accuracy_from
+            doc["warnings"] = self.warnings
             doc["predicted"] = {f.block.source_label: {
                 "outside_joint_ranges": f.prediction.outside_joint_ranges,
                 "outside_hull": f.prediction.outside_hull, **f.prediction.to_dict()}
@@ -77,7 +100,8 @@ def validate_on_files(robot: Robot, blocks: Sequence[MeasurementModel],
         blocks: the held-out measurements, one block per file.
         before: the nominal robot, evaluated by the same protocol.
         result: the result JSON of ``kincal calibrate``: its instrument frames and
-            markers, the nominal robot's registration and (if present) the accuracy model.
+            markers, the nominal robot's registration and (if present) the accuracy model;
+            without it, the accuracy model of the envelope ``robot`` carries (if any).
         validation_frames: ``"training"`` (the result's frames, no refit), ``"register"``
             (frames refitted on each file), ``"auto"`` (training with a result).
     """
@@ -90,10 +114,26 @@ def validate_on_files(robot: Robot, blocks: Sequence[MeasurementModel],
 
     extras = extras_from_result(result) if result else None
     doc_in = result_document(result) if result else {}
-    accuracy = None
+    accuracy, source, model_robot = None, "", robot
     if isinstance(doc_in.get("accuracy_model"), dict):
-        accuracy = accuracy_from_result(str(result), robot)
+        accuracy, source = accuracy_from_result(str(result), robot), "result"
+    elif not result:
+        from kincal.identify.envelope import envelope_of
+
+        env = envelope_of(robot)
+        if env is not None:
+            accuracy, source = env.accuracy, "robot"
+            model_robot = env.robot
     files = validate_blocks(robot, blocks, before, extras, validation_frames,
                             extras_from_result(result, "before") if result else None,
-                            accuracy)
-    return HeldOutValidation(robot.name, files, before is not None, accuracy, extras)
+                            accuracy if model_robot is robot else None)
+    if accuracy is not None and model_robot is not robot:    # the envelope's own robot
+        from kincal.identify.accuracy import predict
+
+        for f in files:
+            q = getattr(f.block, "q", None)
+            if "position_m" in f.after and q is not None:
+                f.prediction = predict(accuracy, model_robot, q, nominal=before)
+                f.point_errors = np.asarray(f.after["position_m"]).reshape(len(q), -1)[:, 0]
+    return HeldOutValidation(robot.name, files, before is not None, accuracy, extras,
+                             accuracy_from=source)
