@@ -401,7 +401,10 @@ class Prediction:
             floor grows outside the training joint ranges, :meth:`AccuracyModel.floor_at`).
         outside_joint_ranges, outside_hull: (N,) where the model extrapolates.
         correction_m: (N,) ``|P_cal - P_nom|`` [m] (None without a nominal robot).
-        nominal_predicted_m: (N,) the nominal model's expected error [m] (or None).
+        nominal_predicted_m: (N,) the nominal model's expected error [m] (or None):
+            ``sqrt(min(|d_hat|^2 - std^2, s_tol^2) + floor^2)``, the correction the
+            calibration makes there bounded by the tolerances propagated
+            (:func:`nominal_spread`, ``s_tol``).
         worse_than_nominal: (N,) ``|d_hat| < sqrt(2) std`` (False without a nominal).
         position_m: (N, 3) the measured point predicted by the calibrated model [m].
     """
@@ -653,9 +656,13 @@ def predict(model: AccuracyModel, robot: Robot, q: ArrayLike, nominal: Robot | N
         pred.correction_m = d
         registered = inst if y is not None and inst is not None and \
             inst.get("nominal_values") is not None else None
-        spread = nominal_spread(model, nominal, q, m, registered)
-        if spread is None:                      # older files: the correction's size
-            spread = np.sqrt(np.clip(d**2 - s**2, 0.0, None))
+        # the nominal robot's error: the correction the calibration makes here (what it
+        # knows where it is trusted), never more than the tolerances allow anywhere
+        # (far from the data the correction is the calibration's own extrapolation)
+        spread = np.sqrt(np.clip(d**2 - s**2, 0.0, None))
+        bound = nominal_spread(model, nominal, q, m, registered)
+        if bound is not None:                   # older files carry no tolerances
+            spread = np.minimum(spread, bound)
         pred.nominal_predicted_m = np.sqrt(spread**2 + float(model.floor_m) ** 2)
         pred.worse_than_nominal = d < math.sqrt(2.0) * s
     return pred
