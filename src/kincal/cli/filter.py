@@ -45,6 +45,15 @@ def _outputs(program: str, output: str, texts: dict[str, str]) -> dict[str, str]
     return mapping
 
 
+
+def _warning_cell(r: Any) -> str:
+    """The warnings of one target, then why it was not filtered; a warning the reason
+    starts with is said once (``unreachable: outside the workspace``, not
+    ``unreachable: unreachable: ...``)."""
+    reason = r.reason if r.reason and r.status == "not filtered" else ""
+    said = [w for w in r.warnings if not (reason and reason.startswith(w))]
+    return ": ".join(x for x in (", ".join(said), reason) if x)
+
 @app.command("filter")
 def filter_cmd(
     program: Annotated[str, typer.Argument(help="Robot program: KRL .src (its .dat beside it), "
@@ -127,8 +136,7 @@ def filter_cmd(
         table.add_row(escape(r.name), str(r.line), r.kind, r.status,
                       f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
                       "-" if math.isnan(r.predicted_std_mm) else f"{r.predicted_std_mm:.4f}",
-                      escape(", ".join(r.warnings) + (f": {r.reason}" if r.reason and
-                                                      r.status == "not filtered" else "")))
+                      escape(_warning_cell(r)))
     out.print(table)
     if len(rows) > _SHOWN:
         out.print(f"({len(rows) - len(shown)} rows without warnings not shown; all rows in "

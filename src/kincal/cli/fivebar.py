@@ -351,7 +351,7 @@ def fivebar_workspace(
     ws = workspace(r, mode, resolution, assembly=assembly, margin=margin)
     if json_out != "-":
         KincalConsole().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} "
-                        f"m² -> {path}")
+                               f"m² -> {path}")
     if json_out:
         _write_json(json_out, ws.to_dict(r.name, str(path)))
 
