@@ -48,8 +48,8 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["validate", "Validation", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE", "FoldSpec",
-           "FoldResult", "fold_units", "run_fold", "run_folds", "split_kind"]
+__all__ = ["validate", "Validation", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE",
+           "FoldSpec", "FoldResult", "fold_units", "run_fold", "run_folds", "split_kind"]
 
 #: Role of block parameters that belong to one placement of an artifact (socket points,
 #: socket frames): held-out placements have their own, fitted on the held-out data.
