@@ -140,7 +140,8 @@ def plan_poses(robot: Robot, *, instrument: str = "position", poses: int = 30,
         exchange: improve the greedy choice by exchanges (DETMAX).
         seed: random seed.
         progress: called as ``progress(stage, done, total)``.
-        source, dropped: how the candidates were obtained, for the plan's inputs.
+        source: how the candidates were obtained, for the plan's inputs.
+        dropped: how many candidate rows were dropped (outside the joint limits).
 
     Returns:
         The :class:`Plan`.
