@@ -314,10 +314,9 @@ def _history(result: CalibrationView
         theta = np.asarray(result.theta, dtype=float)
         return theta[None], ["final"], np.array([np.nan]), np.array([np.nan]), None
     H = np.array([np.asarray(h.theta, dtype=float) for h in hist])
-    its = [getattr(h, "iteration", None) for h in hist]
+    its: list[int] = [int(i) for h in hist if (i := getattr(h, "iteration", None)) is not None]
     return (H, [str(h.stage) for h in hist], np.array([float(h.cost) for h in hist]),
-            np.array([float(h.rms) for h in hist]),
-            None if any(i is None for i in its) else [int(i) for i in its])
+            np.array([float(h.rms) for h in hist]), its if len(its) == len(hist) else None)
 
 
 def _passes_sentence(result: CalibrationView) -> str:
