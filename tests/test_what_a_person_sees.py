@@ -381,3 +381,15 @@ def test_every_documented_parameter_is_in_the_signature():
             continue
         missing = [p for p in params if p not in sig.parameters and not p.startswith("*")]
         assert not missing, f"kincal.{name}: documented {missing} not in {sig}"
+
+
+def test_accuracy_results_print_in_mm(map_fit):
+    robot, _, block, res = map_fit
+    model = kincal.accuracy_model(res)
+    assert "object at 0x" not in repr(model) and "array(" not in repr(model)
+    assert f"floor {model.floor_m * 1e3:.3g} mm" in repr(model)
+    assert "unmodelled floor [mm]" in model._repr_html_()
+    pred = kincal.predict_accuracy(model, res.robot, block.q[:6])
+    top = float(pred.predicted_m.max()) * 1e3
+    assert f"up to {top:.3g} mm" in repr(pred) and "array(" not in repr(pred)
+    assert "inside the training region" in pred._repr_html_()
