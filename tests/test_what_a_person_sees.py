@@ -203,6 +203,18 @@ def test_fit_table_never_breaks_a_word(width):
     assert text.count("theta_offset[3]") >= 1 and "(continued)" in text
 
 
+def test_a_word_wider_than_the_terminal_is_folded_not_looped():
+    """Two columns whose longest words cannot sit side by side at 40 columns: no parts
+    to split into, the table prints (the long word folds) instead of recursing."""
+    t = Table()
+    t.add_column("robot")
+    t.add_column("reason")
+    t.add_row("R-00002", "/tmp/pytest-of-root/pytest-121/fleet0/R-00002/tracker.csv: bad")
+    console = Console(width=40, record=True, file=open("/dev/null", "w"))  # noqa: SIM115
+    console.print(common.fit_table(console, t))
+    assert "R-00002" in console.export_text()
+
+
 def test_console_width_follows_columns_when_printing(monkeypatch):
     """rich reads COLUMNS once, when a console is made; the command line's console is
     made at import, so a COLUMNS exported before it must not stick."""

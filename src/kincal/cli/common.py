@@ -91,6 +91,8 @@ def fit_table(console: Console, table: Table, width: int | None = None) -> Rende
             used = ranges[0][0] + 2 * per_column
         parts[-1].append(i)
         used += need
+    if len(parts) == 1:            # a word longer than the terminal: it cannot stay whole
+        return table
     return Group(*(fit_table(console, _with_columns(table, keep, k), width)
                    for k, keep in enumerate(parts)))
 
