@@ -70,10 +70,14 @@ def _plain_log_axis(ax: Any) -> None:
     """A log y axis labelled with plain numbers (``0.02``, ``0.05``, ``0.1``), not
     ``2x10^-2``: within a decade matplotlib labels the minor ticks in powers of ten, which
     read badly and were clipped."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
     ax.set_yscale("log")
-    ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    lo, hi = ax.get_ylim()
+    decades = np.arange(np.floor(np.log10(lo)), np.ceil(np.log10(hi)) + 1)
+    nice = [m * 10.0 ** d for d in decades for m in (1.0, 2.0, 5.0) if lo <= m * 10.0 ** d <= hi]
+    ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)) if len(nice) >= 3
+                               else MaxNLocator(7, steps=[1, 2, 2.5, 5, 10]))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.4g}"))
     ax.yaxis.set_minor_formatter(NullFormatter())
 

@@ -330,8 +330,16 @@ def _passes_sentence(result: CalibrationView) -> str:
     passes = solver_passes(stages, its, cost, H)
     if len(passes) < 2:
         return ""
+    what: list[list[Any]] = []                  # [label, repeats], consecutive ones merged
+    for p in passes:
+        label = p.label.split(": ", 1)[1]
+        if what and what[-1][0] == label:
+            what[-1][1] += 1
+        else:
+            what.append([label, 1])
     return (f" in {len(passes)} solver passes ("
-            + "; ".join(p.label.split(": ", 1)[1] for p in passes) + "; see Convergence)")
+            + "; then ".join(f"{lab} (x{n})" if n > 1 else lab for lab, n in what)
+            + "; see Convergence)")
 
 
 def render_html(result: CalibrationView, comparisons: Sequence[ErrorComparison], title: str = "",
