@@ -262,10 +262,10 @@ def test_main_commands_print_tables_without_broken_words(columns, workdir, capsy
                                                          monkeypatch):
     monkeypatch.chdir(workdir)
     if columns is None:
-        monkeypatch.delenv("COLUMNS", raising=False)    # captured output: rich's 80
+        monkeypatch.delenv("COLUMNS", raising=False)    # captured: the terminal's, or 80
     else:
         monkeypatch.setenv("COLUMNS", columns)
-    width = int(columns or 80)
+    width = int(columns) if columns else common.console.width
     from kincal.measure.simulate import perturb_robot as perturb
     from kincal.robots.files import write_robot_yaml
 
@@ -310,7 +310,7 @@ def test_fleet_commands_fit(columns, tmp_path, capsys, monkeypatch):
         code, out, err = run(capsys, "fleet", *args)
         assert code == expect, err
         assert tables
-        _assert_fits(out, tables, 80)
+        _assert_fits(out, tables, common.console.width)
     assert "[mm]" in " ".join(out.split())                 # units are not eaten as markup
 
 
