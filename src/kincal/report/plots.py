@@ -64,11 +64,6 @@ def _png(fig: Any, dpi: int = DPI) -> bytes:
     return buf.getvalue()
 
 
-def _layout(fig: Any) -> None:
-    """A fixed layout (tight_layout costs seconds on many axes)."""
-    fig.subplots_adjust(left=0.09, right=0.97, bottom=0.16, top=0.9, hspace=0.45, wspace=0.3)
-
-
 def fit_layout(fig: Any) -> None:
     """Move the axes so that every tick label, axis label and title lies inside the
     figure (matplotlib's tight layout): a fixed layout clips long tick labels such as
@@ -272,7 +267,7 @@ def error_histograms(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[str,
         ax.hist(np.maximum(a, lo), bins=bins, alpha=0.75, color=_AFTER, label="after")
         ax.set_xscale("log")
         ax.set_xlabel(lab)
-        ax.set_ylabel("count")
+        ax.set_ylabel("count (measurements)")
 
     return _before_after_grid(sets, draw, np.ravel)
 
@@ -310,7 +305,7 @@ def _before_after_grid(sets: Sequence[tuple[str, Mapping[str, Array], Mapping[st
                  lab)
             ax.set_title(name)
             ax.legend()
-    _layout(fig)
+    fit_layout(fig)
     return _png(fig)
 
 
@@ -333,8 +328,11 @@ def correlation(C: Array, names: Sequence[str]) -> bytes:
     ticks = list(range(0, n, step))
     ax.set_xticks(ticks, [names[i] for i in ticks], rotation=90, fontsize=MIN_TEXT_PT)
     ax.set_yticks(ticks, [names[i] for i in ticks], fontsize=MIN_TEXT_PT)
-    fig.colorbar(im, ax=ax, shrink=0.8)
+    bar = fig.colorbar(im, ax=ax, shrink=0.8)
+    bar.set_label("correlation (dimensionless, -1 to 1)")
+    ax.set_xlabel("estimated parameter (name)")
+    ax.set_ylabel("estimated parameter (name)")
     ax.set_title("correlation of the estimates" + (f" (every {step}th name)" if step > 1
                                                    else ""))
-    fig.subplots_adjust(left=0.3, right=0.95, bottom=0.3, top=0.93)
+    fit_layout(fig)
     return _png(fig)
