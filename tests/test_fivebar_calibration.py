@@ -189,5 +189,7 @@ def test_errors_name_the_problem() -> None:
 def test_report_and_repr() -> None:
     result, _ = run_reference_experiment(noise=1e-3)
     text = result.report()
-    assert "| l1 | 2 |" in text and "std error" in text
-    assert "l1=" in repr(result)
+    assert "| l1 | 2000.0000 |" in text and "std error" in text    # 2 m nominal, in mm
+    rows = [r.split("|")[2:4] for r in text.splitlines() if r.startswith("| l")]
+    assert rows and all(len(x.strip().split(".")[1]) == 4 for r in rows for x in r)   # 0.1 um
+    assert "l1=" in repr(result) and " mm" in repr(result)

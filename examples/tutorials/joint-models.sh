@@ -17,7 +17,7 @@ for p in json.load(open("tiago.json"))["parameters"]:
         kind = "play [mrad]" if ".h[" in p["name"] else "compliance [mrad/(N m)]"
         print(f"{p['name']:18} {kind:24} {p['estimate'] * 1e3:8.2f} ± {p['std'] * 1e3:.2f}")
 PY
-sed -n '/Held-out files/,/^ before/p' tiago.txt
+sed -n '/Held-out files/,/^ *before/p' tiago.txt
 # --8<-- [end:fit]
 
 # --8<-- [start:compare]

@@ -19,7 +19,7 @@ print(result.identifiability.describe()[8])  # "d[3] cannot be told apart from d
 
 q_new = kincal.random_configurations(nominal, 20, rng)       # poses the fit never saw
 held_out = kincal.simulate_positions(truth, q_new, rng, noise_std=1e-5)
-print(kincal.validate(result.robot, [held_out], result)["overall"])     # held-out errors [m]
+print(kincal.validate(result.robot, [held_out], result))    # held-out errors (mm; SI inside)
 accuracy = kincal.accuracy_model(result)
 print(kincal.predict_accuracy(accuracy, result.robot, q_new).summary())  # predicted there
 

@@ -11,7 +11,7 @@ done
 
 # --8<-- [start:tiago-offsets]
 kincal calibrate --config examples/setups/tiago_offsets.yaml > tiago_offsets.txt
-sed -n '/Errors before/,/^train:/p; /Held-out files/,/^ before/p' tiago_offsets.txt
+sed -n '/Errors before/,/^train:/p; /Held-out files/,/^ *before/p' tiago_offsets.txt
 # --8<-- [end:tiago-offsets]
 
 # --8<-- [start:tiago-select]

@@ -71,6 +71,7 @@ _API: dict[str, tuple[str, str]] = {
     "Calibration": ("kincal.identify.solver", "Calibration"),
     "CalibrationResult": ("kincal.identify.solver", "CalibrationResult"),
     "validate": ("kincal.identify.validation", "validate"),
+    "Validation": ("kincal.identify.validation", "Validation"),
     "cross_validate": ("kincal.identify.validation", "cross_validate"),
     "accuracy_model": ("kincal.identify.accuracy", "accuracy_model"),
     "predict_accuracy": ("kincal.identify.accuracy", "predict"),

@@ -206,8 +206,12 @@ def write_json(path: str | os.PathLike[str], data: Any) -> None:
 
 def html_table(header: Sequence[str], rows: Sequence[Sequence[object]],
                caption: str = "") -> str:
-    """A small HTML table (every cell escaped) for notebook displays (``_repr_html_``)."""
+    """A small HTML table (every cell escaped) for notebook displays (``_repr_html_``);
+    without rows, only the caption (an empty table with headers says nothing)."""
     import html as _html
+
+    if not rows:
+        return f"<p>{_html.escape(caption)}</p>"
 
     head = "".join(f"<th>{_html.escape(str(h))}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{_html.escape(str(c))}</td>" for c in row) + "</tr>"

@@ -328,16 +328,18 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
     d = res.to_dict()
     with_prior = any(p.get("prior_std") is not None for p in d["parameters"])
     u = console_units()
+    shown = [p for p in d["parameters"] if everything or p["estimated"]]
+    statuses = {p["status"] for p in shown}
+    one_status = len(statuses) == 1          # the same for all: said once, in the caption
     t = Table(title=f"Estimated parameters ({d['estimated_count']} of {len(d['parameters'])}; "
-              f"lengths {u.length_unit}, angles {u.angle_unit})")
+              f"lengths {u.length_unit}, angles {u.angle_unit})",
+              caption=f"status: all {escape(next(iter(statuses)))}" if one_status else None)
     cols = ["parameter", "nominal", "estimate", "change", "std (1σ)"]
-    cols += ["prior (1σ)"] * with_prior + ["status"]
+    cols += ["prior (1σ)"] * with_prior + ["status"] * (not one_status)
     for c in cols:
         t.add_column(c, justify="left" if c in ("parameter", "status") else "right",
                      overflow="fold")
-    for p in d["parameters"]:
-        if not everything and not p["estimated"]:
-            continue
+    for p in shown:
         factor, _ = u.scale(p["unit"])
         f = functools.partial(scaled, factor=factor) if p["unit"] in ("m", "rad") else \
             "{:g}".format
@@ -345,7 +347,7 @@ def print_parameters(out: Console, res: Any, everything: bool = False) -> None:
                  f(p["estimate"] - p["nominal"]), f(p["std"]) if p["std"] is not None else "-"]
         if with_prior:
             cells.append(f(p["prior_std"]) if p.get("prior_std") is not None else "-")
-        t.add_row(*cells, escape(p["status"]))
+        t.add_row(*cells, *[escape(p["status"])] * (not one_status))
     out.print(t)
 
 

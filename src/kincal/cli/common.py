@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import copy
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.console import Console
-from rich.table import Table
+from rich.console import Console, Group, RenderableType
+from rich.measure import Measurement
+from rich.table import Column, Table
 
 from kincal.errors import KincalError
 
@@ -24,8 +26,97 @@ TipLink = Annotated[str | None, typer.Option("--tip-link", help="URDF only: last
 JsonOut = Annotated[str | None, typer.Option("--json", help="Also write the result as JSON "
                                              "to this path ('-' for stdout).")]
 
-console = Console()
-err_console = Console(stderr=True)
+#: Widest layout measured: a table's natural width is taken at this many columns.
+_UNLIMITED = 10_000
+
+
+def _content_range(console: Console, column: Column, show_header: bool) -> tuple[int, int]:
+    """(narrowest, widest) text width of one column without padding: the narrowest is its
+    longest word (narrower breaks a word), the widest its longest line."""
+    options = console.options.update_width(_UNLIMITED)
+    cells: list[RenderableType] = [*column.cells, *([column.header] if show_header else [])]
+    sizes = [Measurement.get(console, options, c) for c in cells] or [Measurement(1, 1)]
+    return max(m.minimum for m in sizes), max(m.maximum for m in sizes)
+
+
+def _with_columns(table: Table, keep: list[int], part: int) -> Table:
+    """A copy of ``table`` with the columns ``keep`` only (its title on the first part, its
+    caption on every part, "(continued)" after the first)."""
+    new = copy.copy(table)
+    new.columns, new.rows = [], []
+    if part:
+        new.title = f"{table.title} (continued)" if table.title else "(continued)"
+    for i in keep:
+        c = table.columns[i]
+        new.add_column(c.header, footer=c.footer, header_style=c.header_style,
+                       footer_style=c.footer_style, style=c.style, justify=c.justify,
+                       vertical=c.vertical, overflow=c.overflow, width=c.width,
+                       min_width=c.min_width, max_width=c.max_width, ratio=c.ratio,
+                       no_wrap=c.no_wrap, highlight=c.highlight)
+    cells = [list(table.columns[i].cells) for i in keep]
+    for r, row in enumerate(table.rows):
+        new.add_row(*(col[r] for col in cells), style=row.style, end_section=row.end_section)
+    return new
+
+
+def fit_table(console: Console, table: Table, width: int | None = None) -> RenderableType:
+    """``table`` laid out for a terminal ``width`` columns wide (default: the console's)
+    without breaking a word: rich narrows the widest columns first and folds their words
+    even when narrower columns have room.  Each column gets at least its longest word and
+    the room left is shared in proportion to what each still lacks; a table whose longest
+    words do not fit side by side is printed in parts, each repeating the first column."""
+    width = width or console.width
+    if not table.columns or table.width is not None:
+        return table
+    options = console.options.update_width(_UNLIMITED)
+    whole = Measurement.get(console, options, table)
+    if whole.maximum <= width:
+        return table
+    ranges = [_content_range(console, c, table.show_header) for c in table.columns]
+    overhead = whole.maximum - sum(hi for _, hi in ranges)      # padding and borders
+    room = width - overhead - sum(lo for lo, _ in ranges)
+    if room >= 0:
+        lack = [hi - lo for lo, hi in ranges]
+        total = sum(lack)
+        for c, (lo, hi), short in zip(table.columns, ranges, lack, strict=True):
+            c.width = min(hi, lo + (room * short) // total) if total else hi
+        return table
+    per_column = overhead / len(ranges)
+    parts: list[list[int]] = [[0]]
+    used = ranges[0][0] + 2 * per_column
+    for i in range(1, len(ranges)):
+        need = ranges[i][0] + per_column
+        if used + need > width and len(parts[-1]) > 1:
+            parts.append([0])
+            used = ranges[0][0] + 2 * per_column
+        parts[-1].append(i)
+        used += need
+    if len(parts) == 1:            # a word longer than the terminal: it cannot stay whole
+        return table
+    return Group(*(fit_table(console, _with_columns(table, keep, k), width)
+                   for k, keep in enumerate(parts)))
+
+
+class KincalConsole(Console):
+    """The console every command prints to: tables fit the terminal without a broken word
+    (:func:`fit_table`), and the width follows the terminal and ``COLUMNS`` when printing
+    (rich reads ``COLUMNS`` once, when the console is made: here at import, before a test
+    runner or a shell script sets it)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if "width" not in kwargs and not self.is_jupyter:
+            self._width = None                  # measured whenever it prints
+
+    def print(self, *objects: Any, **kwargs: Any) -> None:
+        """:meth:`rich.console.Console.print`, with every table fitted to the width."""
+        width = kwargs.get("width") or self.width
+        super().print(*(fit_table(self, o, width) if isinstance(o, Table) else o
+                        for o in objects), **kwargs)
+
+
+console = KincalConsole()
+err_console = KincalConsole(stderr=True)
 
 
 def parse_vector(text: str, option: str, length: int | None = None) -> np.ndarray:

@@ -89,9 +89,7 @@ def _targets_table(rows: list[Any], res: Any, programs: list[str]
         table.add_row(escape(r.name), str(r.line), r.kind, r.status,
                       f"{r.shift_mm:.4f}", f"{r.shift_deg:.4f}",
                       "-" if math.isnan(r.predicted_std_mm) else f"{r.predicted_std_mm:.4f}",
-                      escape(": ".join(x for x in (", ".join(r.warnings), r.reason if
-                                                   r.status in ("not filtered", "kept",
-                                                                "partial") else "") if x)))
+                      escape(_warning_cell(r)))
     return table, shown
 
 
@@ -106,6 +104,15 @@ def _targets_csv(rows: list[Any]) -> str:
                     f"{r.shift_deg:.6f}", "" if math.isnan(r.predicted_std_mm)
                     else f"{r.predicted_std_mm:.6f}", ";".join(r.warnings), r.reason])
     return buf.getvalue()
+
+
+def _warning_cell(r: Any) -> str:
+    """The warnings of one target, then why it was not filtered; a warning the reason
+    starts with is said once (``unreachable: outside the workspace``, not
+    ``unreachable: unreachable: ...``)."""
+    reason = r.reason if r.reason and r.status in ("not filtered", "kept", "partial") else ""
+    said = [w for w in r.warnings if not (reason and reason.startswith(w))]
+    return ": ".join(x for x in (", ".join(said), reason) if x)
 
 
 @app.command("filter")

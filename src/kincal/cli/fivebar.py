@@ -14,6 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
+from kincal.cli.common import KincalConsole
 from kincal.cli.options import OutputOpt, SeedOpt, Units, quantity
 from kincal.errors import KincalError
 
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
 
 def _console(json_path: str | None) -> Console:
     """Tables go to stdout unless JSON does (``--json -``), then to stderr."""
-    return Console(stderr=json_path == "-")
+    return KincalConsole(stderr=json_path == "-")
 
 
 def _load(spec: str) -> FiveBar:
@@ -349,8 +350,8 @@ def fivebar_workspace(
     path = plot_workspace(r, output, mode, resolution, assembly, margin)
     ws = workspace(r, mode, resolution, assembly=assembly, margin=margin)
     if json_out != "-":
-        Console().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} "
-                        f"m² -> {path}")
+        KincalConsole().print(f"workspace of {r.name}, working mode {ws.mode}: area {ws.area:.6g} "
+                               f"m² -> {path}")
     if json_out:
         _write_json(json_out, ws.to_dict(r.name, str(path)))
 
@@ -369,7 +370,7 @@ def fivebar_mobility() -> None:
         t.add_row(label, str(m.dimension), str(len(m.links)), str(len(m.joints)),
                   str(sum(j.freedom for j in m.joints)), str(m.loops()), str(m.kutzbach()),
                   str(m.grubler()))
-    Console().print(t)
+    KincalConsole().print(t)
 
 
 @app.command("fivebar-simulate")
@@ -422,7 +423,7 @@ def fivebar_simulate(
     sim = simulate_fivebar(nominal, changes, n, seed, ranges, noise_rad)
     write_fivebar_csv(output, sim.q, sim.x, comment=sim.comment())
     if json_out != "-":
-        Console().print(f"{sim.q.shape[0]} measurements -> {output}")
+        KincalConsole().print(f"{sim.q.shape[0]} measurements -> {output}")
     if json_out:
         _write_json(json_out, sim.to_dict(output))
 

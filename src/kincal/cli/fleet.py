@@ -284,7 +284,7 @@ def drift_cmd(
     t = Table(title=f"Drift between the last two calibrations ({len(flagged)} of "
               f"{len(drifts)} robots flagged)")
     for c in ("robot", "latest", "max |z|", "χ²/dof", "p", "RMS [mm]", "prev. model [mm]"):
-        t.add_column(c, justify="left" if c in ("robot", "latest") else "right")
+        t.add_column(escape(c), justify="left" if c in ("robot", "latest") else "right")
     shown = [d for d in drifts if d.flagged or all_robots]
     for d in shown:
         red = d.flagged
@@ -330,11 +330,12 @@ def history_cmd(
     if serial and not rows:
         raise KincalError(f"no calibration of robot {serial!r} in the history",
                           source=store.display)
-    t = Table(title=f"Calibration history ({len(rows)} records; RMS of the position)")
-    for c in ("robot", "date", "status", "iterations", "training [mm]", "held-out [mm]",
-              "CV [mm]", "kincal"):
-        t.add_column(c, justify="right" if "[mm]" in c or c == "iterations" else "left",
-                     no_wrap=c in ("robot", "date"))
+    t = Table(title=escape(f"Calibration history ({len(rows)} records; position RMS [mm])"),
+              caption=escape("iter.: solver iterations; train / held-out / CV: position RMS "
+                             "on the training data, held-out files, cross-validation [mm]"))
+    for c in ("robot", "date", "status", "iter.", "train", "held-out", "CV", "kincal"):
+        t.add_column(c, justify="right" if c in ("iter.", "train", "held-out", "CV")
+                     else "left", no_wrap=c in ("robot", "date"))
     for r in rows:
         st = r["status"]
         t.add_row(escape(r["serial"]), r["date"], st if st == "ok" else f"[red]{st}[/red]",

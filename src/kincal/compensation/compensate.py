@@ -118,8 +118,11 @@ def compensate(calibrated: Robot, targets: ArrayLike, nominal: Robot | None = No
         nominal: the controller's nominal model; needed for filtered targets.
         q0: (N, n) or (n,) IK seeds [rad / m]; default the nominal IK solutions.
         mask: ``"pose"`` or ``"position"``; default from the shape of ``targets``.
-        tol_position, tol_orientation: IK tolerances [m], [rad].
-        max_iter, restarts, rng: passed to :func:`kincal.motion.ik.solve_ik`.
+        tol_position: IK position tolerance [m].
+        tol_orientation: IK orientation tolerance [rad].
+        max_iter: passed to :func:`kincal.motion.ik.solve_ik`.
+        restarts: passed to :func:`kincal.motion.ik.solve_ik`.
+        rng: passed to :func:`kincal.motion.ik.solve_ik`.
     """
     T = np.asarray(targets, dtype=float)
     if T.ndim == 2 and T.shape == (4, 4):

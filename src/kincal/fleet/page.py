@@ -25,7 +25,7 @@ import numpy as np
 
 from kincal._version import __version__
 from kincal.report.html import _CSS, _img
-from kincal.report.plots import _plt, _png
+from kincal.report.plots import _plt, _png, fit_layout
 from kincal.units import display_scale
 
 __all__ = ["fleet_page", "accuracy_plot", "history_plot"]
@@ -51,20 +51,35 @@ def accuracy_plot(serials: Sequence[str], series: Mapping[str, Sequence[float | 
         if np.isfinite(y).any():
             ax.plot(np.arange(len(order)), y, marker, ms=4, label=label)
     ax.set_ylabel("position RMS [mm]")
-    ax.set_yscale("log")
+    _plain_log_axis(ax)
     if len(serials) <= 60:
         ax.set_xticks(np.arange(len(order)))
         ax.set_xticklabels([serials[i] for i in order], rotation=90, fontsize=7)
         for t, i in zip(ax.get_xticklabels(), order, strict=True):
             if serials[i] in flagged:
                 t.set_color("#c0504d")
-    else:
-        ax.set_xlabel(f"{len(serials)} robots, sorted by training RMS")
+    ax.set_xlabel(f"robot (serial number; {len(serials)} robots sorted by training RMS"
+                  + ("; flagged in red)" if len(serials) <= 60 and flagged else ")"))
     ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.3 if len(serials) <= 60 else 0.15,
-                        top=0.95)
+    ax.grid(alpha=0.3, which="both")
+    fit_layout(fig)
     return _png(fig)
+
+
+def _plain_log_axis(ax: Any) -> None:
+    """A log y axis labelled with plain numbers (``0.02``, ``0.05``, ``0.1``), not
+    ``2x10^-2``: within a decade matplotlib labels the minor ticks in powers of ten, which
+    read badly and were clipped."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
+
+    ax.set_yscale("log")
+    lo, hi = ax.get_ylim()
+    decades = np.arange(np.floor(np.log10(lo)), np.ceil(np.log10(hi)) + 1)
+    nice = [m * 10.0 ** d for d in decades for m in (1.0, 2.0, 5.0) if lo <= m * 10.0 ** d <= hi]
+    ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)) if len(nice) >= 3
+                               else MaxNLocator(7, steps=[1, 2, 2.5, 5, 10]))
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.4g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
 
 
 def history_plot(serial: str, records: Sequence[Mapping[str, Any]], names: Sequence[str]
@@ -86,9 +101,12 @@ def history_plot(serial: str, records: Sequence[Mapping[str, Any]], names: Seque
                     fmt="o-", ms=4, capsize=3)
         ax.set_xticks(np.arange(len(dates)))
         ax.set_xticklabels(dates, rotation=30, fontsize=7)
-        ax.set_title(f"{serial}: {name} [{u}]", fontsize=9)
+        ax.set_title(f"{serial}: {name}", fontsize=9)
+        ax.set_ylabel(f"{name} [{u}] (±2σ)", fontsize=8)
+        ax.set_xlabel("session (date)", fontsize=8)
+        ax.ticklabel_format(axis="y", useOffset=False)
         ax.grid(alpha=0.3)
-    fig.subplots_adjust(left=0.12, right=0.98, bottom=0.28, top=0.86, wspace=0.45)
+    fit_layout(fig)
     return _png(fig)
 
 

@@ -316,6 +316,26 @@ class AccuracyModel:
             np.zeros(len(q))
         return np.sqrt(float(self.floor_m) ** 2 + (g * d) ** 2)
 
+    def __repr__(self) -> str:
+        where = (f", training region over {len(self.region.joint_names)} joints"
+                 if self.region is not None else "")
+        return (f"AccuracyModel({len(self.parameters)} parameters, unmodelled floor "
+                f"{self.floor_m * 1e3:.3g} mm from {self.floor_source}{where})")
+
+    def _repr_html_(self) -> str:
+        """Notebook display: what the model holds, one row each."""
+        from kincal.io import html_table
+
+        rows: list[list[str]] = [
+            ["estimated parameters", str(len(self.parameters))],
+            ["unmodelled floor [mm]", f"{self.floor_m * 1e3:.4g}"],
+            ["floor from", self.floor_source],
+            ["measured point in the flange frame [mm]",
+             ", ".join(f"{v * 1e3:.4g}" for v in np.asarray(self.point).tolist())],
+            ["training joints", ", ".join(self.region.joint_names)
+             if self.region is not None else "-"]]
+        return html_table(["", ""], rows, repr(self))
+
     def to_dict(self) -> dict[str, Any]:
         """The result JSON's ``accuracy_model`` (SI).  ``parameters`` / ``covariance`` /
         ``joint_*`` are the robot parameters alone (what ``kincal filter`` reads)."""
@@ -424,6 +444,19 @@ class Prediction:
     def outside(self) -> NDArray[np.bool_]:
         """Outside the joint ranges or the hull."""
         return self.outside_joint_ranges | self.outside_hull
+
+    def __repr__(self) -> str:
+        n = len(self.predicted_m)
+        top = float(np.max(self.predicted_m, initial=0.0)) * 1e3
+        return (f"Prediction({n} configurations: predicted position error up to {top:.3g} mm, "
+                f"{int(np.sum(self.outside))} outside the training region)")
+
+    def _repr_html_(self) -> str:
+        """Notebook display: :meth:`summary`'s sentences under the headline."""
+        from html import escape
+
+        items = "".join(f"<li>{escape(s)}</li>" for s in self.summary())
+        return f"<p>{escape(repr(self))}</p><ul>{items}</ul>"
 
     def summary(self, what: str = "poses",
                 unit: tuple[float, str] = (1e3, "mm")) -> list[str]:

@@ -130,8 +130,8 @@ def plan_poses(robot: Robot, *, instrument: str = "position", poses: int = 30,
         candidates: a number of random configurations within the joint limits, or the
             candidate configurations themselves, (N, n) [rad / m].
         reachable: candidates from the instrument's simulator (what it can measure).
-        noise, orientation_noise: instrument standard deviation per coordinate [m],
-            per axis [rad].
+        noise: instrument standard deviation per coordinate [m].
+        orientation_noise: instrument standard deviation per axis [rad] (pose instrument).
         marker: the marker in the tool frame (3,) [m] (default: 0.1 m along z).
         scaling: ``workspace``, ``unit`` or ``errors`` (column scaling of the Jacobian).
         min_distance: smallest joint-space distance between chosen poses [rad].
@@ -140,7 +140,8 @@ def plan_poses(robot: Robot, *, instrument: str = "position", poses: int = 30,
         exchange: improve the greedy choice by exchanges (DETMAX).
         seed: random seed.
         progress: called as ``progress(stage, done, total)``.
-        source, dropped: how the candidates were obtained, for the plan's inputs.
+        source: how the candidates were obtained, for the plan's inputs.
+        dropped: how many candidate rows were dropped (outside the joint limits).
 
     Returns:
         The :class:`Plan`.

@@ -124,6 +124,14 @@ class AccuracyPrediction:
                 f"rms={self.rms * 1e3:.4g} mm, p95={self.p95 * 1e3:.4g} mm over "
                 f"{len(self.q_eval)} configurations)")
 
+    def _repr_html_(self) -> str:
+        """Notebook display: RMS, 95 % and max of the predicted position error (mm)."""
+        from kincal.io import html_table
+
+        return html_table(["predicted position error", "mm"],
+                          [["RMS", f"{self.rms * 1e3:.4g}"], ["95 %", f"{self.p95 * 1e3:.4g}"],
+                           ["max", f"{self.max * 1e3:.4g}"]], repr(self))
+
 
 def workspace_grid(robot: Robot, per_joint: int | Sequence[int] = 3,
                    margin: float = 0.1) -> Array:

@@ -555,7 +555,9 @@ def calibrate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel
             ``offsets``, ``registration``) or a list of names / patterns.
         loss: ``"linear"``, ``"huber"`` or ``"cauchy"`` (IRLS per measurement).
         loss_scale: robust threshold in units of the robust residual scale.
-        max_iter, tol_step, tol_cost: stopping rules per stage (see module docstring).
+        max_iter: most iterations per stage (module docstring, "Stopping").
+        tol_step: step rule per stage (module docstring, "Stopping").
+        tol_cost: cost-change rule per stage (module docstring, "Stopping").
         tol_std: a stage stops when its remaining Gauss-Newton step is at most this
             many standard errors long (module docstring, "Stopping"); 0 turns it off.
         progress: called with every :class:`IterationRecord`.

@@ -38,7 +38,7 @@ the number of measured points.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,8 +51,8 @@ from kincal.robots.chain import Robot
 
 Array = NDArray[np.float64]
 
-__all__ = ["validate", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE", "FoldSpec",
-           "FoldResult", "fold_units", "run_fold", "run_folds", "split_kind"]
+__all__ = ["validate", "Validation", "error_statistics", "cross_validate", "PER_PLACEMENT_ROLE",
+           "FoldSpec", "FoldResult", "fold_units", "run_fold", "run_folds", "split_kind"]
 
 #: Role of block parameters that belong to one placement of an artifact (socket points,
 #: socket frames): held-out placements have their own, fitted on the held-out data.
@@ -128,8 +128,118 @@ def _parameters_of(robot: Robot, block: MeasurementModel, extras: Any, index: in
     return np.asarray(block.initial_guess(robot), dtype=float)
 
 
+#: How the error kinds are shown: SI unit suffix of a statistic -> (factor, shown unit).
+_SHOWN = {"m": (1e3, "mm"), "rad": (180 / np.pi, "deg"), "px": (1.0, "px")}
+
+
+@dataclass(frozen=True, eq=False)
+class Validation(Mapping[str, Any]):
+    """What :func:`validate` returns: the errors of a robot on held-out blocks.
+
+    Every statistic names its unit (SI): ``rms_position_m``, ``max_orientation_rad``,
+    ``rms_distance_m``, ``rms_pixel_px`` ...; the properties ``rms_position_mm`` etc. give
+    the common ones in mm and degrees.  Still reads as the dictionary it used to be:
+    ``v["overall"]["rms_position_m"]``, ``v["blocks"]``, ``v["extras"]``
+    (:meth:`to_dict`).
+
+    Attributes:
+        overall: statistics of all blocks pooled (:func:`error_statistics`): ``rms_k``,
+            ``mean_k``, ``max_k`` per error kind ``k`` and ``n`` (measured points).
+        blocks: the same statistics per block name.
+        extras: each block's parameters used, ``{block: {parameter: value}}`` [SI].
+        predicted: with a calibrated robot that carries its envelope, the predicted error
+            of each block (:class:`~kincal.identify.accuracy.Prediction`); else empty.
+        warnings: one sentence per block used outside the calibration's training region.
+    """
+
+    overall: dict[str, float]
+    blocks: dict[str, dict[str, float]]
+    extras: dict[str, dict[str, float]]
+    predicted: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"overall": ..., "blocks": ..., "extras": ...}`` (SI, as JSON takes it)."""
+        return {"overall": dict(self.overall), "blocks": {k: dict(v) for k, v in
+                                                          self.blocks.items()},
+                "extras": {k: dict(v) for k, v in self.extras.items()}}
+
+    def _keys(self) -> tuple[str, ...]:
+        return ("overall", "blocks", "extras") + (("predicted", "warnings")
+                                                  if self.predicted or self.warnings else ())
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self._keys():
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys())
+
+    def __len__(self) -> int:
+        return len(self._keys())
+
+    def _stat(self, key: str, factor: float) -> float:
+        v = self.overall.get(key)
+        return float(v) * factor if v is not None else float("nan")
+
+    @property
+    def n(self) -> int:
+        """Measured points, all blocks."""
+        return int(self.overall.get("n", 0))
+
+    @property
+    def rms_position_mm(self) -> float:
+        """RMS position error [mm] (NaN when no block measures positions)."""
+        return self._stat("rms_position_m", 1e3)
+
+    @property
+    def max_position_mm(self) -> float:
+        """Largest position error [mm] (NaN when no block measures positions)."""
+        return self._stat("max_position_m", 1e3)
+
+    @property
+    def rms_orientation_deg(self) -> float:
+        """RMS orientation error [deg] (NaN when no block measures orientations)."""
+        return self._stat("rms_orientation_rad", 180 / np.pi)
+
+    @property
+    def max_orientation_deg(self) -> float:
+        """Largest orientation error [deg] (NaN when no block measures orientations)."""
+        return self._stat("max_orientation_rad", 180 / np.pi)
+
+    @staticmethod
+    def _kinds(stats: Mapping[str, float]) -> list[tuple[str, str, float, str]]:
+        """``(kind, SI key suffix, factor, shown unit)`` of each error kind in ``stats``."""
+        out = []
+        for key in stats:
+            if key.startswith("rms_"):
+                kind, _, unit = key[4:].rpartition("_")
+                factor, shown = _SHOWN.get(unit, (1.0, unit))
+                out.append((kind, key[4:], factor, shown))
+        return out
+
+    def __repr__(self) -> str:
+        parts = [f"{kind} RMS {self.overall[f'rms_{k}'] * f:.4g} {u}, max "
+                 f"{self.overall[f'max_{k}'] * f:.4g} {u}"
+                 for kind, k, f, u in self._kinds(self.overall)]
+        return (f"Validation(n={self.n}, {'; '.join(parts) or 'no errors'}; "
+                f"{len(self.blocks)} block(s): {', '.join(self.blocks)})")
+
+    def _repr_html_(self) -> str:
+        """Notebook display: one row per block and error kind, then all pooled."""
+        from kincal.io import html_table
+
+        rows = []
+        for name, stats in [*self.blocks.items(), ("all blocks", self.overall)]:
+            for kind, k, f, u in self._kinds(stats):
+                rows.append([name, kind, int(stats.get("n", 0)), f"{stats[f'rms_{k}'] * f:.4g}",
+                             f"{stats[f'max_{k}'] * f:.4g}", u])
+        return html_table(["block", "error", "n", "RMS", "max", "unit"], rows, repr(self))
+
+
 def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel],
-             extras: Any = None, register: bool = True) -> dict[str, Any]:
+             extras: Any = None, register: bool = True) -> Validation:
     """Errors of ``robot`` on held-out measurement ``blocks``.
 
     Args:
@@ -146,11 +256,14 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
             without parameters of its own has nothing to re-estimate.
 
     Returns:
-        ``{"overall": stats, "blocks": {name: stats}, "extras": {name: {param: value}}}``
-        where ``stats`` has ``rms_k``, ``mean_k``, ``max_k`` for every error kind ``k``
-        of the blocks (``position_m``, ``orientation_rad``, ``distance_m`` ...) and ``n``;
-        with an envelope also ``"predicted": {name: Prediction}`` and ``"warnings"``
-        (one sentence per block used outside the training region).
+        a :class:`Validation`: ``overall`` stats, ``blocks`` ``{name: stats}`` and
+        ``extras`` ``{name: {param: value}}``, where ``stats`` has ``rms_k``, ``mean_k``,
+        ``max_k`` for every error kind ``k`` of the blocks, its SI unit in the name
+        (``position_m``, ``orientation_rad``, ``distance_m`` ...), and ``n``; it still
+        reads as the dictionary ``{"overall": ..., "blocks": ..., "extras": ...}``.
+        With an envelope (the robot is a calibrated one) also ``predicted``
+        ``{name: Prediction}`` and ``warnings`` (one sentence per block used outside the
+        training region).
     """
     if isinstance(blocks, MeasurementModel):
         blocks = [blocks]
@@ -165,10 +278,9 @@ def validate(robot: Robot, blocks: MeasurementModel | Sequence[MeasurementModel]
         for k, v in errs.items():
             pooled.setdefault(k, []).append(np.ravel(v))
     overall = error_statistics({k: np.concatenate(v) for k, v in pooled.items()})
-    out: dict[str, Any] = {"overall": overall, "blocks": per, "extras": used}
-    if robot.meta.get("calibration") is not None:
-        out.update(_envelope_predictions(robot, blocks))
-    return out
+    more = (_envelope_predictions(robot, blocks) if robot.meta.get("calibration") is not None
+            else {})
+    return Validation(overall, per, used, **more)
 
 
 def _envelope_predictions(robot: Robot, blocks: Sequence[MeasurementModel]

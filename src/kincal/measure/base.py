@@ -36,7 +36,7 @@ import copy
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -212,23 +212,67 @@ class MeasurementModel(ABC):
         out.q = q
         return out
 
+    #: SI unit of :meth:`measurement_sigma`: ``"m"``, ``"rad"`` (angle instruments) or
+    #: ``"px"`` (cameras).
+    SIGMA_UNIT: ClassVar[str] = "m"
+
+    @property
+    def sigma_unit(self) -> str:
+        """SI unit of :meth:`measurement_sigma` (``m``, ``rad`` or ``px``)."""
+        return self.SIGMA_UNIT
+
+    @property
+    def instrument(self) -> str:
+        """What measured the block: the file's ``instrument=`` tag, else the block's kind
+        (its class name without ``Measurement``: ``position``, ``pose`` ...)."""
+        table = self.provenance.table if self.provenance is not None else None
+        if table is not None and table.tags.get("instrument"):
+            return table.tags["instrument"]
+        kind = type(self).__name__.removesuffix("Measurement")
+        return "".join(f"-{c.lower()}" if c.isupper() and i else c.lower()
+                       for i, c in enumerate(kind))
+
+    def sigma_text(self) -> str:
+        """The stated standard deviation for people: lengths in mm, angles in arcsec,
+        pixels in px; one value when all rows state the same, else ``lo to hi``;
+        ``"not stated"`` for blocks without one (artifacts)."""
+        sigma = self.measurement_sigma()
+        finite = np.asarray(sigma, dtype=float) if sigma is not None else np.empty(0)
+        finite = finite[np.isfinite(finite)]
+        if not finite.size:
+            return "not stated"
+        factor, unit = _SIGMA_DISPLAY.get(self.sigma_unit, (1.0, self.sigma_unit))
+        lo, hi = float(finite.min()) * factor, float(finite.max()) * factor
+        return f"{lo:.3g} {unit}" if f"{lo:.3g}" == f"{hi:.3g}" else f"{lo:.3g} to {hi:.3g} {unit}"
+
+    def summary(self) -> list[tuple[str, str]]:
+        """``(field, value)`` rows shown by ``repr`` and in a notebook: name, instrument,
+        rows, sigma (with its unit), source file, number of parameters."""
+        return [("name", self.name), ("instrument", self.instrument),
+                ("rows", str(len(self.q))), ("sigma", self.sigma_text()),
+                ("source file", self.provenance.path if self.provenance is not None
+                 else "none (simulated or in memory)"),
+                ("parameters", str(len(self.parameters())))]
+
     def __repr__(self) -> str:
         src = f", from {self.provenance.path!r}" if self.provenance is not None else ""
-        return (f"{type(self).__name__}({self.name!r}, {len(self.q)} rows, "
-                f"{len(self.parameters())} parameters{src})")
+        return (f"{type(self).__name__}({self.name!r}: {self.instrument}, {len(self.q)} rows, "
+                f"sigma {self.sigma_text()}, {len(self.parameters())} parameters{src})")
 
     def _repr_html_(self) -> str:
-        """The block in a notebook: its kind, rows, file and parameters with units."""
+        """The block in a notebook: a small table of :meth:`summary`, then its parameters
+        with units and roles."""
         from html import escape
 
         spec = self.parameters()
-        src = (f", from <code>{escape(self.provenance.path)}</code>"
-               if self.provenance is not None else "")
+        head = "".join(f"<tr><th style='text-align:left'>{escape(k)}</th><td>{escape(v)}</td>"
+                       "</tr>" for k, v in self.summary())
         rows = "".join(f"<tr><td>{escape(n)}</td><td>{escape(u)}</td><td>{escape(r)}</td></tr>"
                        for n, u, r in zip(spec.names, spec.units, spec.roles, strict=True))
-        return (f"<b>{escape(type(self).__name__)}</b> <code>{escape(self.name)}</code>: "
-                f"{len(self.q)} rows{src}<table><tr><th>parameter</th><th>unit</th>"
-                f"<th>role</th></tr>{rows}</table>")
+        return (f"<table><caption style='text-align:left'><b>{escape(type(self).__name__)}"
+                f"</b></caption>{head}</table><details><summary>{len(spec)} parameters"
+                f"</summary><table><tr><th>parameter</th><th>unit</th><th>role</th></tr>"
+                f"{rows}</table></details>")
 
     @abstractmethod
     def parameters(self) -> ParamSpec:
@@ -322,6 +366,10 @@ class MeasurementModel(ABC):
         return {}
 
 
+#: How :meth:`MeasurementModel.sigma_text` shows a sigma: (factor from SI, unit).
+_SIGMA_DISPLAY = {"m": (1e3, "mm"), "rad": (180 / np.pi * 3600, "arcsec")}
+
+
 class BlockWrapper(MeasurementModel):
     """A block built around another (joint-model terms, a shared tool point): it
     measures the inner block's rows, so it has its name and provenance by construction.
@@ -339,6 +387,14 @@ class BlockWrapper(MeasurementModel):
 
     def measurement_sigma(self) -> Array | None:
         return self.inner.measurement_sigma()
+
+    @property
+    def sigma_unit(self) -> str:
+        return self.inner.sigma_unit
+
+    @property
+    def instrument(self) -> str:
+        return self.inner.instrument
 
 
 # --------------------------------------------------------------------------- capabilities

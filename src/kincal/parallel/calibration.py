@@ -136,21 +136,27 @@ class FiveBarCalibration:
             se = self.std_errors.get(n)
             if n not in self.free and n not in self.identifiability.held:
                 continue
-            se_text = f"{se:.3g}" if se is not None else "held"
-            lines.append(
-                f"| {n} | {nominal[n]:.10g} | {self.params[n]:.10g} | {se_text} | {unit[n]} |"
-            )
+            f, shown = _DISPLAY[unit[n]]
+            se_text = f"{se * f:.3g}" if se is not None else "held"
+            lines.append(f"| {n} | {nominal[n] * f:.4f} | {self.params[n] * f:.4f} | {se_text} "
+                         f"| {shown} |")
         messages = self.identifiability.describe()
         if messages:
             lines += ["", "## Not identifiable", ""] + [f"- {m}" for m in messages]
         return "\n".join(lines) + "\n"
 
     def __repr__(self) -> str:
-        est = ", ".join(f"{n}={self.params[n]:.6g}" for n in self.free)
+        unit = dict(zip(res.ALL_NAMES, res.ALL_UNITS, strict=True))
+        est = ", ".join(f"{n}={self.params[n] * _DISPLAY[unit[n]][0]:.4f} "
+                        f"{_DISPLAY[unit[n]][1]}" for n in self.free)
         return (
             f"FiveBarCalibration({self.residual}/{self.method}, converged={self.converged}, "
             f"iterations={self.iterations}, rms={self.rms:.3g}, {est})"
         )
+
+
+#: Shown units of the SI parameters: (factor from SI, unit): lengths in mm, angles in deg.
+_DISPLAY = {"m": (1e3, "mm"), "rad": (180 / np.pi, "deg")}
 
 
 def _check_inputs(q: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -91,7 +91,7 @@ def plot_lengths(block: ArtifactMeasurement, robot: Robot, extra: ArrayLike | No
         ax2.axhline(0.0, color="k", lw=0.8)
         ax2.set_ylabel("angle - 90 [deg]")
         ax2.legend(fontsize=8, loc="best")
-    axes[-1, 0].set_xlabel("placement")
+    axes[-1, 0].set_xlabel("placement (name)")
     axes[-1, 0].set_xticks(range(1, len(places) + 1))
     axes[-1, 0].set_xticklabels(places, fontsize=7, rotation=90 if len(places) > 20 else 0)
     fig.tight_layout()

@@ -305,15 +305,41 @@ def _param_table(result: CalibrationView, truth: Mapping[str, float] | None) -> 
             + "</table>")
 
 
-def _history(result: CalibrationView) -> tuple[Array, list[str], Array, Array]:
-    """Parameter values per iteration (rows), stage names, cost and RMS."""
+def _history(result: CalibrationView
+             ) -> tuple[Array, list[str], Array, Array, list[int] | None]:
+    """Parameter values per iteration (rows), stage names, cost, RMS and the solver's
+    iteration number per row (0 at each pass's start; None when the history has none)."""
     hist = list(result.history or [])
     if not hist:
         theta = np.asarray(result.theta, dtype=float)
-        return theta[None], ["final"], np.array([np.nan]), np.array([np.nan])
+        return theta[None], ["final"], np.array([np.nan]), np.array([np.nan]), None
     H = np.array([np.asarray(h.theta, dtype=float) for h in hist])
+    its: list[int] = [int(i) for h in hist if (i := getattr(h, "iteration", None)) is not None]
     return (H, [str(h.stage) for h in hist], np.array([float(h.cost) for h in hist]),
-            np.array([float(h.rms) for h in hist]))
+            np.array([float(h.rms) for h in hist]), its if len(its) == len(hist) else None)
+
+
+def _passes_sentence(result: CalibrationView) -> str:
+    """`` (2 solver passes: all; all, re-solved with new weights)`` when there are
+    several, for the headline; empty otherwise."""
+    from kincal.report.plots import solver_passes
+
+    H, stages, cost, _, its = _history(result)
+    if its is None or len(stages) < 2:
+        return ""
+    passes = solver_passes(stages, its, cost, H)
+    if len(passes) < 2:
+        return ""
+    what: list[list[Any]] = []                  # [label, repeats], consecutive ones merged
+    for p in passes:
+        label = p.label.split(": ", 1)[1]
+        if what and what[-1][0] == label:
+            what[-1][1] += 1
+        else:
+            what.append([label, 1])
+    return (f" in {len(passes)} solver passes ("
+            + "; then ".join(f"{lab} (x{n})" if n > 1 else lab for lab, n in what)
+            + "; see Convergence)")
 
 
 def render_html(result: CalibrationView, comparisons: Sequence[ErrorComparison], title: str = "",
@@ -337,7 +363,8 @@ def render_html(result: CalibrationView, comparisons: Sequence[ErrorComparison],
     parts = [_head(title, notice)]
     conv = '<span class="ok">converged</span>' if d.get("converged") else \
         '<span class="bad">did not converge</span>'
-    parts.append(f"<p>{conv} after {d.get('iterations')} iterations; "
+    parts.append(f"<p>{conv} after {d.get('iterations')} iterations"
+                 f"{html.escape(_passes_sentence(result))}; "
                  f"{int(est_mask.sum())} parameters estimated; "
                  f"a-posteriori sigma0 = {d.get('sigma0', float('nan')):.3g} (1 = residuals at "
                  "the stated noise).</p>")
@@ -358,18 +385,23 @@ def render_html(result: CalibrationView, comparisons: Sequence[ErrorComparison],
                  "those the data cannot see.</p>")
     parts.append(_param_table(result, truth))
     if plots:
-        H, stages, cost, rms = _history(result)
+        H, stages, cost, rms, its = _history(result)
         if np.all(np.isfinite(cost)):
-            parts.append("<h2>Convergence</h2>" + _img(rp.convergence(cost, rms, stages),
-                                                      "convergence"))
+            parts.append("<h2>Convergence</h2><p class='small'>one segment per solver pass; "
+                         "a dashed line where a pass starts. A re-solve with new weights "
+                         "(the prior weighed by the noise scale sigma0) starts from the last "
+                         "point with another cost: the cost may jump there. The iteration "
+                         "axis ends at the count in the headline.</p>"
+                         + _img(rp.convergence(cost, rms, stages, its, H), "convergence"))
         idx = np.flatnonzero(est_mask)
         parts.append("<h2>Estimated parameters against the iteration</h2><p class='small'>"
-                     "dashed vertical lines: start of a stage; dotted horizontal lines: "
+                     "dashed vertical lines: start of a solver pass; dotted horizontal lines: "
                      "true values (simulations only). A parameter that absorbs a dependent "
                      "one (see above) converges to their combination, not to its own true "
                      "value.</p>")
         for png in rp.parameter_history(H[:, idx], [names[i] for i in idx],
-                                        [units[i] for i in idx], stages, truth):
+                                        [units[i] for i in idx], stages, truth,
+                                        iterations=its):
             parts.append(_img(png, "parameter history"))
         parts.append(_error_plots(comparisons))
         C = result.correlation

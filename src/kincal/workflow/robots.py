@@ -30,7 +30,8 @@ def load_any_robot(spec: str | os.PathLike[str], base_link: str | None = None,
     Args:
         spec: built-in name (``puma560``, ``fivebar``; see ``kincal robots``), a YAML
             robot file or a URDF file.
-        base_link, tip_link: for URDF files, the chain's first and last links.
+        base_link: for URDF files, the chain's first link (None: the URDF's root).
+        tip_link: for URDF files, the chain's last link (None: its single leaf).
 
     Raises:
         KincalError: the file is bad, or its calibration envelope is corrupted or does

@@ -118,6 +118,8 @@ class BearingMeasurement(PointBlock):
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
 
+    SIGMA_UNIT = "rad"
+
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], angles: ArrayLike,
                  sigma: ArrayLike, marker: str = "own") -> None:
         N = self._init_rows("bearing", name, q, angles, 2, "angles", sigma, marker)

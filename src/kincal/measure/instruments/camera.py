@@ -131,6 +131,8 @@ class CameraMeasurement(PointBlock):
         marker: ``"own"`` or ``"tool"`` (see :mod:`.common`).
     """
 
+    SIGMA_UNIT = "px"
+
     row_fields = PointBlock.row_fields + ("K",)
 
     def __init__(self, name: str, q: ArrayLike, station: Sequence[str], uv: ArrayLike,
@@ -179,6 +181,8 @@ class HandCameraMeasurement(MeasurementModel):
         sigma: standard deviation of each coordinate [px], scalar or (N,).
         intrinsics: ``(fx, fy, cx, cy)`` [px] of the camera (the robot's tool frame).
     """
+
+    SIGMA_UNIT = "px"
 
     def __init__(self, name: str, q: ArrayLike, target_points: ArrayLike, uv: ArrayLike,
                  sigma: ArrayLike, intrinsics: Sequence[float]) -> None:

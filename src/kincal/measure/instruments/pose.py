@@ -368,11 +368,15 @@ def simulate_poses(true_robot: Robot, q: ArrayLike, rng: np.random.Generator,
     per component [rad].
 
     Args:
-        instrument, target: ``(x, y, z, rz, ry, rx)`` [m, rad]
+        instrument: the instrument frame ``(x, y, z, rz, ry, rx)`` [m, rad]
             (:data:`kincal.spatial.FRAME_FIELDS`, the order of the estimated block
             parameters); default identity.
-        sigma_position, sigma_orientation: stated standard deviations; default the
+        target: the measured frame on the tool, ``(x, y, z, rz, ry, rx)`` [m, rad];
+            default identity.
+        sigma_position: stated standard deviation of the positions [m]; default the
             noise (or 1e-5 when the noise is 0).
+        sigma_orientation: stated standard deviation of the orientations [rad]; default
+            the noise (or 1e-5 when the noise is 0).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     TI = instrument_matrix(instrument)
