@@ -47,5 +47,5 @@ kincal fleet history R-00005 --db history.db
 kincal fleet export --db history.db -o history.csv --parameters parameters.csv \
     --out-dir calibrated/
 ls calibrated
-cut -d, -f2- parameters.csv | head -n 3    # (the id column: the order records arrived)
+head -n 3 parameters.csv | cut -d, -f2-    # (not the id column: the order records arrived)
 # --8<-- [end:export]
