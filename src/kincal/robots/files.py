@@ -162,7 +162,7 @@ def _frame(r: FieldReader, data: Mapping[str, Any], key: str, ls: float, as_: fl
 
 def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str, Any]:
     meta: dict[str, Any] = {"convention": convention}
-    for key in ("description", "source", "notes"):
+    for key in ("vendor", "description", "source", "notes"):
         if key in data and data[key] is not None:
             meta[key] = str(data[key]).strip()
     tol = _tolerances(r, data)
@@ -452,7 +452,7 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
     """
     conv = "ets" if as_ets else robot.meta.get("convention", "ets")
     doc: dict[str, Any] = {"name": robot.name}
-    for key in ("description", "source", "notes"):
+    for key in ("vendor", "description", "source", "notes"):
         if key in robot.meta:
             doc[key] = robot.meta[key]
     doc["units"] = {"length": "m", "angle": "rad"}

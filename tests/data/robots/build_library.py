@@ -1,0 +1,147 @@
+"""Write the built-in robot files that come from ROS-Industrial URDFs (run by hand).
+
+    PYTHONPATH=src python tests/data/robots/build_library.py
+
+Reads ``ros_industrial_urdfs.yaml`` (the numbers copied from the vendors' ROS-Industrial
+xacro macros, with repository, path and commit) and writes
+``src/kincal/robots/library/<name>.yaml`` as an ``ets`` chain with the URDF's own numbers
+(lengths in m as in the URDF, angles in deg), the vendor's axis names and the controller's
+joint map.  The chain's parameters are those kincal gives a URDF (``kincal.robots.urdf``).
+tests/test_robot_library.py checks every written file against the fixture with numpy.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+from kincal.robots.files import robot_to_dict
+from kincal.robots.urdf import load_urdf
+
+HERE = Path(__file__).parent
+LIB = HERE.parents[2] / "src" / "kincal" / "robots" / "library"
+
+AXES = {"kuka": ["A1", "A2", "A3", "A4", "A5", "A6"],
+        "abb": ["rax_1", "rax_2", "rax_3", "rax_4", "rax_5", "rax_6"],
+        "fanuc": ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"]}
+
+INFO = {
+    "kr10r1100sixx": ("kuka", "KUKA", "KUKA KR 10 R1100 sixx (KR AGILUS), 6R industrial arm"),
+    "kr16_2": ("kuka", "KUKA", "KUKA KR 16-2 (KR C2/KR C4), 6R industrial arm"),
+    "kr210r2700": ("kuka", "KUKA", "KUKA KR 210 R2700 extra (KR QUANTEC), 6R industrial arm"),
+    "irb1200": ("abb", "ABB", "ABB IRB 1200-7/0.7, 6R industrial arm"),
+    "irb1600": ("abb", "ABB", "ABB IRB 1600-6/1.2, 6R industrial arm"),
+    "irb2400": ("abb", "ABB", "ABB IRB 2400 (IRB 2400/10, /16), 6R industrial arm"),
+    "irb4600": ("abb", "ABB", "ABB IRB 4600-60/2.05, 6R industrial arm"),
+    "irb6700": ("abb", "ABB", "ABB IRB 6700-200/2.60, 6R industrial arm"),
+    "gofa5": ("abb", "ABB", "ABB GoFa CRB 15000-5/0.95, 6R collaborative arm (wrist offset)"),
+    "lrmate200id": ("fanuc", "FANUC", "FANUC LR Mate 200iD, 6R industrial arm"),
+    "m20ia": ("fanuc", "FANUC", "FANUC M-20iA, 6R industrial arm"),
+    "r2000ic165f": ("fanuc", "FANUC", "FANUC R-2000iC/165F, 6R industrial arm"),
+}
+
+NOTES = {
+    "kuka": ("Joint variables, zero positions and directions are KUKA's A1 ... A6 (E6AXIS, deg): "
+             "A1, A4 and A6 turn about -z, -x, -x of the base at q = 0, as in the URDF. q = 0 is "
+             "the arm stretched forward and horizontal (KUKA's HOME is A2 = -90, A3 = +90). The "
+             "tool frame ry = 90 deg makes the end frame KUKA's $FLANGE (ROS-Industrial's tool0); "
+             "frame 0 is $ROBROOT."),
+    "abb": ("Joint variables and directions are ABB's (rax_1 ... rax_6 of a RAPID jointtarget, "
+            "deg): q = 0 is the calibration position (upper arm vertical, forearm horizontal). "
+            "The tool frame ry = 90 deg makes the end frame ABB's tool0 (z out of the flange, "
+            "x down at q = 0); frame 0 is the base frame on the mounting surface."),
+    "fanuc": ("Model joints are the URDF's joint_1 ... joint_6; the controller's J1 ... J6 (deg) "
+              "map to them with FANUC's J2/J3 interaction: joint_3 = J2 + J3 (J3 is the "
+              "forearm's angle to the horizontal, the URDF's joint_3 its angle to the upper "
+              "arm), the other joints are the axes. At J = 0 the upper arm is vertical, the "
+              "forearm horizontal and the faceplate faces forward with W, P, R = 180, -90, 0. "
+              "The base frame puts FANUC's world frame at the height of J2, as the controller "
+              "does (ROS-Industrial's `base`); the end frame is the faceplate (tool 0)."),
+}
+
+
+def _limit_deg(v: float, unit: str) -> float:
+    if unit == "deg":
+        return float(v)
+    d = math.degrees(v)
+    # The URDF writes the datasheet's degrees as radians to 3-4 decimals: give the whole degree
+    # when it is within that rounding, else the converted value to 0.01 deg.
+    return float(round(d)) if abs(d - round(d)) < 0.03 else round(d, 2)
+
+
+def _urdf_text(spec: dict, names: list[str]) -> str:
+    links = ["base_link"] + [f"link_{i}" for i in range(1, 7)]
+    out = ['<robot name="r">'] + [f'<link name="{n}"/>' for n in links]
+    for i, (xyz, ax) in enumerate(zip(spec["xyz"], spec["axis"], strict=True)):
+        out.append(f'<joint name="{names[i]}" type="revolute">'
+                   f'<origin xyz="{" ".join(map(repr, map(float, xyz)))}" rpy="0 0 0"/>'
+                   f'<parent link="{links[i]}"/><child link="{links[i + 1]}"/>'
+                   f'<axis xyz="{" ".join(map(str, ax))}"/>'
+                   '<limit lower="-1" upper="1" effort="0" velocity="1"/></joint>')
+    return "\n".join(out + ["</robot>"])
+
+
+def build(name: str, spec: dict) -> str:
+    key, vendor, desc = INFO[name]
+    names = AXES[key]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "r.urdf"
+        path.write_text(_urdf_text(spec, names), encoding="utf-8")
+        doc = robot_to_dict(load_urdf(path), as_ets=True)
+    chain = []
+    for row in doc["chain"]:
+        row = dict(row)
+        if row["transform"].startswith("R"):
+            row["value"] = math.degrees(row["value"])
+        chain.append(row)
+    joints = [{"name": n, "type": "revolute",
+               "limits": [_limit_deg(lo, spec["limit_unit"]), _limit_deg(hi, spec["limit_unit"])]}
+              for n, (lo, hi) in zip(names, spec["limits"], strict=True)]
+    base = spec.get("base") or {"xyz": [0, 0, 0]}
+    t0 = spec["tool0"]
+    rpy = t0["rpy"] if not (key == "abb" and t0["rpy"] == [0, 0, 0]) else [0, 90, 0]
+    src = (f"ROS-Industrial {spec['repo']}, {spec['path']} (commit {spec['commit'][:12]}): "
+           "joint origins, axes and limits of joint_1 ... joint_6, the link_6 -> tool0 "
+           "transform" + (" and the base_link -> base offset (FANUC's world frame at J2)"
+                          if key == "fanuc" else "") + ". Lengths are the URDF's, in m.")
+    if spec["limit_unit"] == "rad":
+        src += (" The URDF gives the limits in rad to a few decimals; they are written here in "
+                "deg, as the whole degree they round.")
+    if key == "abb" and t0["rpy"] == [0, 0, 0]:
+        src += (" This URDF leaves tool0 = link_6; the tool frame ry = 90 deg is ABB's tool0, as "
+                "in the other ROS-Industrial ABB URDFs.")
+    out = {
+        "name": name, "vendor": vendor, "description": desc, "source": src,
+        "notes": NOTES[key],
+        "units": {"length": "m", "angle": "deg"}, "convention": "ets",
+        "base": {"x": 0, "y": 0, "z": -float(base["xyz"][2]), "rx": 0, "ry": 0, "rz": 0},
+        "tool": {"x": float(t0["xyz"][0]), "y": float(t0["xyz"][1]), "z": float(t0["xyz"][2]),
+                 "rx": float(rpy[0]), "ry": float(rpy[1]), "rz": float(rpy[2])},
+        "joints": joints, "chain": chain,
+    }
+    if key == "fanuc":
+        out["controller"] = {"vendor": "fanuc", "axes": ["J1", "J2", "J3", "J4", "J5", "J6"],
+                             "unit": "deg",
+                             "joints": {"joint_1": {"J1": 1}, "joint_2": {"J2": 1},
+                                        "joint_3": {"J2": 1, "J3": 1}, "joint_4": {"J4": 1},
+                                        "joint_5": {"J5": 1}, "joint_6": {"J6": 1}}}
+    else:
+        out["controller"] = {"vendor": key, "axes": names, "unit": "deg"}
+    text = yaml.safe_dump(out, sort_keys=False, width=100, default_flow_style=None)
+    return "# Generated by tests/data/robots/build_library.py from the URDF numbers below.\n" + text
+
+
+def main() -> int:
+    fixture = yaml.safe_load((HERE / "ros_industrial_urdfs.yaml").read_text(encoding="utf-8"))
+    for name, spec in fixture.items():
+        (LIB / f"{name}.yaml").write_text(build(name, spec), encoding="utf-8")
+        print("wrote", name)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
