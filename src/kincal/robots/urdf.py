@@ -247,9 +247,8 @@ class UrdfModel:
             elif len(moving) == 1:
                 tip = moving[0]     # the others are static frames (ROS-Industrial's ``base``)
             else:
-                raise self.fail(f"link {base!r} has {len(moving) or len(leaves)} leaf links "
-                                f"below it ({_listing(moving or leaves)}); choose the tip "
-                                "with --tip-link")
+                raise self.fail(f"link {base!r} has {len(leaves)} leaf links below it "
+                                f"({_listing(leaves)}); choose the tip with --tip-link")
         else:
             tip = self._known_link(tip_link, "tip link")
         path: list[UrdfJoint] = []
