@@ -1,0 +1,241 @@
+"""The industrial robots of the built-in library, checked against what their vendors publish.
+
+* Each robot built from a ROS-Industrial URDF equals that URDF: the joint origins, axes and
+  limits were copied by hand into tests/data/robots/ros_industrial_urdfs.yaml (repository,
+  path and commit named there) and their forward kinematics is computed here with numpy
+  (Rodrigues), not with kincal's URDF loader: 1e-6 mm, since the numbers are the same.
+* The controller's conventions, as the vendors document them: KUKA's HOME (A2 = -90, A3 = +90)
+  puts $FLANGE at A 0, B 90, C 0; ABB's calibration position puts tool0 at the quaternion
+  [0.70711, 0, 0.70711, 0]; FANUC's J = 0 puts the faceplate at W, P, R = 180, -90, 0, and
+  FANUC's J2/J3 interaction keeps the forearm's attitude when J2 alone moves.
+* The maximum reach in each datasheet / model name (KR 10 R1100: 1101 mm, ...) equals the
+  stretched arm of the URDF's numbers, to the datasheet's rounding.
+* A URDF whose tree has ROS-Industrial's extra ``base`` leaf loads without ``--tip-link``.
+* The joint map (controller axes <-> model joints): round trips, FANUC's coupling, a zero
+  moved by calibration said in controller units.
+* ``kincal robots --vendor`` lists each vendor's robots with their sources.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from kincal.cli import app
+from kincal.errors import RobotFileError
+from kincal.robots.controller import controller_map
+from kincal.robots.files import library_names, load_serial_robot
+from kincal.robots.urdf import load_urdf
+
+DATA = Path(__file__).parent / "data" / "robots"
+FIXTURE = yaml.safe_load((DATA / "ros_industrial_urdfs.yaml").read_text(encoding="utf-8"))
+NAMES = sorted(FIXTURE)
+TOL_M = 1e-9            # 1e-6 mm: same numbers, only a different front end
+TOL_R = 1e-9            # rotation matrix entries
+# ABB's tool0 is link_6 turned by ry = 90 deg (z out of the flange); the older IRB 2400 URDF
+# leaves tool0 = link_6, so the comparison turns it as ABB defines tool0.
+TOOL0_ABB = {"irb2400": (0.0, 90.0, 0.0)}
+
+
+def _rng(name: str) -> np.random.Generator:
+    return np.random.default_rng(zlib.crc32(name.encode()))
+
+
+def _rot(axis, angle) -> np.ndarray:
+    """Rodrigues: rotation about the unit ``axis`` by ``angle`` [rad], (N, 3, 3)."""
+    k = np.asarray(axis, float)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def _rpy(r, p, y) -> np.ndarray:
+    """URDF rpy [rad]: Rz(y) Ry(p) Rx(r)."""
+    one = np.ones(1)
+    return (_rot((0, 0, 1), y * one) @ _rot((0, 1, 0), p * one) @ _rot((1, 0, 0), r * one))[0]
+
+
+def _hom(R, p) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, p
+    return T
+
+
+def urdf_fk(spec: dict, q: np.ndarray, tool_rpy_deg=None) -> np.ndarray:
+    """base -> tool0 of the fixture's URDF at URDF joint values ``q`` [rad], (N, 4, 4)."""
+    n = q.shape[0]
+    base = spec.get("base") or {"xyz": [0, 0, 0], "rpy": [0, 0, 0]}
+    B = _hom(_rpy(*np.radians(base["rpy"])), base["xyz"])
+    T = np.broadcast_to(np.linalg.inv(B), (n, 4, 4)).copy()
+    for i, (xyz, ax) in enumerate(zip(spec["xyz"], spec["axis"], strict=True)):
+        A = np.zeros((n, 4, 4))
+        A[:, :3, :3] = _rot(ax, q[:, i])
+        A[:, :3, 3] = xyz
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    rpy = spec["tool0"]["rpy"] if tool_rpy_deg is None else tool_rpy_deg
+    return T @ _hom(_rpy(*np.radians(rpy)), spec["tool0"]["xyz"])
+
+
+def urdf_limits(spec: dict) -> np.ndarray:
+    lim = np.asarray(spec["limits"], float)
+    return np.radians(lim) if spec["limit_unit"] == "deg" else lim
+
+
+def test_every_fixture_robot_is_built_in():
+    assert set(NAMES) <= set(library_names())
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_library_robot_equals_its_urdf(name):
+    spec = FIXTURE[name]
+    robot = load_serial_robot(name)
+    lim = urdf_limits(spec)
+    # Limits: the URDF's own where it writes degrees; its 3-4 decimal radians otherwise.
+    tol = 1e-12 if spec["limit_unit"] == "deg" else 6e-4
+    np.testing.assert_allclose(robot.joint_limits, lim, rtol=0, atol=tol)
+    q = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * _rng(name).random((25, 6))
+    q = np.vstack([np.zeros(6), q])
+    ours = robot.fk(q)
+    ref = urdf_fk(spec, q, TOOL0_ABB.get(name))
+    assert np.max(np.abs(ours[:, :3, 3] - ref[:, :3, 3])) <= TOL_M
+    assert np.max(np.abs(ours[:, :3, :3] - ref[:, :3, :3])) <= TOL_R
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_file_names_its_source(name):
+    spec = FIXTURE[name]
+    robot = load_serial_robot(name)
+    src = robot.meta["source"]
+    assert spec["repo"] in src and spec["path"] in src and spec["commit"][:12] in src
+    assert robot.meta["vendor"] in ("KUKA", "ABB", "FANUC")
+
+
+# --------------------------------------------------------------------------- vendor conventions
+def _R(name, axes_deg) -> np.ndarray:
+    robot = load_serial_robot(name)
+    q = controller_map(robot).to_model(np.asarray(axes_deg, float))
+    return robot.fk(q)
+
+
+KUKA = [n for n in NAMES if n.startswith("kr")]
+ABB = [n for n in NAMES if FIXTURE[n]["repo"].startswith("ros-industrial/abb")]
+FANUC = [n for n in NAMES if FIXTURE[n]["coupling"] == "fanuc_j2_j3"]
+
+
+@pytest.mark.parametrize("name", KUKA)
+def test_kuka_home_flange_is_a0_b90_c0(name):
+    # KUKA's HOME {A1 0, A2 -90, A3 90, A4 0, A5 0, A6 0}: $FLANGE at A 0, B 90, C 0 (ZYX Euler)
+    # = Ry(90): x down, z forward.
+    T = _R(name, [0, -90, 90, 0, 0, 0])
+    np.testing.assert_allclose(T[:3, :3], _rpy(0, math.pi / 2, 0), atol=1e-12)
+    assert T[0, 3] > 0.3 and T[2, 3] > 0.3          # in front of and above $ROBROOT
+
+
+@pytest.mark.parametrize("name", ABB)
+def test_abb_calibration_position_tool0_quaternion(name):
+    # ABB: at the calibration position (all axes 0) tool0 has the orientation
+    # [q1, q2, q3, q4] = [0.707107, 0, 0.707107, 0] (z forward, x down).
+    T = _R(name, np.zeros(6))
+    w, x, y, z = math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    np.testing.assert_allclose(T[:3, :3], R, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", FANUC)
+def test_fanuc_zero_pose_and_j2_j3_interaction(name):
+    # FANUC: at J = 0 the faceplate has W, P, R = 180, -90, 0 (x up, z forward) ...
+    wpr = _rpy(math.pi, -math.pi / 2, 0)
+    T0 = _R(name, np.zeros(6))
+    np.testing.assert_allclose(T0[:3, :3], wpr, atol=1e-12)
+    # ... and J3 is the forearm's angle to the horizontal: moving J2 alone tilts the upper arm
+    # but keeps the forearm (and, with J4 = J5 = J6 = 0, the faceplate) in the same attitude,
+    # so the faceplate moves by the upper arm's chord only.
+    spec = FIXTURE[name]
+    upper = spec["xyz"][2][2]
+    for j2 in (-30.0, 20.0, 45.0):
+        T = _R(name, [0, j2, 0, 0, 0, 0])
+        np.testing.assert_allclose(T[:3, :3], wpr, atol=1e-12)
+        t = math.radians(j2)
+        np.testing.assert_allclose(T[:3, 3] - T0[:3, 3],
+                                   [upper * math.sin(t), 0, upper * (math.cos(t) - 1)],
+                                   atol=1e-12)
+
+
+# Maximum reach (to the wrist centre, arm stretched) from the datasheets / model names [m] and
+# the rounding they are given to (whole mm, or the model name's 0.01 m).  This checks the
+# fixture's numbers against the datasheet; test_library_robot_equals_its_urdf ties the library
+# robots to the fixture.
+REACH = {"kr10r1100sixx": (1.101, 0.001), "kr16_2": (1.611, 0.001),
+         "kr210r2700": (2.701, 0.001), "irb1200": (0.703, 0.001),
+         "irb4600": (2.05, 0.005), "irb6700": (2.60, 0.005), "lrmate200id": (0.717, 0.001),
+         "m20ia": (1.811, 0.001)}
+
+
+@pytest.mark.parametrize("name", sorted(REACH))
+def test_datasheet_reach(name):
+    spec = FIXTURE[name]
+    x = np.asarray(spec["xyz"], float)
+    shoulder = math.hypot(x[1][0], x[1][1])                 # J1 axis -> J2 axis
+    upper = np.linalg.norm(x[2])                            # J2 -> J3
+    forearm = np.linalg.norm(x[3] + x[4])                   # J3 -> wrist centre (J5)
+    want, rounding = REACH[name]
+    assert abs(shoulder + upper + forearm - want) <= rounding + 1e-9
+
+
+# --------------------------------------------------------------------------- URDF leaf rule
+def _urdf(tmp_path, joints: list[tuple[str, str, str, str]]) -> Path:
+    """A URDF of (name, type, parent, child) joints, each 0.1 m along x, turning about z."""
+    links = sorted({p for _, _, p, _ in joints} | {c for _, _, _, c in joints})
+    rows = [f'<link name="{n}"/>' for n in links]
+    for name, kind, parent, child in joints:
+        lim = '<limit lower="-3" upper="3" effort="0" velocity="1"/>' if kind != "fixed" else ""
+        rows.append(f'<joint name="{name}" type="{kind}"><origin xyz="0.1 0 0" rpy="0 0 0"/>'
+                    f'<parent link="{parent}"/><child link="{child}"/><axis xyz="0 0 1"/>'
+                    f'{lim}</joint>')
+    path = tmp_path / "r.urdf"
+    path.write_text('<robot name="r">' + "".join(rows) + "</robot>", encoding="utf-8")
+    return path
+
+
+ARM = [("j1", "revolute", "base_link", "link_1"), ("j2", "revolute", "link_1", "link_2"),
+       ("t0", "fixed", "link_2", "tool0")]
+
+
+def test_ros_industrial_base_leaf_is_not_the_tip(tmp_path):
+    # ROS-Industrial: base_link -> base (fixed) beside the arm: two leaves, one static.
+    path = _urdf(tmp_path, ARM + [("b", "fixed", "base_link", "base")])
+    robot = load_urdf(path)
+    assert robot.meta["tip_link"] == "tool0" and robot.n == 2
+    # Three links in the frame: 0.1 (j1) + 0.1 (j2) + 0.1 (tool0) along x at q = 0.
+    np.testing.assert_allclose(robot.fk(np.zeros(2))[:3, 3], [0.3, 0, 0], atol=1e-15)
+
+
+def test_static_leaves_below_the_root_through_fixed_chains(tmp_path):
+    # A fixed chain of two links off the root (a pedestal marker) is still static.
+    path = _urdf(tmp_path, ARM + [("b", "fixed", "base_link", "base"),
+                                  ("m", "fixed", "base", "marker")])
+    assert load_urdf(path).meta["tip_link"] == "tool0"
+
+
+def test_two_moving_leaves_still_ask_for_the_tip(tmp_path):
+    path = _urdf(tmp_path, ARM + [("b", "fixed", "base_link", "base"),
+                                  ("g", "prismatic", "link_2", "finger")])
+    with pytest.raises(RobotFileError, match="choose the tip with --tip-link"):
+        load_urdf(path)
+    assert load_urdf(path, tip_link="tool0").n == 2
+
+
+def test_a_tree_of_fixed_joints_only_is_refused(tmp_path):
+    path = _urdf(tmp_path, [("a", "fixed", "base_link", "x"), ("b", "fixed", "base_link", "y")])
+    with pytest.raises(RobotFileError, match="leaf links"):
+        load_urdf(path)
