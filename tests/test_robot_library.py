@@ -239,3 +239,29 @@ def test_a_tree_of_fixed_joints_only_is_refused(tmp_path):
     path = _urdf(tmp_path, [("a", "fixed", "base_link", "x"), ("b", "fixed", "base_link", "y")])
     with pytest.raises(RobotFileError, match="leaf links"):
         load_urdf(path)
+
+
+# --------------------------------------------------------------------------- kincal robots
+def test_cli_robots_by_vendor_lists_sources(tmp_path):
+    out = tmp_path / "kuka.json"
+    res = CliRunner().invoke(app, ["robots", "--vendor", "KuKa", "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = json.loads(out.read_text())["robots"]
+    assert {r["name"] for r in rows} == {"kr6", "kr10r1100sixx", "kr16_2", "kr210r2700"}
+    assert all(r["vendor"] == "KUKA" and r["source"] for r in rows)
+    assert any("kuka_kr16_support/urdf/kr16_2_macro.xacro" in r["source"] for r in rows)
+
+
+def test_cli_robots_search_term(tmp_path):
+    out = tmp_path / "r.json"
+    res = CliRunner().invoke(app, ["robots", "collaborative", "--vendor", "abb",
+                                   "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    assert [r["name"] for r in json.loads(out.read_text())["robots"]] == ["gofa5"]
+
+
+def test_cli_robots_unknown_vendor_is_one_line_exit_2():
+    res = CliRunner().invoke(app, ["robots", "--vendor", "kawasaki"])
+    assert res.exit_code == 2
+    assert "no built-in robot matches vendor 'kawasaki'" in res.output
+    assert "KUKA" in res.output

@@ -104,7 +104,7 @@ def build(name: str, spec: dict) -> str:
     base = spec.get("base") or {"xyz": [0, 0, 0]}
     t0 = spec["tool0"]
     rpy = t0["rpy"] if not (key == "abb" and t0["rpy"] == [0, 0, 0]) else [0, 90, 0]
-    src = (f"ROS-Industrial {spec['repo']}, {spec['path']} (commit {spec['commit'][:12]}): "
+    src = (f"ROS-Industrial URDF {spec['repo']} {spec['path']}, commit {spec['commit'][:12]}: "
            "joint origins, axes and limits of joint_1 ... joint_6, the link_6 -> tool0 "
            "transform" + (" and the base_link -> base offset (FANUC's world frame at J2)"
                           if key == "fanuc" else "") + ". Lengths are the URDF's, in m.")
