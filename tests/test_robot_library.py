@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from cli_helpers import run
 from typer.testing import CliRunner
 
 from kincal.cli import app
@@ -260,8 +261,8 @@ def test_cli_robots_search_term(tmp_path):
     assert [r["name"] for r in json.loads(out.read_text())["robots"]] == ["gofa5"]
 
 
-def test_cli_robots_unknown_vendor_is_one_line_exit_2():
-    res = CliRunner().invoke(app, ["robots", "--vendor", "kawasaki"])
-    assert res.exit_code == 2
-    assert "no built-in robot matches vendor 'kawasaki'" in res.output
-    assert "KUKA" in res.output
+def test_cli_robots_unknown_vendor_is_one_line_exit_2(capsys):
+    code, out, err = run(capsys, "robots", "--vendor", "kawasaki")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "no built-in robot matches vendor 'kawasaki'" in err
+    assert "KUKA" in err
