@@ -31,8 +31,8 @@ from typer.testing import CliRunner
 
 from kincal.cli import app
 from kincal.errors import RobotFileError
-from kincal.robots.controller import controller_map
-from kincal.robots.files import library_names, load_serial_robot
+from kincal.robots.controller import axis_zero_shifts, controller_map
+from kincal.robots.files import library_dir, library_names, load_serial_robot
 from kincal.robots.urdf import load_urdf
 
 DATA = Path(__file__).parent / "data" / "robots"
@@ -266,3 +266,129 @@ def test_cli_robots_unknown_vendor_is_one_line_exit_2(capsys):
     assert code == 2 and out == ""
     assert err.count("\n") == 1 and "no built-in robot matches vendor 'kawasaki'" in err
     assert "KUKA" in err
+
+
+# --------------------------------------------------------------------------- the joint map
+WITH_MAP = [n for n in library_names()
+            if isinstance(yaml.safe_load((library_dir() / f"{n}.yaml").read_text(
+                encoding="utf-8")).get("controller"), dict)]
+
+
+@pytest.mark.parametrize("name", WITH_MAP)
+def test_joint_map_round_trip(name):
+    robot = load_serial_robot(name)
+    cmap = controller_map(robot)
+    rng = _rng(name + " map")
+    q = rng.uniform(-2.5, 2.5, (20, robot.n))
+    np.testing.assert_allclose(cmap.to_model(cmap.to_axes(q)), q, rtol=0, atol=1e-12)
+    a = q / cmap.scale
+    np.testing.assert_allclose(cmap.to_axes(cmap.to_model(a)), a, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", FANUC + ["m10ia"])
+def test_fanuc_map_is_the_documented_coupling(name):
+    # ROS-Industrial's fanuc driver: joint_3 = J2 + J3, every other joint its axis (the
+    # m10ia DH model turns J3, J4, J5, J6 the other way: q3 = -(J2 + J3)).
+    cmap = controller_map(load_serial_robot(name))
+    J = np.array([10.0, 20.0, -35.0, 40.0, -50.0, 60.0])
+    q = np.degrees(cmap.to_model(J))
+    sign = -1.0 if name == "m10ia" else 1.0
+    np.testing.assert_allclose(q, [10, 20, sign * (20 - 35), sign * 40, sign * -50, sign * 60],
+                               atol=1e-12)
+
+
+def _mapped_robot(tmp_path, controller: dict, key: str = "controller") -> Path:
+    doc = {"name": "servo_arm", "units": {"length": "m", "angle": "deg"},
+           "convention": "standard_dh",
+           "joints": [{"name": "shoulder", "type": "revolute", "a": 0.1, "d": 0, "alpha": 0},
+                      {"name": "elbow", "type": "revolute", "a": 0.1, "d": 0, "alpha": 0}],
+           key: controller}
+    path = tmp_path / "servo_arm.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+def test_counts_sign_offset_and_gear_ratio(tmp_path):
+    # A hobby-servo arm read as encoder counts (4096 a turn): the shoulder servo turns the
+    # other way and reads 2048 at the model's zero; the elbow is driven through a 2:1 belt.
+    path = _mapped_robot(tmp_path, {"axes": ["m1", "m2"], "unit": "counts",
+                                    "counts_per_turn": 4096,
+                                    "joints": {"shoulder": {"m1": -1}, "elbow": {"m2": 0.5}},
+                                    "offsets": {"shoulder": 2048}}, key="joint_map")
+    cmap = controller_map(load_serial_robot(path))
+    q = cmap.to_model(np.array([[2048, 0], [3072, 1024], [1024, -2048]]))
+    np.testing.assert_allclose(q, [[0, 0], [-math.pi / 2, math.pi / 4],
+                                   [math.pi / 2, -math.pi / 2]], atol=1e-15)
+    np.testing.assert_allclose(cmap.to_axes(q), [[2048, 0], [3072, 1024], [1024, -2048]],
+                               atol=1e-9)
+
+
+@pytest.mark.parametrize("bad, words", [
+    ({"axes": ["m1", "m2"], "unit": "counts"}, "controller.counts_per_turn"),
+    ({"axes": ["m1", "m2"], "unit": "counts", "counts_per_turn": 0}, "positive"),
+    ({"axes": ["m1", "m2"], "unit": "deg", "counts_per_turn": 4096}, "only allowed"),
+    ({"axes": ["m1", "m2"], "unit": "grad"}, "deg, rad or counts"),
+])
+def test_bad_joint_map_is_one_line(tmp_path, bad, words):
+    with pytest.raises(RobotFileError, match=words) as info:
+        controller_map(load_serial_robot(_mapped_robot(tmp_path, bad)))
+    assert "\n" not in str(info.value)
+
+
+def test_controller_and_joint_map_together_are_refused(tmp_path):
+    path = _mapped_robot(tmp_path, {"axes": ["m1", "m2"]})
+    doc = yaml.safe_load(path.read_text())
+    doc["joint_map"] = doc["controller"]
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(RobotFileError, match="joint_map"):
+        load_serial_robot(path)
+
+
+@pytest.mark.parametrize("name, moved", [("lrmate200id", {"joint_2.offset": 0.01}),
+                                         ("lrmate200id", {"joint_3.offset": -0.02}),
+                                         ("kr10r1100sixx", {"A1.offset": 0.003}),
+                                         ("m10ia", {"theta_offset[3]": 0.004})])
+def test_zero_shift_in_controller_units(name, moved):
+    nominal = load_serial_robot(name)
+    names = [n for n in nominal.param_names if "offset" in n]
+    assert set(moved) <= set(names), names
+    cal = nominal.with_params({k: nominal.params()[k] + v for k, v in moved.items()})
+    shifts = axis_zero_shifts(nominal, cal)
+    cmap = controller_map(nominal)
+    da = np.zeros(nominal.n)
+    for z in shifts:
+        da[list(cmap.axes).index(z.axis)] = z.shift
+        assert z.unit == "deg" and "in controller units" in z.line()
+    # The calibrated arm at controller values a is where the nominal model is at a + da.
+    a = _rng(name).uniform(-40, 40, (10, nominal.n))
+    np.testing.assert_allclose(cal.fk(cmap.to_model(a)), nominal.fk(cmap.to_model(a + da)),
+                               atol=1e-12)
+    if moved == {"joint_2.offset": 0.01}:
+        # FANUC: J2's zero moved by +0.573 deg; J3 (against the horizontal) by the opposite.
+        assert [(z.axis, round(z.shift, 3)) for z in shifts] == [("J2", 0.573), ("J3", -0.573)]
+        assert shifts[0].line() == "J2 zero: +0.573 deg in controller units"
+    if name == "kr10r1100sixx":     # A1 turns about -z: its zero moves the other way
+        assert [(z.axis, round(z.shift, 4)) for z in shifts] == [("A1", -0.1719)]
+    if name == "m10ia":             # q3 = -(J2 + J3): J3 alone, the other way
+        assert [(z.axis, round(z.shift, 4)) for z in shifts] == [("J3", -0.2292)]
+
+
+def test_calibrate_says_zero_shifts_in_controller_units(tmp_path, capsys):
+    train, truth, cal, res = (tmp_path / f for f in ("t.csv", "truth.yaml", "cal.yaml", "r.json"))
+    code, _, err = run(capsys, "simulate", "lrmate200id", "-o", train, "--truth", truth,
+                       "--poses", "60", "--noise", "0.01mm", "--seed", "5")
+    assert code == 0, err
+    code, out, err = run(capsys, "calibrate", "lrmate200id", "--data", train, "-o", cal,
+                         "--json", res, "--stages", "offsets,all")
+    assert code == 0, err
+    shifts = json.loads(res.read_text())["controller_zero_shifts"]
+    # Independently of the joint map code: the offsets in the two files, joint_3 turning
+    # about -y (scale -1), J3 = joint_3 - J2.
+    nom = load_serial_robot("lrmate200id").params()
+    new = load_serial_robot(cal).params()
+    d2 = math.degrees(new["joint_2.offset"] - nom["joint_2.offset"])
+    d3 = -math.degrees(new["joint_3.offset"] - nom["joint_3.offset"])
+    got = {s["axis"]: s["shift"] for s in shifts}
+    assert abs(d2) > 1e-3 and got["J2"] == pytest.approx(d2, abs=1e-9)
+    assert got["J3"] == pytest.approx(d3 - d2, abs=1e-9)
+    assert f"J3 zero: {got['J3']:+.3f} deg in controller units" in out

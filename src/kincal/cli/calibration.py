@@ -65,6 +65,7 @@ from kincal.cli.setupfile import (
 from kincal.defaults import max_iter_for
 from kincal.errors import CheckFailedError, KincalError
 from kincal.io import check_outputs
+from kincal.robots.controller import calibration_zero_shifts
 from kincal.workflow.session import joint_masses
 
 if TYPE_CHECKING:                 # types only: the workflow loads lazily (start-up time)
@@ -315,9 +316,13 @@ def calibrate_cmd(
         loss=loss, stages=stages, validation_frames=validation_frames, free=free, fix=fix,
         prior=prior, terms=terms, folds=folds if auto else None,
         condition_growth=condition_growth, cycles=cycles, tolerance=tolerance)
+    shifts = calibration_zero_shifts(r, flow.result.robot)
     written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
-                            {"seconds": flow.seconds}, force=force)
+                            {"seconds": flow.seconds, "controller_zero_shifts":
+                             [z.to_dict() for z in shifts]}, force=force)
     _print_calibration(out, flow, terms, prior, all_parameters)
+    for z in shifts:
+        out.print(escape(z.line()))
     for k, v in written.items():
         out.print(f"{k}: {escape(v)}")
     if flow.verdict is not None and not flow.trusted:

@@ -168,8 +168,11 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
     tol = _tolerances(r, data)
     if tol:
         meta["tolerances"] = tol
-    if isinstance(data.get("controller"), Mapping):    # read by kincal.robots.controller
-        meta["controller"] = dict(data["controller"])
+    if "controller" in data and "joint_map" in data:
+        raise r.fail("joint_map", "is another name for 'controller': give one of them")
+    jmap = data.get("controller", data.get("joint_map"))
+    if isinstance(jmap, Mapping):    # read by kincal.robots.controller
+        meta["controller"] = dict(jmap)
     return meta
 
 
