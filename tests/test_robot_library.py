@@ -392,3 +392,35 @@ def test_calibrate_says_zero_shifts_in_controller_units(tmp_path, capsys):
     assert abs(d2) > 1e-3 and got["J2"] == pytest.approx(d2, abs=1e-9)
     assert got["J3"] == pytest.approx(d3 - d2, abs=1e-9)
     assert f"J3 zero: {got['J3']:+.3f} deg in controller units" in out
+
+
+# --------------------------------------------------------------------------- UR20 / UR30
+# UniversalRobots/Universal_Robots_ROS2_Description config/ur30/default_kinematics.yaml
+# (commit 67272756de58): per joint x, y, z [m], roll, pitch, yaw [rad] of the joint frame in
+# its parent; each joint turns about its own z.  The chain ends at wrist_3_link = UR's tool0.
+UR30_KINEMATICS = [
+    (0, 0, 0.23630000000000001, -0.0, 0, -0.0),
+    (0, 0, 0, 1.570796327, 0, -0.0),
+    (-0.637, 0, 0, -0.0, 0, -0.0),
+    (-0.5037, 0, 0.20100000000000001, -0.0, 0, -0.0),
+    (0, -0.1593, 0, 1.570796327, 0, -0.0),
+    (0, 0.15429999999999999, -3.1647459019915597e-11, 1.5707963265897931, 3.1415926535897931,
+     3.1415926535897931),
+]
+
+
+def test_ur30_equals_urs_default_kinematics():
+    robot = load_serial_robot("ur30")
+    q = np.vstack([np.zeros(6), _rng("ur30").uniform(-math.pi, math.pi, (25, 6))])
+    T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+    for i, (x, y, z, r, p, w) in enumerate(UR30_KINEMATICS):
+        A = np.zeros((len(q), 4, 4))
+        A[:, :3, :3] = _rpy(r, p, w) @ _rot((0, 0, 1), q[:, i])
+        A[:, :3, 3] = (x, y, z)
+        A[:, 3, 3] = 1.0
+        T = T @ A
+    ours = robot.fk(q)
+    # The file's roll 1.570796327 is pi/2 to 9 decimals: 3e-10 rad, < 1e-9 m at 1.5 m reach.
+    assert np.max(np.abs(ours[:, :3, 3] - T[:, :3, 3])) <= 1e-9
+    assert np.max(np.abs(ours[:, :3, :3] - T[:, :3, :3])) <= 1e-9
+
