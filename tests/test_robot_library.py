@@ -409,18 +409,51 @@ UR30_KINEMATICS = [
 ]
 
 
-def test_ur30_equals_urs_default_kinematics():
-    robot = load_serial_robot("ur30")
-    q = np.vstack([np.zeros(6), _rng("ur30").uniform(-math.pi, math.pi, (25, 6))])
+def rpy_chain_fk(rows, q: np.ndarray) -> np.ndarray:
+    """Joint frames given as (x, y, z, roll, pitch, yaw) in the parent, each joint turning
+    about its own z; extra rows beyond q's columns are fixed.  (N, 4, 4)."""
     T = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
-    for i, (x, y, z, r, p, w) in enumerate(UR30_KINEMATICS):
+    for i, (x, y, z, r, p, w) in enumerate(rows):
         A = np.zeros((len(q), 4, 4))
-        A[:, :3, :3] = _rpy(r, p, w) @ _rot((0, 0, 1), q[:, i])
+        turn = q[:, i] if i < q.shape[1] else np.zeros(len(q))
+        A[:, :3, :3] = _rpy(r, p, w) @ _rot((0, 0, 1), turn)
         A[:, :3, 3] = (x, y, z)
         A[:, 3, 3] = 1.0
         T = T @ A
+    return T
+
+
+def test_ur30_equals_urs_default_kinematics():
+    robot = load_serial_robot("ur30")
+    q = np.vstack([np.zeros(6), _rng("ur30").uniform(-math.pi, math.pi, (25, 6))])
+    T = rpy_chain_fk(UR30_KINEMATICS, q)
     ours = robot.fk(q)
     # The file's roll 1.570796327 is pi/2 to 9 decimals: 3e-10 rad, < 1e-9 m at 1.5 m reach.
     assert np.max(np.abs(ours[:, :3, 3] - T[:, :3, 3])) <= 1e-9
     assert np.max(np.abs(ours[:, :3, :3] - T[:, :3, :3])) <= 1e-9
 
+
+
+# --------------------------------------------------------------------------- Franka FR3
+# franka_description robots/fr3/kinematics.yaml, joint1 ... joint8 (x, y, z, roll, pitch, yaw;
+# read in Swiss-Battery-Technology-Center/franka_description, commit 3c55fbf8cbd2); joint8 is
+# the fixed flange.  Limits: frankaemika/franka_description robots/fr3/joint_limits.yaml
+# (commit 1ddff9ba71ab).
+H = 1.570796326794897
+FR3_KINEMATICS = [(0, 0, 0.333, 0, 0, 0), (0, 0, 0, -H, 0, 0), (0, -0.316, 0, H, 0, 0),
+                  (0.0825, 0, 0, H, 0, 0), (-0.0825, 0.384, 0, -H, 0, 0), (0, 0, 0, H, 0, 0),
+                  (0.088, 0, 0, H, 0, 0), (0, 0, 0.107, 0, 0, 0)]
+FR3_LIMITS = [(-2.7437, 2.7437), (-1.7837, 1.7837), (-2.9007, 2.9007), (-3.0421, -0.1518),
+              (-2.8065, 2.8065), (0.5445, 4.5169), (-3.0159, 3.0159)]
+
+
+def test_fr3_equals_frankas_kinematics_and_limits():
+    robot = load_serial_robot("fr3")
+    lim = np.asarray(FR3_LIMITS)
+    np.testing.assert_array_equal(robot.joint_limits, lim)
+    q = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * _rng("fr3").random((25, 7))
+    q = np.vstack([np.zeros(7), q])
+    ours, ref = robot.fk(q), rpy_chain_fk(FR3_KINEMATICS, q)
+    assert np.max(np.abs(ours - ref)) <= 1e-12
+    # Franka: at q = 0 the flange is at (0.088, 0, 0.926) m, facing down.
+    np.testing.assert_allclose(ours[0, :3, 3], [0.088, 0, 0.926], atol=1e-15)
