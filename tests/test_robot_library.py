@@ -116,7 +116,7 @@ def test_file_names_its_source(name):
     robot = load_serial_robot(name)
     src = robot.meta["source"]
     assert spec["repo"] in src and spec["path"] in src and spec["commit"][:12] in src
-    assert robot.meta["vendor"] in ("KUKA", "ABB", "FANUC")
+    assert robot.meta["vendor"] in ("KUKA", "ABB", "FANUC", "Yaskawa")
 
 
 # --------------------------------------------------------------------------- vendor conventions
@@ -179,7 +179,7 @@ def test_fanuc_zero_pose_and_j2_j3_interaction(name):
 REACH = {"kr10r1100sixx": (1.101, 0.001), "kr16_2": (1.611, 0.001),
          "kr210r2700": (2.701, 0.001), "irb1200": (0.703, 0.001),
          "irb4600": (2.05, 0.005), "irb6700": (2.60, 0.005), "lrmate200id": (0.717, 0.001),
-         "m20ia": (1.811, 0.001)}
+         "m20ia": (1.811, 0.001), "gp7": (0.927, 0.001), "gp25": (1.730, 0.001)}
 
 
 @pytest.mark.parametrize("name", sorted(REACH))

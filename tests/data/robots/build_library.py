@@ -27,7 +27,8 @@ LIB = HERE.parents[2] / "src" / "kincal" / "robots" / "library"
 
 AXES = {"kuka": ["A1", "A2", "A3", "A4", "A5", "A6"],
         "abb": ["rax_1", "rax_2", "rax_3", "rax_4", "rax_5", "rax_6"],
-        "fanuc": ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"]}
+        "fanuc": ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"],
+        "yaskawa": ["S", "L", "U", "R", "B", "T"]}
 
 INFO = {
     "kr10r1100sixx": ("kuka", "KUKA", "KUKA KR 10 R1100 sixx (KR AGILUS), 6R industrial arm"),
@@ -42,6 +43,9 @@ INFO = {
     "lrmate200id": ("fanuc", "FANUC", "FANUC LR Mate 200iD, 6R industrial arm"),
     "m20ia": ("fanuc", "FANUC", "FANUC M-20iA, 6R industrial arm"),
     "r2000ic165f": ("fanuc", "FANUC", "FANUC R-2000iC/165F, 6R industrial arm"),
+    "crx10ial": ("fanuc", "FANUC", "FANUC CRX-10iA/L, 6R collaborative arm (wrist offset)"),
+    "gp7": ("yaskawa", "Yaskawa", "Yaskawa Motoman GP7, 6R industrial arm"),
+    "gp25": ("yaskawa", "Yaskawa", "Yaskawa Motoman GP25, 6R industrial arm"),
 }
 
 NOTES = {
@@ -61,6 +65,12 @@ NOTES = {
               "forearm horizontal and the faceplate faces forward with W, P, R = 180, -90, 0. "
               "The base frame puts FANUC's world frame at the height of J2, as the controller "
               "does (ROS-Industrial's `base`); the end frame is the faceplate (tool 0)."),
+    "yaskawa": ("Model joints are Yaskawa's S, L, U, R, B, T with the directions of the "
+                "ROS-Industrial URDF, which are the joint values MotoROS reports (rad); the "
+                "pendant's pulse counts are not mapped here. At zero the lower arm (L) is "
+                "vertical and the upper arm (U) horizontal. The base frame puts the robot's "
+                "world frame at the height of L (ROS-Industrial's `base`); the end frame is "
+                "tool0 (z out of the flange, x up at zero)."),
 }
 
 
@@ -107,7 +117,11 @@ def build(name: str, spec: dict) -> str:
     src = (f"ROS-Industrial URDF {spec['repo']} {spec['path']}, commit {spec['commit'][:12]}: "
            "joint origins, axes and limits of joint_1 ... joint_6, the link_6 -> tool0 "
            "transform" + (" and the base_link -> base offset (FANUC's world frame at J2)"
-                          if key == "fanuc" else "") + ". Lengths are the URDF's, in m.")
+                          if key == "fanuc" else " and the base_link -> base offset"
+                          if key == "yaskawa" else "") + ". Lengths are the URDF's, in m.")
+    if key == "fanuc":
+        src += (" J2/J3 coupling: ROS-Industrial's fanuc driver with J23_factor = 1 (joint_3 = "
+                "J2 + J3).")
     if spec["limit_unit"] == "rad":
         src += (" The URDF gives the limits in rad to a few decimals; they are written here in "
                 "deg, as the whole degree they round.")
@@ -129,6 +143,8 @@ def build(name: str, spec: dict) -> str:
                              "joints": {"joint_1": {"J1": 1}, "joint_2": {"J2": 1},
                                         "joint_3": {"J2": 1, "J3": 1}, "joint_4": {"J4": 1},
                                         "joint_5": {"J5": 1}, "joint_6": {"J6": 1}}}
+    elif key == "yaskawa":
+        out["controller"] = {"axes": names, "unit": "rad"}
     else:
         out["controller"] = {"vendor": key, "axes": names, "unit": "deg"}
     text = yaml.safe_dump(out, sort_keys=False, width=100, default_flow_style=None)
