@@ -102,8 +102,9 @@ def test_library_robot_equals_its_urdf(name):
     # Limits: the URDF's own where it writes degrees; its 3-4 decimal radians otherwise.
     tol = 1e-12 if spec["limit_unit"] == "deg" else 6e-4
     np.testing.assert_allclose(robot.joint_limits, lim, rtol=0, atol=tol)
-    q = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * _rng(name).random((25, 6))
-    q = np.vstack([np.zeros(6), q])
+    n = len(lim)
+    q = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * _rng(name).random((25, n))
+    q = np.vstack([np.zeros(n), q])
     ours = robot.fk(q)
     ref = urdf_fk(spec, q, TOOL0_ABB.get(name))
     assert np.max(np.abs(ours[:, :3, 3] - ref[:, :3, 3])) <= TOL_M
@@ -193,6 +194,19 @@ def test_datasheet_reach(name):
     assert abs(shoulder + upper + forearm - want) <= rounding + 1e-9
 
 
+@pytest.mark.parametrize("name, reach", [("lbr_iiwa7", 0.800), ("lbr_iiwa14", 0.820)])
+def test_lbr_iiwa_reach_is_its_model_name(name, reach):
+    # LBR iiwa 7 R800 / 14 R820: A2 -> A4 -> A6 (shoulder to wrist centre) is 800 / 820 mm; the
+    # library robot, stretched upright at q = 0, has its flange that far above A2 plus the
+    # 126 mm flange.
+    spec = FIXTURE[name]
+    x = np.asarray(spec["xyz"], float)
+    assert abs(x[3][2] + x[5][2] - reach) <= 1e-12
+    T = load_serial_robot(name).fk(np.zeros(7))
+    assert abs(T[2, 3] - (x[1][2] + reach + 0.126)) <= 1e-12
+    assert abs(T[0, 3]) <= 1e-12 and abs(T[1, 3]) <= 1e-12
+
+
 # --------------------------------------------------------------------------- URDF leaf rule
 def _urdf(tmp_path, joints: list[tuple[str, str, str, str]]) -> Path:
     """A URDF of (name, type, parent, child) joints, each 0.1 m along x, turning about z."""
@@ -248,7 +262,8 @@ def test_cli_robots_by_vendor_lists_sources(tmp_path):
     res = CliRunner().invoke(app, ["robots", "--vendor", "KuKa", "--json", str(out)])
     assert res.exit_code == 0, res.output
     rows = json.loads(out.read_text())["robots"]
-    assert {r["name"] for r in rows} == {"kr6", "kr10r1100sixx", "kr16_2", "kr210r2700"}
+    assert {r["name"] for r in rows} == {"kr6", "kr10r1100sixx", "kr16_2", "kr210r2700",
+                                         "lbr_iiwa7", "lbr_iiwa14"}
     assert all(r["vendor"] == "KUKA" and r["source"] for r in rows)
     assert any("kuka_kr16_support/urdf/kr16_2_macro.xacro" in r["source"] for r in rows)
 

@@ -28,7 +28,8 @@ LIB = HERE.parents[2] / "src" / "kincal" / "robots" / "library"
 AXES = {"kuka": ["A1", "A2", "A3", "A4", "A5", "A6"],
         "abb": ["rax_1", "rax_2", "rax_3", "rax_4", "rax_5", "rax_6"],
         "fanuc": ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"],
-        "yaskawa": ["S", "L", "U", "R", "B", "T"]}
+        "yaskawa": ["S", "L", "U", "R", "B", "T"],
+        "kuka_lbr": ["A1", "A2", "A3", "A4", "A5", "A6", "A7"]}
 
 INFO = {
     "kr10r1100sixx": ("kuka", "KUKA", "KUKA KR 10 R1100 sixx (KR AGILUS), 6R industrial arm"),
@@ -46,6 +47,8 @@ INFO = {
     "crx10ial": ("fanuc", "FANUC", "FANUC CRX-10iA/L, 6R collaborative arm (wrist offset)"),
     "gp7": ("yaskawa", "Yaskawa", "Yaskawa Motoman GP7, 6R industrial arm"),
     "gp25": ("yaskawa", "Yaskawa", "Yaskawa Motoman GP25, 6R industrial arm"),
+    "lbr_iiwa7": ("kuka_lbr", "KUKA", "KUKA LBR iiwa 7 R800, 7R collaborative arm"),
+    "lbr_iiwa14": ("kuka_lbr", "KUKA", "KUKA LBR iiwa 14 R820, 7R collaborative arm"),
 }
 
 NOTES = {
@@ -71,6 +74,11 @@ NOTES = {
                 "vertical and the upper arm (U) horizontal. The base frame puts the robot's "
                 "world frame at the height of L (ROS-Industrial's `base`); the end frame is "
                 "tool0 (z out of the flange, x up at zero)."),
+    "kuka_lbr": ("Joint variables are KUKA's A1 ... A7 (deg) with the directions of the "
+                 "ROS-Industrial URDF (A4 turns about -y). q = 0 is the arm stretched "
+                 "upright. The end frame is the flange (tool0, 126 mm beyond A6/A7). The "
+                 "URDF's +-0.436 mm x offsets at A2 and A4 are kept as published (KUKA's "
+                 "dimension drawing puts the axes through each other)."),
 }
 
 
@@ -84,7 +92,7 @@ def _limit_deg(v: float, unit: str) -> float:
 
 
 def _urdf_text(spec: dict, names: list[str]) -> str:
-    links = ["base_link"] + [f"link_{i}" for i in range(1, 7)]
+    links = ["base_link"] + [f"link_{i}" for i in range(1, len(names) + 1)]
     out = ['<robot name="r">'] + [f'<link name="{n}"/>' for n in links]
     for i, (xyz, ax) in enumerate(zip(spec["xyz"], spec["axis"], strict=True)):
         out.append(f'<joint name="{names[i]}" type="revolute">'
@@ -115,10 +123,13 @@ def build(name: str, spec: dict) -> str:
     t0 = spec["tool0"]
     rpy = t0["rpy"] if not (key == "abb" and t0["rpy"] == [0, 0, 0]) else [0, 90, 0]
     src = (f"ROS-Industrial URDF {spec['repo']} {spec['path']}, commit {spec['commit'][:12]}: "
-           "joint origins, axes and limits of joint_1 ... joint_6, the link_6 -> tool0 "
-           "transform" + (" and the base_link -> base offset (FANUC's world frame at J2)"
-                          if key == "fanuc" else " and the base_link -> base offset"
-                          if key == "yaskawa" else "") + ". Lengths are the URDF's, in m.")
+           f"joint origins, axes and limits of its {len(names)} joints, the transform from "
+           "the last link to tool0")
+    if key == "fanuc":
+        src += " and the base_link -> base offset (FANUC's world frame at J2)"
+    elif key == "yaskawa":
+        src += " and the base_link -> base offset"
+    src += ". Lengths are the URDF's, in m."
     if key == "fanuc":
         src += (" J2/J3 coupling: ROS-Industrial's fanuc driver with J23_factor = 1 (joint_3 = "
                 "J2 + J3).")
@@ -143,6 +154,8 @@ def build(name: str, spec: dict) -> str:
                              "joints": {"joint_1": {"J1": 1}, "joint_2": {"J2": 1},
                                         "joint_3": {"J2": 1, "J3": 1}, "joint_4": {"J4": 1},
                                         "joint_5": {"J5": 1}, "joint_6": {"J6": 1}}}
+    elif key == "kuka_lbr":
+        out["controller"] = {"axes": names, "unit": "deg"}
     elif key == "yaskawa":
         out["controller"] = {"axes": names, "unit": "rad"}
     else:
