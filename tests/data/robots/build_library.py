@@ -29,7 +29,9 @@ AXES = {"kuka": ["A1", "A2", "A3", "A4", "A5", "A6"],
         "abb": ["rax_1", "rax_2", "rax_3", "rax_4", "rax_5", "rax_6"],
         "fanuc": ["joint_1", "joint_2", "joint_3", "joint_4", "joint_5", "joint_6"],
         "yaskawa": ["S", "L", "U", "R", "B", "T"],
-        "kuka_lbr": ["A1", "A2", "A3", "A4", "A5", "A6", "A7"]}
+        "kuka_lbr": ["A1", "A2", "A3", "A4", "A5", "A6", "A7"],
+        "xarm6": ["J1", "J2", "J3", "J4", "J5", "J6"],
+        "xarm7": ["J1", "J2", "J3", "J4", "J5", "J6", "J7"]}
 
 INFO = {
     "kr10r1100sixx": ("kuka", "KUKA", "KUKA KR 10 R1100 sixx (KR AGILUS), 6R industrial arm"),
@@ -49,6 +51,8 @@ INFO = {
     "gp25": ("yaskawa", "Yaskawa", "Yaskawa Motoman GP25, 6R industrial arm"),
     "lbr_iiwa7": ("kuka_lbr", "KUKA", "KUKA LBR iiwa 7 R800, 7R collaborative arm"),
     "lbr_iiwa14": ("kuka_lbr", "KUKA", "KUKA LBR iiwa 14 R820, 7R collaborative arm"),
+    "xarm6": ("xarm6", "UFACTORY", "UFACTORY xArm 6, 6R collaborative arm"),
+    "xarm7": ("xarm7", "UFACTORY", "UFACTORY xArm 7, 7R collaborative arm"),
 }
 
 NOTES = {
@@ -79,6 +83,12 @@ NOTES = {
                  "upright. The end frame is the flange (tool0, 126 mm beyond A6/A7). The "
                  "URDF's +-0.436 mm x offsets at A2 and A4 are kept as published (KUKA's "
                  "dimension drawing puts the axes through each other)."),
+    "xarm6": ("Joint variables are the xArm's J1 ... J6 as its SDK and xArm Studio give them "
+              "(deg), each turning about the z axis of its URDF frame. q = 0 is the xArm's zero "
+              "position. The end frame is the tool flange (link6)."),
+    "xarm7": ("Joint variables are the xArm's J1 ... J7 as its SDK and xArm Studio give them "
+              "(deg), each turning about the z axis of its URDF frame. q = 0 is the xArm's zero "
+              "position. The end frame is the tool flange (link7)."),
 }
 
 
@@ -91,12 +101,24 @@ def _limit_deg(v: float, unit: str) -> float:
     return float(round(d)) if abs(d - round(d)) < 0.03 else round(d, 2)
 
 
+def snap_quarter_turns(rpy: list[float]) -> list[float]:
+    """The file's angles [rad], with values within 1e-4 rad of a multiple of pi/2 (1.5708 for
+    pi/2) replaced by that multiple: the axes are perpendicular by design."""
+    out = []
+    for v in rpy:
+        k = round(v / (math.pi / 2))
+        out.append(k * math.pi / 2 if abs(v - k * math.pi / 2) < 1e-4 else float(v))
+    return out
+
+
 def _urdf_text(spec: dict, names: list[str]) -> str:
     links = ["base_link"] + [f"link_{i}" for i in range(1, len(names) + 1)]
     out = ['<robot name="r">'] + [f'<link name="{n}"/>' for n in links]
+    rpys = spec.get("rpy") or [[0, 0, 0]] * len(names)
     for i, (xyz, ax) in enumerate(zip(spec["xyz"], spec["axis"], strict=True)):
+        rpy = " ".join(map(repr, snap_quarter_turns(rpys[i])))
         out.append(f'<joint name="{names[i]}" type="revolute">'
-                   f'<origin xyz="{" ".join(map(repr, map(float, xyz)))}" rpy="0 0 0"/>'
+                   f'<origin xyz="{" ".join(map(repr, map(float, xyz)))}" rpy="{rpy}"/>'
                    f'<parent link="{links[i]}"/><child link="{links[i + 1]}"/>'
                    f'<axis xyz="{" ".join(map(str, ax))}"/>'
                    '<limit lower="-1" upper="1" effort="0" velocity="1"/></joint>')
@@ -136,6 +158,9 @@ def build(name: str, spec: dict) -> str:
     if spec["limit_unit"] == "rad":
         src += (" The URDF gives the limits in rad to a few decimals; they are written here in "
                 "deg, as the whole degree they round.")
+    if spec.get("rpy"):
+        src += (" The URDF writes the joint origins' quarter turns as 1.5708 rad; they are "
+                "exact multiples of pi/2 here (the axes are perpendicular by design).")
     if key == "abb" and t0["rpy"] == [0, 0, 0]:
         src += (" This URDF leaves tool0 = link_6; the tool frame ry = 90 deg is ABB's tool0, as "
                 "in the other ROS-Industrial ABB URDFs.")
@@ -154,7 +179,7 @@ def build(name: str, spec: dict) -> str:
                              "joints": {"joint_1": {"J1": 1}, "joint_2": {"J2": 1},
                                         "joint_3": {"J2": 1, "J3": 1}, "joint_4": {"J4": 1},
                                         "joint_5": {"J5": 1}, "joint_6": {"J6": 1}}}
-    elif key == "kuka_lbr":
+    elif key in ("kuka_lbr", "xarm6", "xarm7"):
         out["controller"] = {"axes": names, "unit": "deg"}
     elif key == "yaskawa":
         out["controller"] = {"axes": names, "unit": "rad"}
