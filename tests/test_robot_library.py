@@ -87,7 +87,8 @@ def urdf_fk(spec: dict, q: np.ndarray, tool_rpy_deg=None) -> np.ndarray:
 
 
 def urdf_limits(spec: dict) -> np.ndarray:
-    lim = np.asarray(spec["limits"], float)
+    """(n, 2) [rad]; +-inf for a continuous joint (``limits: null``)."""
+    lim = np.array([(-np.inf, np.inf) if v is None else v for v in spec["limits"]], float)
     return np.radians(lim) if spec["limit_unit"] == "deg" else lim
 
 
@@ -104,7 +105,8 @@ def test_library_robot_equals_its_urdf(name):
     tol = 1e-12 if spec["limit_unit"] == "deg" else 6e-4
     np.testing.assert_allclose(robot.joint_limits, lim, rtol=0, atol=tol)
     n = len(lim)
-    q = lim[:, 0] + (lim[:, 1] - lim[:, 0]) * _rng(name).random((25, n))
+    box = np.where(np.isfinite(lim), lim, [-math.pi, math.pi])
+    q = box[:, 0] + (box[:, 1] - box[:, 0]) * _rng(name).random((25, n))
     q = np.vstack([np.zeros(n), q])
     ours = robot.fk(q)
     ref = urdf_fk(spec, q, TOOL0_ABB.get(name))
@@ -124,7 +126,7 @@ def test_file_names_its_source(name):
     robot = load_serial_robot(name)
     src = robot.meta["source"]
     assert spec["repo"] in src and spec["path"] in src and spec["commit"][:12] in src
-    assert robot.meta["vendor"] in ("KUKA", "ABB", "FANUC", "Yaskawa", "UFACTORY")
+    assert robot.meta["vendor"] in ("KUKA", "ABB", "FANUC", "Yaskawa", "UFACTORY", "Kinova")
 
 
 # --------------------------------------------------------------------------- vendor conventions

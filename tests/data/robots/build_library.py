@@ -31,7 +31,8 @@ AXES = {"kuka": ["A1", "A2", "A3", "A4", "A5", "A6"],
         "yaskawa": ["S", "L", "U", "R", "B", "T"],
         "kuka_lbr": ["A1", "A2", "A3", "A4", "A5", "A6", "A7"],
         "xarm6": ["J1", "J2", "J3", "J4", "J5", "J6"],
-        "xarm7": ["J1", "J2", "J3", "J4", "J5", "J6", "J7"]}
+        "xarm7": ["J1", "J2", "J3", "J4", "J5", "J6", "J7"],
+        "kinova": [f"joint_{i}" for i in range(1, 8)]}
 
 INFO = {
     "kr10r1100sixx": ("kuka", "KUKA", "KUKA KR 10 R1100 sixx (KR AGILUS), 6R industrial arm"),
@@ -53,6 +54,7 @@ INFO = {
     "lbr_iiwa14": ("kuka_lbr", "KUKA", "KUKA LBR iiwa 14 R820, 7R collaborative arm"),
     "xarm6": ("xarm6", "UFACTORY", "UFACTORY xArm 6, 6R collaborative arm"),
     "xarm7": ("xarm7", "UFACTORY", "UFACTORY xArm 7, 7R collaborative arm"),
+    "gen3": ("kinova", "Kinova", "Kinova Gen3 (7 DoF), 7R collaborative arm"),
 }
 
 NOTES = {
@@ -89,6 +91,11 @@ NOTES = {
     "xarm7": ("Joint variables are the xArm's J1 ... J7 as its SDK and xArm Studio give them "
               "(deg), each turning about the z axis of its URDF frame. q = 0 is the xArm's zero "
               "position. The end frame is the tool flange (link7)."),
+    "kinova": ("Joint variables are the Gen3's joint_1 ... joint_7 (deg), each turning about "
+               "the z axis of its URDF frame; joints 1, 3, 5 and 7 turn without limit. The "
+               "Kortex API reports joint angles in 0 ... 360 deg: for the limited joints 2, 4 "
+               "and 6 subtract 360 from values above 180. The end frame is Kinova's "
+               "EndEffector_Link (the tool flange, z out of it)."),
 }
 
 
@@ -138,9 +145,12 @@ def build(name: str, spec: dict) -> str:
         if row["transform"].startswith("R"):
             row["value"] = math.degrees(row["value"])
         chain.append(row)
-    joints = [{"name": n, "type": "revolute",
-               "limits": [_limit_deg(lo, spec["limit_unit"]), _limit_deg(hi, spec["limit_unit"])]}
-              for n, (lo, hi) in zip(names, spec["limits"], strict=True)]
+    joints: list[dict] = []
+    for n, lim in zip(names, spec["limits"], strict=True):
+        row: dict = {"name": n, "type": "revolute"}
+        if lim is not None:         # a continuous joint has none
+            row["limits"] = [_limit_deg(v, spec["limit_unit"]) for v in lim]
+        joints.append(row)
     base = spec.get("base") or {"xyz": [0, 0, 0]}
     t0 = spec["tool0"]
     rpy = t0["rpy"] if not (key == "abb" and t0["rpy"] == [0, 0, 0]) else [0, 90, 0]
@@ -179,7 +189,7 @@ def build(name: str, spec: dict) -> str:
                              "joints": {"joint_1": {"J1": 1}, "joint_2": {"J2": 1},
                                         "joint_3": {"J2": 1, "J3": 1}, "joint_4": {"J4": 1},
                                         "joint_5": {"J5": 1}, "joint_6": {"J6": 1}}}
-    elif key in ("kuka_lbr", "xarm6", "xarm7"):
+    elif key in ("kuka_lbr", "xarm6", "xarm7", "kinova"):
         out["controller"] = {"axes": names, "unit": "deg"}
     elif key == "yaskawa":
         out["controller"] = {"axes": names, "unit": "rad"}
