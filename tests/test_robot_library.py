@@ -489,3 +489,16 @@ def test_fr3_equals_frankas_kinematics_and_limits():
     assert np.max(np.abs(ours - ref)) <= 1e-12
     # Franka: at q = 0 the flange is at (0.088, 0, 0.926) m, facing down.
     np.testing.assert_allclose(ours[0, :3, 3], [0.088, 0, 0.926], atol=1e-15)
+
+
+def test_zero_shift_of_a_linear_axis_is_in_metres():
+    # SCARA (RRPR): the prismatic joint's zero (d[3]) moved by 2 mm, the last joint's by 0.1 deg.
+    nominal = load_serial_robot("scara")
+    p = nominal.params()
+    names = [n for n in nominal.param_names if n in ("d[3]", "theta_offset[4]")]
+    assert names == ["d[3]", "theta_offset[4]"]
+    cal = nominal.with_params({"d[3]": p["d[3]"] + 0.002,
+                               "theta_offset[4]": p["theta_offset[4]"] + math.radians(0.1)})
+    shifts = {z.axis: (round(z.shift, 9), z.unit) for z in axis_zero_shifts(nominal, cal)}
+    axes = controller_map(nominal).axes
+    assert shifts == {axes[2]: (0.002, "m"), axes[3]: (0.1, "deg")}

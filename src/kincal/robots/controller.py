@@ -207,7 +207,7 @@ class ZeroShift:
         axis: the controller's axis name (``J3``).
         shift: the change in the controller's unit: the calibrated arm at axis value
             ``v`` is where the nominal model puts it at ``v + shift``.
-        unit: the controller's unit (``deg``, ``rad``, ``counts``).
+        unit: the controller's unit (``deg``, ``rad``, ``counts``; ``m`` for a linear axis).
     """
 
     axis: str
@@ -216,7 +216,7 @@ class ZeroShift:
 
     def line(self) -> str:
         """``J3 zero: +0.120 deg in controller units``."""
-        digits = 3 if self.unit in ("deg", "counts") else 6
+        digits = {"deg": 3, "counts": 1, "m": 6}.get(self.unit, 6)
         return f"{self.axis} zero: {self.shift:+.{digits}f} {self.unit} in controller units"
 
     def to_dict(self) -> dict[str, Any]:
@@ -229,12 +229,21 @@ def axis_zero_shifts(nominal: Robot, calibrated: Robot, threshold: float = 1e-9
 
     ``da = M^-1 dq / scale`` with ``dq`` from :func:`joint_zero_shifts`: with FANUC's
     coupling a moved J2 zero also moves J3 (by the opposite amount).  Axes that moved less
-    than ``threshold`` [rad] are left out.
+    than ``threshold`` [rad, m] are left out; a linear axis (one that drives a prismatic
+    joint) is given in m.
     """
     cmap = controller_map(nominal)
-    da = cmap.shift_to_axes(joint_zero_shifts(nominal, calibrated))
-    return [ZeroShift(ax, float(v), cmap.unit) for ax, v in zip(cmap.axes, da, strict=True)
-            if abs(v) * cmap.scale > threshold]
+    da_si = np.linalg.solve(cmap.matrix, joint_zero_shifts(nominal, calibrated))
+    prismatic = np.array([j.kind == "prismatic" for j in nominal.joints])
+    out = []
+    for j, (ax, v) in enumerate(zip(cmap.axes, da_si, strict=True)):
+        if abs(v) <= threshold:
+            continue
+        if np.any(prismatic & (cmap.matrix[:, j] != 0)):    # a linear axis: in m
+            out.append(ZeroShift(ax, float(v), "m"))
+        else:
+            out.append(ZeroShift(ax, float(v / cmap.scale), cmap.unit))
+    return out
 
 
 def calibration_zero_shifts(nominal: Any, calibrated: Any) -> list[ZeroShift]:
