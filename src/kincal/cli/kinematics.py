@@ -52,7 +52,7 @@ def robots(search: SearchArg = None, vendor: VendorOpt = None, json_out: JsonOut
     from kincal.workflow.robots import load_any_robot
 
     t = Table(title="Built-in robots (use the name wherever ROBOT is asked)")
-    for c in ("name", "vendor", "joints", "description", "source"):
+    for c in ("name", "vendor", "joints", "convention", "description", "source"):
         t.add_column(c, overflow="fold")
     rows = []
     vendors: set[str] = set()
@@ -74,7 +74,7 @@ def robots(search: SearchArg = None, vendor: VendorOpt = None, json_out: JsonOut
                 " ".join((name, who, desc)).lower():
             continue
         short = desc if len(desc) <= 64 else desc[:63].rstrip(" ,") + "…"
-        t.add_row(name, escape(who), kinds, escape(short), escape(_short_source(source)))
+        t.add_row(name, escape(who), kinds, conv, escape(short), escape(_short_source(source)))
         rows.append({"name": name, "vendor": who, "joints": kinds, "convention": conv,
                      "description": desc, "source": source})
     if not rows and (vendor is not None or search is not None):
