@@ -287,7 +287,7 @@ def test_cli_robots_by_vendor_lists_sources(tmp_path):
 
 def test_cli_robots_search_term(tmp_path):
     out = tmp_path / "r.json"
-    res = CliRunner().invoke(app, ["robots", "collaborative", "--vendor", "abb",
+    res = CliRunner().invoke(app, ["robots", "--search", "collaborative", "--vendor", "abb",
                                    "--json", str(out)])
     assert res.exit_code == 0, res.output
     assert [r["name"] for r in json.loads(out.read_text())["robots"]] == ["gofa5"]

@@ -29,9 +29,9 @@ QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: r
                                    "m for prismatic joints (see --deg).")]
 
 
-SearchArg = Annotated[str | None, typer.Argument(
-    help="Show only robots whose name, vendor or description contains this text "
-         "(case-insensitive), e.g. 'kr 16', 'cobot', 'irb'.", show_default=False)]
+SearchOpt = Annotated[str | None, typer.Option(
+    "--search", help="Show only robots whose name, vendor or description contains this text "
+    "(case-insensitive), e.g. 'kr 16', 'collaborative', 'irb'.", show_default=False)]
 VendorOpt = Annotated[str | None, typer.Option(
     "--vendor", help="Show only this vendor's robots (case-insensitive, part of the name is "
     "enough: kuka, abb, fanuc, universal, franka, yaskawa).", show_default=False)]
@@ -44,7 +44,7 @@ def _short_source(text: str, width: int = 130) -> str:
 
 
 @app.command()
-def robots(search: SearchArg = None, vendor: VendorOpt = None, json_out: JsonOut = None) -> None:
+def robots(search: SearchOpt = None, vendor: VendorOpt = None, json_out: JsonOut = None) -> None:
     """List the built-in robots with their vendor and the source of their numbers
     (`kincal show NAME` gives the parameters and the full source)."""
     from kincal.errors import KincalError
@@ -79,7 +79,8 @@ def robots(search: SearchArg = None, vendor: VendorOpt = None, json_out: JsonOut
                      "description": desc, "source": source})
     if not rows and (vendor is not None or search is not None):
         what = " and ".join(x for x in (f"vendor {vendor!r}" if vendor is not None else "",
-                                         f"text {search!r}" if search is not None else "") if x)
+                                         f"--search {search!r}" if search is not None else "")
+                         if x)
         raise KincalError(f"no built-in robot matches {what} (vendors: "
                           f"{', '.join(sorted(vendors))})")
     if json_out != "-":
