@@ -187,7 +187,8 @@ def test_fanuc_zero_pose_and_j2_j3_interaction(name):
 # fixture's numbers against the datasheet; test_library_robot_equals_its_urdf ties the library
 # robots to the fixture.
 REACH = {"kr10r1100sixx": (1.101, 0.001), "kr16_2": (1.611, 0.001),
-         "kr210r2700": (2.701, 0.001), "irb1200": (0.703, 0.001),
+         "kr210r2700": (2.701, 0.001), "irb1200_7_70": (0.703, 0.001),
+         "irb1200_5_90": (0.901, 0.001), "kr16r1610_2": (1.612, 0.001),
          "irb4600": (2.05, 0.005), "irb6700": (2.60, 0.005), "lrmate200id": (0.717, 0.001),
          "m20ia": (1.811, 0.001), "gp7": (0.927, 0.001), "gp25": (1.730, 0.001)}
 
@@ -279,8 +280,8 @@ def test_cli_robots_by_vendor_lists_sources(tmp_path):
     res = CliRunner().invoke(app, ["robots", "--vendor", "KuKa", "--json", str(out)])
     assert res.exit_code == 0, res.output
     rows = json.loads(out.read_text())["robots"]
-    assert {r["name"] for r in rows} == {"kr6", "kr10r1100sixx", "kr16_2", "kr210r2700",
-                                         "lbr_iiwa7", "lbr_iiwa14"}
+    assert {r["name"] for r in rows} == {"kr6", "kr10r1100sixx", "kr16_2", "kr16r1610_2",
+                                         "kr210r2700", "lbr_iiwa7", "lbr_iiwa14"}
     assert all(r["vendor"] == "KUKA" and r["source"] for r in rows)
     assert any("kuka_kr16_support/urdf/kr16_2_macro.xacro" in r["source"] for r in rows)
 
