@@ -81,12 +81,6 @@ class ControllerMap:
             return 2.0 * math.pi / self.counts_per_turn
         return _UNITS[self.unit]
 
-    def shift_to_axes(self, dq: ArrayLike) -> Array:
-        """Axis changes (controller unit) equivalent to model joint changes ``dq`` [rad]:
-        ``da = M^-1 dq / scale`` (no offset: a difference, not a position)."""
-        d = np.asarray(dq, dtype=float)
-        return np.asarray(np.linalg.solve(self.matrix, d) / self.scale, dtype=np.float64)
-
     def to_model(self, axes: ArrayLike) -> Array:
         """Model joints [rad] from controller axis values in the controller's unit, (..., n)."""
         a = np.asarray(axes, dtype=float) * self.scale
