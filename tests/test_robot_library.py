@@ -31,7 +31,7 @@ from typer.testing import CliRunner
 
 from kincal.cli import app
 from kincal.errors import RobotFileError
-from kincal.robots.controller import axis_zero_shifts, controller_map
+from kincal.robots.controller import axis_zero_shifts, calibration_zero_shifts, controller_map
 from kincal.robots.files import library_dir, library_names, load_serial_robot
 from kincal.robots.urdf import load_urdf
 
@@ -503,3 +503,14 @@ def test_zero_shift_of_a_linear_axis_is_in_metres():
     shifts = {z.axis: (round(z.shift, 9), z.unit) for z in axis_zero_shifts(nominal, cal)}
     axes = controller_map(nominal).axes
     assert shifts == {axes[2]: (0.002, "m"), axes[3]: (0.1, "deg")}
+
+
+def test_no_zero_shifts_without_a_declared_controller():
+    # puma560 declares no controller: its "controller units" are unknown, nothing is said.
+    nominal = load_serial_robot("puma560")
+    assert "controller" not in nominal.meta
+    cal = nominal.with_params({"theta_offset[2]": nominal.params()["theta_offset[2]"] + 0.01})
+    assert calibration_zero_shifts(nominal, cal) is None
+    kr6 = load_serial_robot("kr6")
+    moved = kr6.with_params({"theta_offset[2]": kr6.params()["theta_offset[2]"] + 0.01})
+    assert [z.axis for z in calibration_zero_shifts(kr6, moved)] == ["A2"]

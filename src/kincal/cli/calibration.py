@@ -316,12 +316,14 @@ def calibrate_cmd(
         loss=loss, stages=stages, validation_frames=validation_frames, free=free, fix=fix,
         prior=prior, terms=terms, folds=folds if auto else None,
         condition_growth=condition_growth, cycles=cycles, tolerance=tolerance)
-    shifts = calibration_zero_shifts(r, flow.result.robot)
-    written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
-                            {"seconds": flow.seconds, "controller_zero_shifts":
-                             [z.to_dict() for z in shifts]}, force=force)
+    shifts = calibration_zero_shifts(r, flow.result.robot)      # None: no controller declared
+    extra: dict[str, Any] = {"seconds": flow.seconds}
+    if shifts is not None:
+        extra["controller_zero_shifts"] = [z.to_dict() for z in shifts]
+    written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals, extra,
+                            force=force)
     _print_calibration(out, flow, terms, prior, all_parameters)
-    for z in shifts:
+    for z in shifts or []:
         out.print(escape(z.line()))
     for k, v in written.items():
         out.print(f"{k}: {escape(v)}")

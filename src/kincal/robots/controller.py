@@ -240,14 +240,16 @@ def axis_zero_shifts(nominal: Robot, calibrated: Robot, threshold: float = 1e-9
     return out
 
 
-def calibration_zero_shifts(nominal: Any, calibrated: Any) -> list[ZeroShift]:
-    """:func:`axis_zero_shifts` for a calibration's nominal and calibrated robots, or ``[]``
-    when they are not serial chains with the same joints (a five-bar, a robot with held
-    joints whose joint map names the held axes)."""
+def calibration_zero_shifts(nominal: Any, calibrated: Any) -> list[ZeroShift] | None:
+    """:func:`axis_zero_shifts` for a calibration's nominal and calibrated robots, or
+    ``None`` when the robot file declares no controller (no ``controller`` / ``joint_map``
+    section: its controller's units are not known) or they are not serial chains with the
+    same joints (a five-bar, a robot with held joints whose joint map names the held axes)."""
     if not (isinstance(nominal, Robot) and isinstance(calibrated, Robot)
-            and nominal.joint_names == calibrated.joint_names):
-        return []
+            and nominal.joint_names == calibrated.joint_names
+            and isinstance(nominal.meta.get("controller"), Mapping)):
+        return None
     try:
         return axis_zero_shifts(nominal, calibrated)
     except RobotFileError:
-        return []
+        return None
