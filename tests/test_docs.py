@@ -89,7 +89,8 @@ def test_every_function_the_pages_name_exists() -> None:
     root = Path(__file__).resolve().parents[1]
     source = "\n".join(p.read_text(encoding="utf-8")
                        for p in (root / "src" / "kincal").rglob("*.py"))
-    not_ours = {"sqrt", "least_squares", "Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "exp", "log", "help", "floor"}
+    not_ours = {"sqrt", "least_squares", "Rx", "Ry", "Rz", "Tx", "Ty", "Tz", "exp", "log", "help",
+                "floor"}
     missing = []
     #: pages about robot programs name the controllers' functions (``movej(...)``)
     controller_pages = {"robot-programs.md", "ur-calibration.md"}

@@ -66,6 +66,7 @@ from kincal.cli.setupfile import (
 from kincal.defaults import max_iter_for
 from kincal.errors import CheckFailedError, KincalError
 from kincal.io import check_outputs
+from kincal.robots.controller import calibration_zero_shifts
 from kincal.workflow.session import joint_masses
 
 if TYPE_CHECKING:                 # types only: the workflow loads lazily (start-up time)
@@ -319,15 +320,28 @@ def calibrate_cmd(
         loss=loss, stages=stages, validation_frames=validation_frames, free=free, fix=fix,
         prior=prior, terms=terms, folds=folds if auto else None,
         condition_growth=condition_growth, cycles=cycles, tolerance=tolerance)
-    written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
-                            {"seconds": flow.seconds}, force=force)
+    shifts = calibration_zero_shifts(r, flow.result.robot)      # None: no controller declared
+    extra: dict[str, Any] = {"seconds": flow.seconds}
+    if shifts is not None:
+        extra["controller_zero_shifts"] = [z.to_dict() for z in shifts]
+    written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals, extra,
+                            force=force)
     _print_calibration(out, flow, terms, prior, all_parameters)
+    for z in shifts or []:
+        out.print(escape(z.line()))
     for k, v in written.items():
         out.print(f"{k}: {escape(v)}")
+    _refuse_if_not_trusted(flow, written, (output, urdf), force)
+
+
+def _refuse_if_not_trusted(flow: Any, written: dict[str, str],
+                           outputs: tuple[str | None, ...], force: bool) -> None:
+    """Exit 1 with the verdict's line when the calibration is not trusted, naming the robot
+    files withheld (or written anyway under ``--force``)."""
     if flow.verdict is not None and not flow.trusted:
-        withheld = [p for p in (output, urdf) if p and p not in written.values()]
+        withheld = [p for p in outputs if p and p not in written.values()]
         tail = (f"; no calibrated robot written ({', '.join(withheld)}; --force writes it)"
-                if withheld else "; written anyway (--force)" if force and output else "")
+                if withheld else "; written anyway (--force)" if force and outputs[0] else "")
         raise CheckFailedError(flow.verdict.line() + tail)
 
 

@@ -29,27 +29,60 @@ QOpt = Annotated[str, typer.Option("--q", help="Joint values, comma separated: r
                                    "m for prismatic joints (see --deg).")]
 
 
+SearchOpt = Annotated[str | None, typer.Option(
+    "--search", help="Show only robots whose name, vendor or description contains this text "
+    "(case-insensitive), e.g. 'kr 16', 'collaborative', 'irb'.", show_default=False)]
+VendorOpt = Annotated[str | None, typer.Option(
+    "--vendor", help="Show only this vendor's robots (case-insensitive, part of the name is "
+    "enough: kuka, abb, fanuc, universal, franka, yaskawa).", show_default=False)]
+
+
+def _short_source(text: str, width: int = 130) -> str:
+    """The first clause of a robot file's ``source`` (who published the numbers, where)."""
+    head = text.split(": ", 1)[0].strip()
+    return head if len(head) <= width else head[:width - 1].rstrip(" ,") + "…"
+
+
 @app.command()
-def robots(json_out: JsonOut = None) -> None:
-    """List the built-in robots (`kincal show NAME` gives the parameters and their source)."""
+def robots(search: SearchOpt = None, vendor: VendorOpt = None, json_out: JsonOut = None) -> None:
+    """List the built-in robots with their vendor and the source of their numbers
+    (`kincal show NAME` gives the parameters and the full source)."""
+    from kincal.errors import KincalError
     from kincal.robots.files import library_names
     from kincal.workflow.robots import load_any_robot
 
     t = Table(title="Built-in robots (use the name wherever ROBOT is asked)")
-    for c in ("name", "joints", "convention", "description"):
+    for c in ("name", "vendor", "joints", "convention", "description", "source"):
         t.add_column(c, overflow="fold")
     rows = []
+    vendors: set[str] = set()
     for name in library_names():
         r = load_any_robot(name)
+        meta = getattr(r, "meta", {})
         if is_fivebar(r):
             kinds, conv = "2 actuated", "fivebar"
         else:
             kinds = "".join("R" if j.kind == "revolute" else "P" for j in r.joints)
-            conv = r.meta.get("convention", "")
-        desc = str(getattr(r, "meta", {}).get("description", "")) or "five-bar parallel robot"
+            conv = meta.get("convention", "")
+        desc = str(meta.get("description", "")) or "five-bar parallel robot"
+        who = str(meta.get("vendor", ""))
+        source = str(meta.get("source", ""))
+        vendors.add(who) if who else None
+        if vendor is not None and vendor.strip().lower() not in who.lower():
+            continue
+        if search is not None and search.strip().lower() not in \
+                " ".join((name, who, desc)).lower():
+            continue
         short = desc if len(desc) <= 64 else desc[:63].rstrip(" ,") + "…"
-        t.add_row(name, kinds, conv, escape(short))
-        rows.append({"name": name, "joints": kinds, "convention": conv, "description": desc})
+        t.add_row(name, escape(who), kinds, conv, escape(short), escape(_short_source(source)))
+        rows.append({"name": name, "vendor": who, "joints": kinds, "convention": conv,
+                     "description": desc, "source": source})
+    if not rows and (vendor is not None or search is not None):
+        what = " and ".join(x for x in (f"vendor {vendor!r}" if vendor is not None else "",
+                                         f"--search {search!r}" if search is not None else "")
+                         if x)
+        raise KincalError(f"no built-in robot matches {what} (vendors: "
+                          f"{', '.join(sorted(vendors))})")
     if json_out != "-":
         console.print(t)
     if json_out:

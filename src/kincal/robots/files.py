@@ -162,14 +162,17 @@ def _frame(r: FieldReader, data: Mapping[str, Any], key: str, ls: float, as_: fl
 
 def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str, Any]:
     meta: dict[str, Any] = {"convention": convention}
-    for key in ("description", "source", "notes"):
+    for key in ("vendor", "description", "source", "notes"):
         if key in data and data[key] is not None:
             meta[key] = str(data[key]).strip()
     tol = _tolerances(r, data)
     if tol:
         meta["tolerances"] = tol
-    if isinstance(data.get("controller"), Mapping):    # read by kincal.robots.controller
-        meta["controller"] = dict(data["controller"])
+    if "controller" in data and "joint_map" in data:
+        raise r.fail("joint_map", "is another name for 'controller': give one of them")
+    jmap = data.get("controller", data.get("joint_map"))
+    if isinstance(jmap, Mapping):    # read by kincal.robots.controller
+        meta["controller"] = dict(jmap)
     if data.get("calibration") is not None:             # read by kincal.identify.envelope
         meta["calibration"] = dict(r.mapping(data["calibration"], "calibration"))
         meta["calibration_source"] = r.source
@@ -500,7 +503,7 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
     """
     conv = "ets" if as_ets else robot.meta.get("convention", "ets")
     doc: dict[str, Any] = {"name": robot.name}
-    for key in ("description", "source", "notes"):
+    for key in ("vendor", "description", "source", "notes"):
         if key in robot.meta:
             doc[key] = robot.meta[key]
     doc["units"] = {"length": "m", "angle": "rad"}

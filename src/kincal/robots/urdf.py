@@ -215,11 +215,24 @@ class UrdfModel:
             raise self.fail(f"{what} {name!r} is not a link of robot {self.name!r}{hint}")
         return name
 
+    def _moves_below(self, base: str, leaf: str) -> bool:
+        """True when a moving joint lies between ``base`` and its descendant ``leaf``."""
+        link = leaf
+        while link != base:
+            j = self.joints[self.parent_joint[link]]
+            if j.moving:
+                return True
+            link = j.parent
+        return False
+
     def chain(self, base_link: str | None = None, tip_link: str | None = None
               ) -> tuple[str, str, list[UrdfJoint]]:
         """The joints from ``base_link`` down to ``tip_link``, base first.
 
-        Defaults: base = the root link; tip = the single leaf below base.
+        Defaults: base = the root link; tip = the single leaf below base, or else the
+        single leaf reached through a moving joint: leaves fixed rigidly to ``base``
+        (ROS-Industrial's ``base`` frame beside ``base_link``) are static frames, not
+        the end of the arm.
         """
         if base_link is None:
             roots = self.roots()
@@ -231,10 +244,14 @@ class UrdfModel:
             base = self._known_link(base_link, "base link")
         if tip_link is None:
             leaves = self.leaves_below(base)
-            if len(leaves) != 1:
+            moving = [leaf for leaf in leaves if self._moves_below(base, leaf)]
+            if len(leaves) == 1:
+                tip = leaves[0]
+            elif len(moving) == 1:
+                tip = moving[0]     # the others are static frames (ROS-Industrial's ``base``)
+            else:
                 raise self.fail(f"link {base!r} has {len(leaves)} leaf links below it "
                                 f"({_listing(leaves)}); choose the tip with --tip-link")
-            tip = leaves[0]
         else:
             tip = self._known_link(tip_link, "tip link")
         path: list[UrdfJoint] = []
