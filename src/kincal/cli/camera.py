@@ -96,8 +96,12 @@ def _fit_json(fit: Any, data: str) -> dict[str, Any]:
             "camera_in_tool_frame": {"matrix": fit.X.tolist(),
                                      "frame_m_rad": frame_from_matrix(fit.X).tolist()},
             "closed_form_start": fit.start.X.tolist(), "board_in_base": fit.board.tolist(),
-            "expected_error": {"position_m": fit.std_position,
-                               "rotation_rad": fit.std_rotation},
+            "expected_error": {"position_m": fit.expected_position,
+                               "rotation_rad": fit.expected_rotation,
+                               "covariance_position_m": fit.std_position,
+                               "covariance_rotation_rad": fit.std_rotation,
+                               "floor_position_m": fit.floor_position,
+                               "floor_rotation_rad": fit.floor_rotation},
             "reprojection_rms_px": {"training": fit.train_rms_px,
                                     "held_out": fit.held_rms_px},
             "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image,
@@ -161,9 +165,12 @@ def hand_eye_command(
     out.print("camera in the tool frame (x y z mm, rz ry rx deg): "
               + " ".join(f"{v * 1e3:.2f}" for v in f[:3]) + ", "
               + " ".join(f"{np.degrees(v):.3f}" for v in f[3:]))
-    out.print(f"expected error of the hand-eye (1 sigma, covariance): "
-              f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg; "
-              f"sigma0 {fit.result.sigma0:.2f}")
+    out.print(f"expected error of the hand-eye (1 sigma): {fit.expected_position * 1e3:.2f} "
+              f"mm, {np.degrees(fit.expected_rotation):.3f} deg: covariance "
+              f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg "
+              f"(sigma0 {fit.result.sigma0:.2f}) with the unmodelled floor "
+              f"{fit.floor_position * 1e3:.2f} mm, {np.degrees(fit.floor_rotation):.3f} deg "
+              "(images disagreeing beyond their corner noise)")
     extra = [n for n in fit.result.estimated if not n.startswith(("tool.", "camera."))]
     if extra:
         out.print("robot parameters fitted: " + ", ".join(
