@@ -60,7 +60,8 @@ Array = NDArray[np.float64]
 TOOL = tuple(f"tool.{f}" for f in ("x", "y", "z", "rz", "ry", "rx"))
 
 __all__ = ["HandEyeFit", "split_images", "fit_hand_camera", "closed_form_leave_one_out",
-           "LeaveOneOut", "leave_one_out", "image_clustered_covariance"]
+           "LeaveOneOut", "leave_one_out", "image_clustered_covariance",
+           "clustered_covariance"]
 
 
 def split_images(labels: Sequence[str], holdout: float) -> tuple[list[str], list[str]]:
@@ -195,9 +196,16 @@ def image_clustered_covariance(result: CalibrationResult, images: Sequence[str])
         raise KincalError("the camera block returned no Jacobian")
     J = np.hstack([Jr, Je])[:, [prob.names.index(n) for n in result.estimated]]
     w = np.sqrt(np.asarray(result.weights, dtype=float).reshape(-1))
-    J, r = J * w[:, None], r * w
+    return clustered_covariance(J * w[:, None], r * w, np.repeat(np.asarray(list(images)), 2))
+
+
+def clustered_covariance(J: Array, r: Array, owner: Sequence[str] | NDArray[np.str_]) -> Array:
+    """The sandwich ``A (sum_i J_i^T u_i u_i^T J_i) A``, ``A = (J^T J)^-1``, over the
+    clusters ``owner`` (the image of every residual), ``u_i = (I - H_ii)^-1/2 r_i`` with
+    ``H_ii = J_i A J_i^T`` (:func:`image_clustered_covariance`); ``J`` (M, p) and ``r``
+    (M,) whitened.  Returns (p, p)."""
     A = np.linalg.pinv(J.T @ J)
-    owner = np.repeat(np.asarray(list(images)), 2)
+    owner = np.asarray(owner)
     if len(owner) != len(r):
         raise KincalError(f"{len(owner) // 2} image labels for {len(r) // 2} rows")
     meat = np.zeros_like(A)
