@@ -148,3 +148,67 @@ def test_refusals() -> None:
     uv = [project_lens(pts0 @ T[:3, :3].T + T[:3, 3], LENS) for T in A]
     with pytest.raises(IdentifiabilityError, match="cannot tell apart .*(fx|fy|z)"):
         fit_board_camera(A, [pts0] * 5, uv, names[:5], LENS, np.eye(4), np.eye(4), "fixed")
+
+
+def _write_pose(path, T: np.ndarray) -> None:
+    from kincal.identify.hand_eye import quaternion
+
+    v = [float(c) for c in np.r_[T[:3, 3], quaternion(T[:3, :3])[[1, 2, 3, 0]]]]
+    path.write_text("".join(f"{k}: {c!r}\n" for k, c in
+                            zip(("x", "y", "z", "qx", "qy", "qz", "qw"), v, strict=True)))
+
+
+def test_cli_eye_to_hand_from_rendered_images_and_pose_files(tmp_path, capsys) -> None:
+    """A fixed camera (pinhole 900 px) photographs a ChArUco board on the flange: 9 images
+    rendered by a perspective warp (blur, noise), flange poses as pose files; the command
+    detects, starts from intrinsics 2 % off and finds the camera within its stated error."""
+    cv2 = pytest.importorskip("cv2")
+    import json
+
+    from cli_helpers import run
+    from test_camera_images import MARGIN, PX, _render
+
+    board_file = tmp_path / "board.yaml"
+    board_file.write_text("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\nmarker: 28 mm\n"
+                          "dictionary: DICT_6X6_250\n")
+    Kt = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
+    S = np.array([[PX / BOARD.square, 0, MARGIN - 0.5], [0, PX / BOARD.square, MARGIN - 0.5],
+                  [0, 0, 1]])
+    camera = matrix_from_frame([0.0, 1.27, 0.28, -1.6, 0.1, -2.0])     # in the base
+    board = matrix_from_frame([0.06, 0.12, 0.21, 0.5, 0.2, 0.3])       # on the flange
+    rng = np.random.default_rng(3)
+    (tmp_path / "img").mkdir()
+    (tmp_path / "poses").mkdir()
+    k = 0
+    while k < 9:
+        # the board's z axis away from the camera (printed face seen, not mirrored)
+        seen = matrix_from_frame(np.r_[rng.uniform(-0.2, 0.05, 2), rng.uniform(0.5, 0.7),
+                                       rng.uniform(-0.5, 0.5, 3)])
+        x = BOARD.corner_points(np.arange(24)) @ seen[:3, :3].T + seen[:3, 3]
+        uv = x[:, :2] / x[:, 2:] * 900 + [640, 360]
+        if uv.min() < 40 or uv[:, 0].max() > 1240 or uv[:, 1].max() > 680:
+            continue
+        H = Kt @ np.column_stack([seen[:3, 0], seen[:3, 1], seen[:3, 3]]) @ np.linalg.inv(S)
+        cv2.imwrite(str(tmp_path / "img" / f"{k}.png"), _render(cv2, BOARD, H / H[2, 2], rng))
+        _write_pose(tmp_path / "poses" / f"{k}.yaml", camera @ seen @ inverse(board))
+        k += 1
+    (tmp_path / "cam.yaml").write_text("camera_matrix: {rows: 3, cols: 3, data: [918, 0, 646,"
+                                       " 0, 882, 355, 0, 0, 1]}\n")
+    args = ["hand-eye", "--images", tmp_path / "img", "--board", board_file, "--poses",
+            tmp_path / "poses", "--mount", "fixed", "--intrinsics", tmp_path / "cam.yaml"]
+    code, out, err = run(capsys, *args, "--lens", "pinhole", "--json", tmp_path / "f.json")
+    assert code == 0, err
+    assert "camera in the base frame" in out and "expected error of the hand-eye" in out
+    fit = json.loads((tmp_path / "f.json").read_text())
+    X = np.array(fit["camera"]["matrix"])
+    assert np.linalg.norm(X[:3, 3] - camera[:3, 3]) < 4 * fit["expected_error"]["position_m"]
+    assert abs(fit["intrinsics"]["fx"] - 900) < 4 * fit["intrinsics_std"]["fx"] + 0.5
+    assert fit["reprojection_rms_px"]["held_out"] < 1.0
+    # refusals: one line, exit 2
+    for extra, match in [(["panda"], "no ROBOT"), (["--lens", "fisheye"], "--lens fisheye"),
+                         (["--free", "theta_offset*"], "--free")]:
+        code, out, err = run(capsys, *args, *extra)
+        assert code == 2 and err.count("\n") == 1 and match in err, err
+    (tmp_path / "poses" / "4.yaml").unlink()
+    code, out, err = run(capsys, *args)
+    assert code == 2 and "no pose file for image 4.png" in err

@@ -41,10 +41,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import IdentifiabilityError, KincalError
-from kincal.identify.hand_eye import HandEye, check_rotations, hand_eye
-from kincal.identify.hand_eye_fit import clustered_covariance, split_images
+from kincal.identify.hand_eye import HandEye, average_pose, check_rotations, hand_eye
+from kincal.identify.hand_eye_fit import LeaveOneOut, clustered_covariance, split_images
 from kincal.measure.camera_board import board_pose
-from kincal.spatial import exp_so3, inverse
+from kincal.spatial import exp_so3, inverse, log_so3
 
 Array = NDArray[np.float64]
 
@@ -52,7 +52,7 @@ LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 POSE = ("x", "y", "z", "wx", "wy", "wz")
 
 __all__ = ["LENS", "LensFit", "project_lens", "undistort_pixels", "fit_board_camera",
-           "calibrate_board_camera"]
+           "calibrate_board_camera", "lens_leave_one_out"]
 
 
 def project_lens(x: Array, lens: ArrayLike) -> Array:
@@ -117,7 +117,8 @@ class LensFit:
         std_position, std_rotation, robust_position, robust_rotation: the camera's 3-D
             position [m] and direction [rad] error from each covariance.
         training, held_out: image names; train_rms_px, held_rms_px: reprojection RMS [px].
-        held_per_image: ``{image: RMS px}`` on the held-out images.
+        held_per_image: ``{image: RMS px}`` on the held-out images; held_rms_3d: the
+            3-D error their pixels imply at the board, ``|duv| z / f`` [m] per corner.
         start: the closed-form hand-eye; rotation_deg: the flange's rotation spread.
     """
 
@@ -138,6 +139,7 @@ class LensFit:
     train_rms_px: float = float("nan")
     held_rms_px: float = float("nan")
     held_per_image: dict[str, float] = field(default_factory=dict)
+    held_rms_3d: float = float("nan")
     start: HandEye | None = None
     rotation_deg: Array = field(default_factory=lambda: np.zeros(3))
 
@@ -294,8 +296,34 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     fit.start, fit.rotation_deg, fit.held_out = start, rot, held
     if held:
         C = _chain(A[[idx[n] for n in held]], mount)
-        e = {n: np.hypot(*_residuals([C[j]], [points[idx[n]]], [uv[idx[n]]], fit.X, fit.Z,
-                                     fit.lens).reshape(-1, 2).T) for j, n in enumerate(held)}
+        e, e3 = {}, []
+        for j, n in enumerate(held):
+            P = points[idx[n]]
+            e[n] = np.hypot(*_residuals([C[j]], [P], [uv[idx[n]]], fit.X, fit.Z,
+                                        fit.lens).reshape(-1, 2).T)
+            B = inverse(fit.X) @ C[j] @ fit.Z
+            e3.append(e[n] * (P @ B[2, :3] + B[2, 3]) / (0.5 * (fit.lens[0] + fit.lens[1])))
         fit.held_per_image = {n: float(np.sqrt(np.mean(v**2))) for n, v in e.items()}
         fit.held_rms_px = float(np.sqrt(np.mean(np.concatenate(list(e.values())) ** 2)))
+        fit.held_rms_3d = float(np.sqrt(np.mean(np.concatenate(e3) ** 2)))
     return fit
+
+
+def lens_leave_one_out(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
+                       images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
+                       fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
+                       min_rotation_deg: float = 5.0) -> LeaveOneOut:
+    """:func:`calibrate_board_camera` once per image with that image held out: its
+    reprojection RMS [px] and 3-D error [m], and the jackknife spread of the hand-eye
+    (as :func:`~kincal.identify.hand_eye_fit.leave_one_out`)."""
+    names = sorted(images)
+    fits = [calibrate_board_camera(robot_poses, points, uv, images, lens0, mount, 0.0,
+                                   fit_lens, sigma, min_rotation_deg, [n]) for n in names]
+    X = np.array([f.X for f in fits])
+    n = len(names)
+    t = X[:, :3, 3]
+    ang = np.linalg.norm(log_so3(X[:, :3, :3] @ average_pose(X)[:3, :3].T), axis=1)
+    return LeaveOneOut(names, np.array([f.held_rms_px for f in fits]),
+                       np.array([f.held_rms_3d for f in fits]),
+                       float(np.sqrt((n - 1) / n * np.sum((t - t.mean(0)) ** 2))),
+                       float(np.sqrt((n - 1) / n * np.sum(ang**2))))

@@ -51,7 +51,8 @@ Array = NDArray[np.float64]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 __all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrinsics",
-           "detect_images", "write_image_measurements", "read_image_labels"]
+           "detect_images", "write_image_measurements", "read_image_labels",
+           "read_flange_poses"]
 
 
 def require_opencv() -> Any:
@@ -100,7 +101,9 @@ def _intrinsics_from(K: Any, dist: Any, source: str) -> Intrinsics:
 
 def read_intrinsics(path: str | Path) -> Intrinsics:
     """A ROS ``camera_info`` YAML (``camera_matrix: {data: [9]}``,
-    ``distortion_coefficients: {data: [...]}``) or an OpenCV FileStorage YAML."""
+    ``distortion_coefficients: {data: [...]}``), an OpenCV FileStorage YAML, or
+    ROS-Industrial industrial_calibration's ``intrinsics: {fx, fy, cx, cy}`` (no
+    distortion)."""
     src = str(path)
     if not Path(path).is_file():
         raise KincalError("no such intrinsics file", source=src)
@@ -118,6 +121,13 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
     except yaml.YAMLError:
         raise KincalError("not valid YAML", source=src) from None
     cm = data.get("camera_matrix") if isinstance(data, dict) else None
+    ic = data.get("intrinsics") if isinstance(data, dict) else None
+    if cm is None and isinstance(ic, dict) and all(k in ic for k in ("fx", "fy", "cx", "cy")):
+        try:                                  # industrial_calibration's form, no distortion
+            fx, fy, cx, cy = (float(ic[k]) for k in ("fx", "fy", "cx", "cy"))
+        except (TypeError, ValueError):
+            raise KincalError("intrinsics: fx, fy, cx, cy must be numbers", source=src) from None
+        return _intrinsics_from([fx, 0, cx, 0, fy, cy, 0, 0, 1], None, src)
     if not isinstance(cm, dict) or "data" not in cm:
         raise KincalError("expected camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}",
                           source=src)
@@ -335,6 +345,40 @@ def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
                        f"{len(images.detections)} images, {len(q)} corners; dropped: "
                        + (", ".join(f"{i} ({r})" for i, r in images.dropped) or "none")])
     return block
+
+
+def read_flange_poses(folder: str | Path) -> dict[str, Array]:
+    """``{name: 4x4}`` [m] from a folder of pose files ``NAME.yaml``, each ``x, y, z`` [m]
+    and a unit quaternion ``qx, qy, qz, qw`` (ROS-Industrial industrial_calibration's
+    form): the flange in the robot's base frame, matched to the image of the same name."""
+    from kincal.spatial import quat_to_matrix
+
+    root = Path(folder)
+    if not root.is_dir():
+        raise KincalError("no such folder of pose files", source=str(folder))
+    out: dict[str, Array] = {}
+    for f in sorted(root.glob("*.yaml")):
+        try:
+            d = yaml.safe_load(f.read_text(encoding="utf-8"))
+        except yaml.YAMLError:
+            raise KincalError("not valid YAML", source=str(f)) from None
+        keys = ("x", "y", "z", "qw", "qx", "qy", "qz")
+        if not isinstance(d, dict) or any(k not in d for k in keys):
+            raise KincalError("a pose file holds x, y, z [m] and qx, qy, qz, qw",
+                              source=str(f))
+        try:
+            v = np.array([float(d[k]) for k in keys])
+        except (TypeError, ValueError):
+            raise KincalError("x, y, z, qx, qy, qz, qw must be numbers", source=str(f)) from None
+        if not np.all(np.isfinite(v)) or abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
+            raise KincalError("the quaternion qx, qy, qz, qw is not a unit one",
+                              source=str(f))
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = quat_to_matrix(v[3:]), v[:3]
+        out[f.stem] = T
+    if not out:
+        raise KincalError("no pose files (NAME.yaml)", source=str(folder))
+    return out
 
 
 def read_image_labels(path: str | Path) -> list[str]:
