@@ -91,6 +91,37 @@ def test_distortion_and_hand_eye_recovered_together() -> None:
     assert pinhole.held_rms_px > 5 * fit.held_rms_px
 
 
+def test_lens_hand_eye_and_joint_offsets_in_one_fit() -> None:
+    """A Panda with joint offsets off nominal (0.4-0.7 deg, as the Franka set's), the lens
+    distorted, 16 images: the offsets the images identify, the lens and the hand-eye all
+    within 4 standard errors; the held-out images at the noise."""
+    nominal = load_serial_robot("panda")
+    offsets = dict(zip([f"theta_offset[{k}]" for k in range(2, 7)],
+                       [-0.009, -0.0126, -0.0064, 0.0126, -0.0085], strict=True))
+    true = nominal.with_params(offsets)
+    rng = np.random.default_rng(21)
+    pts = BOARD.corner_points(np.arange(24))
+    Z = true.fk(Q0) @ X_HAND @ matrix_from_frame([-0.07, -0.10, 0.36, 0.3, 0.1, -0.1])
+    q, uv = [], []
+    while len(q) < 16:
+        qi = Q0 + rng.uniform(-0.35, 0.35, 7)
+        p = _seen(inverse(X_HAND) @ inverse(true.fk(qi)) @ Z, pts)
+        if p is not None:
+            q.append(qi)
+            uv.append(p + rng.normal(0.0, 0.3, p.shape))
+    q = np.array(q)
+    names = [f"{k:02d}" for k in range(16)]
+    fit = calibrate_board_camera(nominal.fk(q), [pts] * 16, uv, names,
+                                 np.r_[LENS[:4], np.zeros(5)], "hand", 0.25, sigma=0.3,
+                                 robot=nominal, q=q, free=["theta_offset*"])
+    assert set(fit.robot) == set(offsets)          # the ones the images identify
+    for n, (v, s) in fit.robot.items():
+        assert abs(v - offsets[n]) < 4 * s, n
+    assert np.all(np.abs(fit.lens - LENS) < 4 * fit.lens_std)
+    assert np.linalg.norm(fit.X[:3, 3] - X_HAND[:3, 3]) < 4 * fit.expected_position
+    assert fit.held_rms_px < 0.3 * np.sqrt(2) * 1.5
+
+
 def test_eye_to_hand_with_distortion_and_order_free() -> None:
     """A fixed camera, the board on the flange, flange poses only (no joints), 10 images:
     the camera in the base and the lens recovered; shuffling the images changes nothing."""

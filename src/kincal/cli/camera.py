@@ -263,14 +263,15 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     fitted = {"all": LENS, "pinhole": LENS[:4], "none": ()}.get(lens)
     if fitted is None:
         raise KincalError(f"--lens {lens}: use all, pinhole or none")
-    if free:
-        raise KincalError("--free: robot parameters are fitted from --data (eye-in-hand); "
-                          "with --images the robot is held")
-    if output:
-        raise KincalError("-o: with --images the robot is not written (use --json)")
+    if free and (mount != "hand" or poses is not None):
+        raise KincalError("--free: robot parameters are fitted with a camera on the hand "
+                          "and the robot's joint values (not with --mount fixed or --poses)")
+    if output and (mount != "hand" or poses is not None):
+        raise KincalError("-o writes the robot with the camera as its tool frame: a camera "
+                          "on the hand and joint values (use --json)")
     if poses is not None and (robot is not None or joints is not None):
         raise KincalError("--poses gives the flange poses: no ROBOT and no --joints with it")
-    check_outputs({"--json": json_out}, {"--images": [images], "--board": [board],
+    check_outputs({"--json": json_out, "-o": output}, {"--images": [images], "--board": [board],
                                          "--joints": joints, "--poses": poses,
                                          "--intrinsics": intrinsics})
     b = read_board(board)
@@ -279,6 +280,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     if len(found.detections) < 3:
         raise KincalError(f"the board was found in {len(found.detections)} images; a "
                           "hand-eye needs 3 at least (better 10 or more)", source=images)
+    r: Any = None
     if poses is not None:
         given = read_flange_poses(poses)
         missing = [d.image for d in found.detections if Path(d.image).stem not in given]
@@ -301,17 +303,30 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     uv = [d.uv for d in found.detections]
     min_deg = float(np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
                                               minimum=0.0)))
+    q = np.array([d.q for d in found.detections]) if r is not None else None
     fit = calibrate_board_camera(A, pts, uv, names, lens0, mount, holdout, fitted,
-                                 0.5, min_deg)
+                                 0.5, min_deg, robot=r, q=q, free=free or ())
     _print_lens_fit(out, fit, found, intr, frame, mount)
     doc = _lens_json(fit, images, mount)
     if loo:
-        lo = lens_leave_one_out(A, pts, uv, names, lens0, mount, fitted, 0.5, min_deg)
+        lo = lens_leave_one_out(A, pts, uv, names, lens0, mount, fitted, 0.5, min_deg, r, q,
+                                free or ())
         _print_loo(out, lo)
         doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
                                 "rms_3d_m": lo.rms_3d.tolist(),
                                 "position_spread_m": lo.position_spread,
                                 "rotation_spread_rad": lo.rotation_spread}
+    if output:
+        from kincal.io import atomic_write_text
+        from kincal.robots.files import robot_yaml_text
+        from kincal.spatial import frame_from_matrix, matrix_from_frame
+
+        tool = frame_from_matrix(matrix_from_frame(r.frame_parameters("tool")) @ fit.X)
+        values = {n: v for n, (v, _) in fit.robot.items()}
+        values.update(zip((f"tool.{c}" for c in ("x", "y", "z", "rz", "ry", "rx")),
+                          tool.tolist(), strict=True))
+        atomic_write_text(output, robot_yaml_text(r.with_params(values)))
+        out.print(f"robot (camera as tool frame) -> {escape(output)}")
     if json_out:
         write_json(json_out, doc)
 
@@ -356,6 +371,9 @@ def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount
     out.print("intrinsics: " + ", ".join(
         f"{n} {fit.lens[k]:.5g}" + (f" ± {fit.lens_std[k]:.2g}" if n in fitted else " (held)")
         for k, n in enumerate(LENS)))
+    if fit.robot:
+        out.print("robot parameters fitted: " + ", ".join(
+            f"{n} {v:.6g} ± {s:.2g}" for n, (v, s) in fit.robot.items()))
     out.print(f"expected error of the hand-eye (1 sigma): {fit.expected_position * 1e3:.2f} "
               f"mm, {np.degrees(fit.expected_rotation):.3f} deg: covariance "
               f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg "
@@ -380,6 +398,7 @@ def _lens_json(fit: Any, images: str, mount: str) -> dict[str, Any]:
             "closed_form_start": fit.start.X.tolist(),
             "intrinsics": dict(zip(LENS, fit.lens.tolist(), strict=True)),
             "intrinsics_std": dict(zip(LENS, fit.lens_std.tolist(), strict=True)),
+            "robot_parameters": {n: {"value": v, "std": s} for n, (v, s) in fit.robot.items()},
             "expected_error": {"position_m": fit.expected_position,
                                "rotation_rad": fit.expected_rotation,
                                "covariance_position_m": fit.std_position,

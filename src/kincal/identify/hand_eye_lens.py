@@ -34,7 +34,7 @@ and the held-out images' reprojection RMS [px] (:func:`calibrate_board_camera`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,8 +42,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from kincal.errors import IdentifiabilityError, KincalError
 from kincal.identify.hand_eye import HandEye, average_pose, check_rotations, hand_eye
-from kincal.identify.hand_eye_fit import LeaveOneOut, clustered_covariance, split_images
+from kincal.identify.hand_eye_fit import (
+    LeaveOneOut,
+    clustered_covariance,
+    fit_hand_camera,
+    split_images,
+)
 from kincal.measure.camera_board import board_pose
+from kincal.measure.instruments.camera import HandCameraMeasurement
+from kincal.robots.chain import Robot
 from kincal.spatial import exp_so3, inverse, log_so3
 
 Array = NDArray[np.float64]
@@ -119,6 +126,7 @@ class LensFit:
         training, held_out: image names; train_rms_px, held_rms_px: reprojection RMS [px].
         held_per_image: ``{image: RMS px}`` on the held-out images; held_rms_3d: the
             3-D error their pixels imply at the board, ``|duv| z / f`` [m] per corner.
+        robot: ``{name: (value, standard error)}`` of the robot parameters fitted.
         start: the closed-form hand-eye; rotation_deg: the flange's rotation spread.
     """
 
@@ -141,6 +149,7 @@ class LensFit:
     held_per_image: dict[str, float] = field(default_factory=dict)
     held_rms_3d: float = float("nan")
     start: HandEye | None = None
+    robot: dict[str, tuple[float, float]] = field(default_factory=dict)
     rotation_deg: Array = field(default_factory=lambda: np.zeros(3))
 
     @property
@@ -192,27 +201,39 @@ def _refuse_if_singular(J: Array, names: Sequence[str]) -> None:
 def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
                      images: Sequence[str], lens0: ArrayLike, X0: Array, Z0: Array,
                      mount: str = "hand", fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
-                     iterations: int = 100) -> LensFit:
+                     iterations: int = 100,
+                     kinematics: Callable[[Array], Array] | None = None,
+                     robot_names: Sequence[str] = (), robot_values: ArrayLike = ()
+                     ) -> LensFit:
     """Levenberg-Marquardt over ``X``, ``Z`` and the intrinsics ``fit_lens`` (module
     docstring) from ``(X0, Z0, lens0)``; one entry of ``points`` (n_i, 3) [m] and raw
-    ``uv`` (n_i, 2) [px] per image, ``sigma`` the stated corner noise [px]."""
-    A = np.asarray(robot_poses, dtype=float)
-    C = list(_chain(A, mount))
+    ``uv`` (n_i, 2) [px] per image, ``sigma`` the stated corner noise [px].
+
+    With ``kinematics`` (robot parameter values -> the flange poses (N, 4, 4) of the
+    images), the robot parameters ``robot_names`` are fitted too, from ``robot_values``
+    (``robot_poses`` is then unused)."""
     unknown = [n for n in fit_lens if n not in LENS]
     if unknown:
         raise KincalError(f"{unknown[0]!r} is not an intrinsic; use {', '.join(LENS)}")
     lk = [LENS.index(n) for n in fit_lens]
-    names = [f"X.{n}" for n in POSE] + [f"Z.{n}" for n in POSE] + list(fit_lens)
-    steps = np.r_[np.full(12, 1e-7), [1e-4 if k < 4 else 1e-7 for k in lk]]
+    rv = np.asarray(robot_values, dtype=float).reshape(-1)
+    nr = len(rv) if kinematics is not None else 0
+    names = ([f"X.{n}" for n in POSE] + [f"Z.{n}" for n in POSE] + list(fit_lens)
+             + list(robot_names)[:nr])
+    steps = np.r_[np.full(12, 1e-7), [1e-4 if k < 4 else 1e-7 for k in lk], np.full(nr, 1e-7)]
     X, Z, lens = np.array(X0, dtype=float), np.array(Z0, dtype=float), np.array(lens0, float)
+    C0 = list(_chain(np.asarray(robot_poses, dtype=float), mount)) if nr == 0 else []
+    nl = 12 + len(lk)
 
-    def moved(p: Array) -> tuple[Array, Array, Array]:
+    def moved(p: Array) -> tuple[Array, Array, Array, Array]:
         ln = lens.copy()
-        ln[lk] += p[12:]
-        return _moved(X, p[:6]), _moved(Z, p[6:12]), ln
+        ln[lk] += p[12:nl]
+        return _moved(X, p[:6]), _moved(Z, p[6:12]), ln, rv + p[nl:]
 
     def res(p: Array) -> Array:
-        return _residuals(C, points, uv, *moved(p)) / sigma
+        Xp, Zp, ln, th = moved(p)
+        C = list(_chain(kinematics(th), mount)) if kinematics is not None and nr else C0
+        return _residuals(C, points, uv, Xp, Zp, ln) / sigma
 
     def jac() -> Array:
         cols = []
@@ -232,7 +253,7 @@ def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[A
             step = np.asarray(-np.linalg.solve(H + lam * np.diag(np.diag(H)), g), dtype=float)
             r_new = res(step)
             if float(r_new @ r_new) <= cost:
-                X, Z, lens = moved(step)
+                X, Z, lens, rv = moved(step)
                 r, lam = r_new, max(lam / 10.0, 1e-12)
                 break
             lam *= 10.0
@@ -250,7 +271,7 @@ def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[A
                             for n, P in zip(images, points, strict=True)])
     clus = np.asarray(clustered_covariance(J, r, owner.astype(str)), dtype=float)
     std = np.zeros(len(LENS))
-    std[lk] = np.sqrt(np.diag(cov)[12:])
+    std[lk] = np.sqrt(np.diag(cov)[12:nl])
 
     def tr(M: Array, s: slice) -> float:
         return float(np.sqrt(max(np.trace(M[s, s]), 0.0)))
@@ -258,18 +279,28 @@ def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[A
     e = np.hypot(*(r * sigma).reshape(-1, 2).T)
     return LensFit(X, Z, lens, std, names, cov, clus, sigma0, tr(cov, slice(0, 3)),
                    tr(cov, slice(3, 6)), tr(clus, slice(0, 3)), tr(clus, slice(3, 6)),
-                   sorted(set(images)), train_rms_px=float(np.sqrt(np.mean(e**2))))
+                   sorted(set(images)), train_rms_px=float(np.sqrt(np.mean(e**2))),
+                   robot={n: (float(v), float(np.sqrt(cov[nl + k, nl + k])))
+                          for k, (n, v) in enumerate(zip(names[nl:], rv, strict=True))})
 
 
 def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
                            images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
                            holdout: float = 0.25, fit_lens: Sequence[str] = LENS,
                            sigma: float = 0.5, min_rotation_deg: float = 5.0,
-                           held_out: Sequence[str] | None = None) -> LensFit:
+                           held_out: Sequence[str] | None = None, robot: Robot | None = None,
+                           q: ArrayLike | None = None, free: Sequence[str] = ()) -> LensFit:
     """Held-out images kept aside (:func:`~kincal.identify.hand_eye_fit.split_images`),
     the rotation check, the closed-form start on the pixels undistorted with ``lens0``,
     :func:`fit_board_camera` on the training images, and the held-out images' raw-pixel
-    reprojection RMS under the fitted ``X``, ``Z`` and intrinsics."""
+    reprojection RMS under the fitted ``X``, ``Z`` and intrinsics.
+
+    ``free`` (eye-in-hand, with the ``robot`` and the joint values ``q`` (N, n) of the
+    images; ``robot_poses`` = ``robot.fk(q)``): robot parameter names or patterns fitted
+    too.  Which of them the images identify is kincal's solver's answer on the pinhole
+    fit with the pixels undistorted by ``lens0``
+    (:func:`~kincal.identify.hand_eye_fit.fit_hand_camera`, which also gives the start);
+    the joint fit then frees exactly those."""
     A = np.asarray(robot_poses, dtype=float)
     names = list(images)
     if not len(A) == len(points) == len(uv) == len(names):
@@ -291,8 +322,25 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     B = np.array([board_pose(points[k], undistort_pixels(uv[k], L0), L0[:4])[0]
                   for k in it])
     start = hand_eye(A[it], B, mount)
-    fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
-                           start.X, start.Z, mount, fit_lens, sigma)
+    if free:
+        if robot is None or q is None or mount != "hand":
+            raise KincalError("robot parameters are fitted with a camera on the hand, from "
+                              "the robot and the joint values of the images")
+        Q = np.asarray(q, dtype=float)
+        rn, rv, X0, Z0 = _robot_start(robot, Q[it], [points[k] for k in it],
+                                      [undistort_pixels(uv[k], L0) for k in it], train, L0,
+                                      free, sigma)
+
+        def kin(th: Array) -> Array:
+            return robot.with_params(dict(zip(rn, th.tolist(), strict=True))).fk(Q[it])
+
+        fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
+                               X0, Z0, mount, fit_lens, sigma, kinematics=kin,
+                               robot_names=rn, robot_values=rv)
+        A = robot.with_params({n: v for n, (v, _) in fit.robot.items()}).fk(Q)
+    else:
+        fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
+                               start.X, start.Z, mount, fit_lens, sigma)
     fit.start, fit.rotation_deg, fit.held_out = start, rot, held
     if held:
         C = _chain(A[[idx[n] for n in held]], mount)
@@ -309,16 +357,33 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     return fit
 
 
+def _robot_start(robot: Robot, q: Array, points: Sequence[Array], uv: Sequence[Array],
+                 images: Sequence[str], lens: Array, free: Sequence[str], sigma: float
+                 ) -> tuple[list[str], Array, Array, Array]:
+    """The robot parameters of ``free`` that the images identify, their values, ``X`` and
+    ``Z`` from the pinhole fit on undistorted pixels (``fit_hand_camera``)."""
+    block = HandCameraMeasurement("camera", np.repeat(q, [len(P) for P in points], axis=0),
+                                  np.vstack(points), np.vstack(uv), sigma,
+                                  tuple(float(v) for v in lens[:4]))
+    labels = [n for n, P in zip(images, points, strict=True) for _ in range(len(P))]
+    pin = fit_hand_camera(robot, block, labels, 0.0, free, 0.0)
+    res = pin.result
+    names = [n for n in res.estimated if not n.startswith(("tool.", "camera."))]
+    return names, np.array([res.params[n] for n in names]), pin.X, pin.board
+
+
 def lens_leave_one_out(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
                        images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
                        fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
-                       min_rotation_deg: float = 5.0) -> LeaveOneOut:
+                       min_rotation_deg: float = 5.0, robot: Robot | None = None,
+                       q: ArrayLike | None = None, free: Sequence[str] = ()) -> LeaveOneOut:
     """:func:`calibrate_board_camera` once per image with that image held out: its
     reprojection RMS [px] and 3-D error [m], and the jackknife spread of the hand-eye
     (as :func:`~kincal.identify.hand_eye_fit.leave_one_out`)."""
     names = sorted(images)
     fits = [calibrate_board_camera(robot_poses, points, uv, images, lens0, mount, 0.0,
-                                   fit_lens, sigma, min_rotation_deg, [n]) for n in names]
+                                   fit_lens, sigma, min_rotation_deg, [n], robot, q, free)
+            for n in names]
     X = np.array([f.X for f in fits])
     n = len(names)
     t = X[:, :3, 3]
