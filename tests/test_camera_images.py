@@ -182,3 +182,60 @@ def test_intrinsics_files_ros_and_opencv(tmp_path: Path) -> None:
     fs.release()
     i = read_intrinsics(ocv)
     assert i.pinhole == (900.0, 901.0, 640.0, 360.0) and i.dist == (0.1, -0.2, 0.0, 0.0, 0.05)
+
+
+def test_blurred_and_oblique_boards_are_dropped_with_the_reason(tmp_path: Path,
+                                                                capsys) -> None:
+    """Rendered chessboards: one sharp, one with 14 px of horizontal motion blur (still
+    detected, all 24 corners), one tilted 66 deg from the viewing ray (detected too); the
+    two are dropped, each with its measured figure and the threshold, the sharp one kept.
+    The tilt from the true corner pixels is the rendered one (to 0.01 deg)."""
+    cv2 = pytest.importorskip("cv2")
+    from kincal.measure.camera_images import (
+        Detection,
+        Intrinsics,
+        board_sharpness,
+        tilt_deg,
+    )
+    from kincal.spatial import matrix_from_frame
+
+    board = Board("chessboard", 5, 7, 0.03)
+    sharp = _render(cv2, board, H_VIEW, np.random.default_rng(1))
+    k = np.zeros((14, 14))
+    k[7, :] = 1 / 14
+    blurred = cv2.filter2D(sharp, -1, k)
+    K = np.array([[900.0, 0, 640], [0, 900, 360], [0, 0, 1]])
+    S = np.array([[PX / board.square, 0, MARGIN - 0.5], [0, PX / board.square, MARGIN - 0.5],
+                  [0, 0, 1]])
+    R = matrix_from_frame([0, 0, 0, 0.3, 0.0, np.radians(66)])[:3, :3]
+    t = np.array([0, 0, 0.45]) - R @ [board.columns * board.square / 2,
+                                      board.rows * board.square / 2, 0]
+    H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ np.linalg.inv(S)
+    oblique = _render(cv2, board, H / H[2, 2], np.random.default_rng(2))
+    ids = np.arange(24)
+    truth = Detection("o", ids, _true_pixels(board, ids, H / H[2, 2]), np.zeros(1))
+    assert abs(tilt_deg(board, truth, Intrinsics(900, 900, 640, 360)) - 66) < 0.01
+    uv = _true_pixels(board, ids, H_VIEW)
+    assert board_sharpness(cv2, sharp, uv) > 3 * board_sharpness(cv2, blurred, uv)
+    for name, img in [("a.png", sharp), ("b.png", blurred), ("c.png", oblique)]:
+        cv2.imwrite(str(tmp_path / name), img)
+    (tmp_path / "board.yaml").write_text("type: chessboard\nsquares: [5, 7]\nsquare: 30 mm\n")
+    (tmp_path / "joints.csv").write_text("image,q1_deg\na.png,1\nb.png,2\nc.png,3\n")
+    (tmp_path / "cam.yaml").write_text("camera_matrix: {rows: 3, cols: 3, data: [900, 0, 640,"
+                                       " 0, 900, 360, 0, 0, 1]}\n")
+    args = ["import", "images", tmp_path, "--board", tmp_path / "board.yaml", "--joints",
+            tmp_path / "joints.csv", "--intrinsics", tmp_path / "cam.yaml", "-o",
+            tmp_path / "d.csv"]
+    code, out, err = run(capsys, *args)
+    assert code == 0, err
+    text = " ".join(out.split())
+    assert "1 images with the board, 24 corners; 2 dropped" in text
+    assert "b.png: motion blur (sharpness 0.1" in text and "< 0.15 px^-3" in text
+    assert "c.png: board too oblique (66 deg between its normal and the viewing ray > 60" \
+        in text
+    # the thresholds are options (the blurred image alone: its detection is fast)
+    (tmp_path / "b").mkdir()
+    cv2.imwrite(str(tmp_path / "b" / "b.png"), blurred)
+    args[2] = tmp_path / "b"
+    code, out, err = run(capsys, *args, "--min-sharpness", "0.05")
+    assert code == 0 and "1 images with the board, 24 corners; 0 dropped" in out, err

@@ -41,14 +41,23 @@ def import_images(
                                        "(e.g. 0.5px).")] = "0.5px",
     robot: Annotated[str | None, typer.Option("--robot", help="Robot whose joint names head "
                                               "the joint columns.")] = None,
+    min_sharpness: Annotated[float, typer.Option("--min-sharpness", min=0.0, help="Drop an "
+                                                 "image whose board is less sharp (variance "
+                                                 "of the Laplacian x corner spacing / "
+                                                 "contrast^2, px^-3).")] = 0.15,
+    max_tilt: Annotated[str, typer.Option("--max-tilt", help="Drop an image whose board is "
+                                          "tilted more from the viewing ray.")] = "60deg",
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
     (undistorted pixels, joint values, corner ids, the image of every corner)."""
+    import numpy as np
+
     from kincal.io import check_outputs, write_json
     from kincal.measure.camera_board import read_board
     from kincal.measure.camera_images import (
         detect_images,
+        drop_oblique,
         estimate_intrinsics,
         read_intrinsics,
         read_joints_csv,
@@ -65,8 +74,10 @@ def import_images(
     r = serial(load(robot), "import images") if robot else None
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
-    images = detect_images(folder, b, table, min_corners)
+    tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
+    images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
+    images = drop_oblique(images, b, intr, tilt)
     block = write_image_measurements(output, images, b, intr,
                                      parse_quantity(sigma, "pixel", "--sigma", positive=True),
                                      r)
@@ -245,6 +256,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     from kincal.measure.camera_board import read_board
     from kincal.measure.camera_images import (
         detect_images,
+        drop_oblique,
         estimate_intrinsics,
         read_flange_poses,
         read_intrinsics,
@@ -280,6 +292,12 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     if len(found.detections) < 3:
         raise KincalError(f"the board was found in {len(found.detections)} images; a "
                           "hand-eye needs 3 at least (better 10 or more)", source=images)
+    intr = (read_intrinsics(intrinsics) if intrinsics else found.intrinsics
+            or estimate_intrinsics(found, b))
+    found = drop_oblique(found, b, intr)
+    if len(found.detections) < 3:
+        raise KincalError(f"{len(found.detections)} images left after dropping the too "
+                          "oblique ones; a hand-eye needs 3 at least", source=images)
     r: Any = None
     if poses is not None:
         given = read_flange_poses(poses)
@@ -295,8 +313,6 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
         r = serial(load(robot), "hand-eye")
         A = r.fk(np.array([d.q for d in found.detections]))
         frame = "the base frame" if mount == "fixed" else "the tool frame"
-    intr = (read_intrinsics(intrinsics) if intrinsics else found.intrinsics
-            or estimate_intrinsics(found, b))
     lens0 = np.r_[intr.pinhole, (list(intr.dist) + [0.0] * 5)[:5]]
     names = [d.image for d in found.detections]
     pts = [b.corner_points(d.ids) for d in found.detections]
