@@ -239,3 +239,40 @@ def test_blurred_and_oblique_boards_are_dropped_with_the_reason(tmp_path: Path,
     args[2] = tmp_path / "b"
     code, out, err = run(capsys, *args, "--min-sharpness", "0.05")
     assert code == 0 and "1 images with the board, 24 corners; 0 dropped" in out, err
+
+
+@pytest.mark.parametrize("kind,dictionary", [("aruco_grid", "DICT_6X6_250"),
+                                             ("apriltag_grid", "DICT_APRILTAG_36H11")])
+def test_marker_grids_rendered_corners_and_opencvs_layout(tmp_path: Path, kind: str,
+                                                          dictionary: str) -> None:
+    """ArUco and AprilTag grids (4 x 5 markers, 80 px markers on a 100 px pitch) drawn
+    marker by marker, warped, blurred and noisy: every marker corner found within a
+    fraction of a pixel of where the warp put it; the board file read; the corner layout
+    is OpenCV's GridBoard's."""
+    cv2 = pytest.importorskip("cv2")
+    from kincal.measure.camera_images import aruco_dictionary, detect_board
+
+    f = tmp_path / "grid.yaml"
+    f.write_text(f"type: {kind}\nmarkers: [4, 5]\nmarker: 32 mm\nseparation: 8 mm\n"
+                 + ("" if kind == "apriltag_grid" else f"dictionary: {dictionary}\n"))
+    board = read_board(f)
+    assert (board.kind, board.columns, board.rows, board.dictionary) == (
+        "aruco_grid", 4, 5, dictionary)
+    assert board.square == pytest.approx(0.040) and board.marker == pytest.approx(0.032)
+    d = aruco_dictionary(cv2, dictionary)
+    ref = np.array(cv2.aruco.GridBoard((4, 5), 0.032, 0.008, d).getObjPoints()).reshape(-1, 3)
+    assert np.abs(board.corner_points(np.arange(80)) - ref).max() < 1e-7
+    flat = np.full((5 * PX + 2 * MARGIN, 4 * PX + 2 * MARGIN), 255, np.uint8)
+    for m in range(20):
+        x0, y0 = MARGIN + (m % 4) * PX, MARGIN + (m // 4) * PX
+        flat[y0:y0 + 80, x0:x0 + 80] = cv2.aruco.generateImageMarker(d, m, 80)
+    img = cv2.warpPerspective(flat, H_VIEW, (1280, 720), borderValue=255)
+    rng = np.random.default_rng(4)
+    img = cv2.GaussianBlur(img, (0, 0), 0.8).astype(float) + rng.normal(0, 2.0, img.shape)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    ids, uv = detect_board(cv2, img, board)
+    assert len(ids) == 80 and np.array_equal(ids, np.arange(80))
+    err = np.linalg.norm(uv - _true_pixels(board, ids, H_VIEW), axis=1)
+    # measured (ArUco): 0.05 px mean, 0.11 max with the edge-line refinement; OpenCV's
+    # own CORNER_REFINE_SUBPIX alone: 0.39 mean, 0.63 max (pulled into the marker)
+    assert err.mean() < 0.1 and err.max() < 0.25, (err.mean(), err.max())

@@ -4,11 +4,13 @@ Every image of a folder is searched for the board (:mod:`kincal.measure.camera_b
 with OpenCV (the optional extra ``kincal[camera]``, imported only here and only when an
 image is read): ChArUco corners by ``cv2.aruco.CharucoDetector``, chessboard corners by
 ``cv2.findChessboardCorners``, both refined by ``cv2.cornerSubPix`` (window kept off the
-ChArUco markers, see :func:`_refine`).  An image is dropped, with its reason, when it
-cannot be read, the board is not found, fewer than ``min_corners`` corners are seen, the
-board is blurred (:func:`board_sharpness` under ``min_sharpness``, default 0.15 px^-3) or,
-once the intrinsics are known, seen too obliquely (:func:`drop_oblique`: more than 60 deg
-between its normal and the viewing ray by default).
+ChArUco markers, see :func:`_refine`); the corners of ArUco / AprilTag grid markers by
+``cv2.aruco.ArucoDetector``, refined as the intersections of the markers' edge lines
+(:func:`_edge_refine`). An image is dropped, with its reason, when it cannot be read, the
+board is not found, fewer than ``min_corners`` corners are seen, the board is blurred
+(:func:`board_sharpness` under ``min_sharpness``, default 0.15 px^-3) or, once the
+intrinsics are known, seen too obliquely (:func:`drop_oblique`: more than 60 deg between
+its normal and the viewing ray by default).
 
 Two folder layouts:
 
@@ -225,10 +227,94 @@ def _refine(cv2: Any, gray: Any, uv: Array, board: Board) -> Array:
     return np.asarray(out, dtype=float).reshape(-1, 2)
 
 
+def aruco_dictionary(cv2: Any, name: str) -> Any:
+    """OpenCV's predefined ArUco dictionary ``name`` (case-insensitive: DICT_APRILTAG_36H11
+    is OpenCV's DICT_APRILTAG_36h11), or one line saying it is not one of OpenCV's."""
+    found = [a for a in dir(getattr(cv2, "aruco", None)) if a.upper() == name.upper()]
+    if not found:
+        raise KincalError(f"dictionary {name!r} is not one of OpenCV's")
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, found[0]))
+
+
+def _bilinear(img: Array, x: Array, y: Array) -> Array:
+    x0 = np.clip(np.floor(x).astype(int), 0, img.shape[1] - 2)
+    y0 = np.clip(np.floor(y).astype(int), 0, img.shape[0] - 2)
+    fx, fy = x - x0, y - y0
+    return np.asarray((1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1])
+            + fy * ((1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]), dtype=float)
+
+
+def _edge_refine(gray: Any, quad: Array, bits: int) -> Array:
+    """A marker's four corners (4, 2) [px] as the intersections of its four edge lines.
+    Along each edge, 21 profiles across it (between 15 % and 85 % of its length), each
+    sampled every 0.1 px over half a border bit each side; the edge point is where the
+    profile crosses halfway between its dark and bright ends (linear interpolation); a
+    line through the points by total least squares.  A blurred straight edge crosses
+    halfway at the edge itself, where the rounded tip of a blurred corner pulls a
+    corner detector inwards."""
+    img = np.asarray(gray, dtype=float)
+    centre = quad.mean(axis=0)
+    lines = []
+    for a, b in ((0, 1), (1, 2), (2, 3), (3, 0)):
+        d = quad[b] - quad[a]
+        length = float(np.linalg.norm(d))
+        n = np.array([d[1], -d[0]]) / length
+        if n @ (quad[a] - centre) < 0:
+            n = -n                                              # outwards
+        half = float(np.clip(0.45 * length / (bits + 2), 1.0, 4.0))
+        s = np.arange(-half, half + 1e-9, 0.1)
+        p = quad[a] + np.linspace(0.15, 0.85, 21)[:, None] * d
+        prof = _bilinear(img, p[:, None, 0] + s * n[0], p[:, None, 1] + s * n[1])
+        mid = 0.5 * (prof[:, :3].mean(axis=1) + prof[:, -3:].mean(axis=1))
+        pts = []
+        for k in range(len(p)):
+            above = np.flatnonzero(prof[k] >= mid[k])
+            if len(above) == 0 or above[0] == 0:
+                continue
+            j = above[0]
+            f = (mid[k] - prof[k, j - 1]) / max(prof[k, j] - prof[k, j - 1], 1e-9)
+            pts.append(p[k] + (s[j - 1] + 0.1 * f) * n)
+        if len(pts) < 5:
+            return quad
+        P = np.array(pts)
+        c = P.mean(axis=0)
+        normal = np.linalg.svd(P - c)[2][-1]
+        lines.append((normal, float(normal @ c)))
+    out = np.zeros((4, 2))
+    for k in range(4):                          # corner k: edges (k-1, k) and (k, k+1)
+        (n1, c1), (n2, c2) = lines[(k - 1) % 4], lines[k]
+        M = np.array([n1, n2])
+        if abs(np.linalg.det(M)) < 1e-6:
+            return quad
+        out[k] = np.linalg.solve(M, [c1, c2])
+    return out if np.abs(out - quad).max() < 2.0 else quad
+
+
+def _detect_grid(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
+    """The four corners of every grid marker found (OpenCV's ArucoDetector with its
+    ``CORNER_REFINE_SUBPIX``, then :func:`_edge_refine`), ids ``4 m + j``."""
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    det = cv2.aruco.ArucoDetector(aruco_dictionary(cv2, board.dictionary), params)
+    corners, ids, _ = det.detectMarkers(gray)
+    if ids is None or len(ids) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    m = np.asarray(ids, dtype=np.int64).reshape(-1)
+    bits = int(det.getDictionary().markerSize)
+    uv = np.array([_edge_refine(gray, q, bits)
+                   for q in np.asarray(corners, dtype=float).reshape(-1, 4, 2)])
+    keep = m < board.columns * board.rows            # markers of other boards are ignored
+    k = (4 * m[keep, None] + np.arange(4)).reshape(-1)
+    order = np.argsort(k, kind="stable")
+    return k[order], uv[keep].reshape(-1, 2)[order]
+
+
 def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
     """Corner ids and sub-pixel pixels [px] of ``board`` in a grey image (empty if none)."""
+    if board.kind == "aruco_grid":
+        return _detect_grid(cv2, gray, board)
     if board.kind == "charuco":
-        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
+        d = aruco_dictionary(cv2, board.dictionary)
         cb = cv2.aruco.CharucoBoard((board.columns, board.rows), board.square, board.marker, d)
         corners, ids, _, _ = cv2.aruco.CharucoDetector(cb).detectBoard(gray)
         if ids is None or len(ids) == 0:
@@ -313,8 +399,8 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
     if board.kind == "charuco" and not hasattr(getattr(cv2, "aruco", None), "CharucoDetector"):
         raise KincalError(f"OpenCV {cv2.__version__} has no ChArUco detector; pip install "
                           "'opencv-python-headless>=4.7'")
-    if board.kind == "charuco" and not hasattr(cv2.aruco, board.dictionary):
-        raise KincalError(f"dictionary {board.dictionary!r} is not one of OpenCV's")
+    if board.kind in ("charuco", "aruco_grid"):
+        aruco_dictionary(cv2, board.dictionary)
     out = ImageSet([], [], (0, 0))
     given: list[Intrinsics] = []
     for label, image, data in _sources(Path(folder)):
@@ -405,8 +491,11 @@ def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
     cols.append(("corner", np.concatenate([d.ids for d in images.detections]), "text"))
     dist = " ".join(f"{v:.6g}" for v in intr.dist)
     write_block_table(path, block_tags("camera", block, mount="hand"), q, cols, None, robot,
-                      [f"board: {board.kind} {board.columns}x{board.rows} squares of "
-                       f"{board.square * 1e3:g} mm; corners from OpenCV, sub-pixel",
+                      [(f"board: {board.kind} {board.columns}x{board.rows} markers of "
+                        f"{board.marker * 1e3:g} mm, pitch {board.square * 1e3:g} mm "
+                        f"({board.dictionary})" if board.kind == "aruco_grid" else
+                        f"board: {board.kind} {board.columns}x{board.rows} squares of "
+                        f"{board.square * 1e3:g} mm") + "; corners from OpenCV, sub-pixel",
                        f"intrinsics {intr.source}; distortion (k1 k2 p1 p2 k3) {dist} "
                        "removed: u = fx x/z + cx, v = fy y/z + cy",
                        f"{len(images.detections)} images, {len(q)} corners; dropped: "
