@@ -34,7 +34,7 @@ grep -E "^later|image \[px\]" later.txt
 
 # --8<-- [start:lens]
 kincal hand-eye panda --images $SET/session_1 \
-    --board $SET/config/calibration_board_parameters.yaml --free 'theta_offset*' --leave-one-out
+    --board $SET/config/calibration_board_parameters.yaml --free 'theta_offset*'
 # --8<-- [end:lens]
 
 # --8<-- [start:abb]
@@ -47,7 +47,7 @@ marker: 18.256 mm
 dictionary: DICT_6X6_250
 EOF
 kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses --mount fixed \
-    --intrinsics $ABB/cal_data.yaml --lens none --leave-one-out
+    --intrinsics $ABB/cal_data.yaml --lens none
 # --8<-- [end:abb]
 
 # --8<-- [start:abb-lens]

@@ -5,6 +5,9 @@
   (:mod:`kincal.measure.camera_images`; needs ``kincal[camera]``);
 * ``kincal hand-eye ROBOT --data DATA``: closed-form start, joint fit, expected error,
   held-out images (:mod:`kincal.identify.hand_eye_fit`; plain NumPy).
+* ``kincal hand-eye [ROBOT] --images FOLDER --board board.yaml [--joints J | --poses DIR]
+  [--mount hand|fixed]``: the same from the images, the intrinsics and distortion in the
+  fit (:mod:`kincal.identify.hand_eye_lens`; needs ``kincal[camera]``).
 """
 
 from __future__ import annotations
@@ -161,8 +164,10 @@ def hand_eye_command(
                                       "hand-eye (jackknife).")] = False,
     json_out: JsonOpt = None,
 ) -> None:
-    """Hand-eye of a camera on the flange: order-free closed-form start, joint fit of the
-    reprojection errors, expected error and held-out images."""
+    """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
+    the flange or fixed): order-free closed-form start, joint fit of the reprojection
+    errors (with the intrinsics and distortion from --images), expected error with the
+    unmodelled floor, held-out images."""
     import numpy as np
 
     from kincal.identify.hand_eye_fit import fit_hand_camera
@@ -225,12 +230,7 @@ def hand_eye_command(
         from kincal.identify.hand_eye_fit import leave_one_out
 
         lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
-        out.print(f"leave-one-out ({len(lo.images)} fits): held-out RMS "
-                  f"{np.sqrt(np.mean(lo.rms_px ** 2)):.2f} px = "
-                  f"{np.sqrt(np.mean(lo.rms_3d ** 2)) * 1e3:.2f} mm at the board, worst "
-                  f"{lo.images[int(np.argmax(lo.rms_px))]} {lo.rms_px.max():.2f} px; "
-                  f"hand-eye spread (jackknife) {lo.position_spread * 1e3:.2f} mm, "
-                  f"{np.degrees(lo.rotation_spread):.3f} deg")
+        _print_loo(out, lo)
         doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
                                 "rms_3d_m": lo.rms_3d.tolist(),
                                 "position_spread_m": lo.position_spread,
