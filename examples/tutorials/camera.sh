@@ -31,3 +31,26 @@ kincal import images later --board $SET/config/calibration_board_parameters.yaml
 kincal validate panda_camera.yaml --data later.csv > later.txt
 grep -E "^later|image \[px\]" later.txt
 # --8<-- [end:later]
+
+# --8<-- [start:lens]
+kincal hand-eye panda --images $SET/session_1 \
+    --board $SET/config/calibration_board_parameters.yaml --free 'theta_offset*'
+# --8<-- [end:lens]
+
+# --8<-- [start:abb]
+ABB=../shared/data/camera/abb_eye_to_hand
+cat > abb_board.yaml <<'EOF'
+type: charuco
+squares: [5, 7]
+square: 36.195 mm
+marker: 18.256 mm
+dictionary: DICT_6X6_250
+EOF
+kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses --mount fixed \
+    --intrinsics $ABB/cal_data.yaml --lens none
+# --8<-- [end:abb]
+
+# --8<-- [start:abb-lens]
+kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses --mount fixed \
+    --intrinsics $ABB/cal_data.yaml --leave-one-out
+# --8<-- [end:abb-lens]

@@ -5,6 +5,9 @@
   (:mod:`kincal.measure.camera_images`; needs ``kincal[camera]``);
 * ``kincal hand-eye ROBOT --data DATA``: closed-form start, joint fit, expected error,
   held-out images (:mod:`kincal.identify.hand_eye_fit`; plain NumPy).
+* ``kincal hand-eye [ROBOT] --images FOLDER --board board.yaml [--joints J | --poses DIR]
+  [--mount hand|fixed]``: the same from the images, the intrinsics and distortion in the
+  fit (:mod:`kincal.identify.hand_eye_lens`; needs ``kincal[camera]``).
 """
 
 from __future__ import annotations
@@ -41,14 +44,23 @@ def import_images(
                                        "(e.g. 0.5px).")] = "0.5px",
     robot: Annotated[str | None, typer.Option("--robot", help="Robot whose joint names head "
                                               "the joint columns.")] = None,
+    min_sharpness: Annotated[float, typer.Option("--min-sharpness", min=0.0, help="Drop an "
+                                                 "image whose board is less sharp (variance "
+                                                 "of the Laplacian x corner spacing / "
+                                                 "contrast^2, px^-3).")] = 0.15,
+    max_tilt: Annotated[str, typer.Option("--max-tilt", help="Drop an image whose board is "
+                                          "tilted more from the viewing ray.")] = "60deg",
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
     (undistorted pixels, joint values, corner ids, the image of every corner)."""
+    import numpy as np
+
     from kincal.io import check_outputs, write_json
     from kincal.measure.camera_board import read_board
     from kincal.measure.camera_images import (
         detect_images,
+        drop_oblique,
         estimate_intrinsics,
         read_intrinsics,
         read_joints_csv,
@@ -65,8 +77,10 @@ def import_images(
     r = serial(load(robot), "import images") if robot else None
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
-    images = detect_images(folder, b, table, min_corners)
+    tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
+    images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
+    images = drop_oblique(images, b, intr, tilt)
     block = write_image_measurements(output, images, b, intr,
                                      parse_quantity(sigma, "pixel", "--sigma", positive=True),
                                      r)
@@ -96,8 +110,12 @@ def _fit_json(fit: Any, data: str) -> dict[str, Any]:
             "camera_in_tool_frame": {"matrix": fit.X.tolist(),
                                      "frame_m_rad": frame_from_matrix(fit.X).tolist()},
             "closed_form_start": fit.start.X.tolist(), "board_in_base": fit.board.tolist(),
-            "expected_error": {"position_m": fit.std_position,
-                               "rotation_rad": fit.std_rotation},
+            "expected_error": {"position_m": fit.expected_position,
+                               "rotation_rad": fit.expected_rotation,
+                               "covariance_position_m": fit.std_position,
+                               "covariance_rotation_rad": fit.std_rotation,
+                               "floor_position_m": fit.floor_position,
+                               "floor_rotation_rad": fit.floor_rotation},
             "reprojection_rms_px": {"training": fit.train_rms_px,
                                     "held_out": fit.held_rms_px},
             "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image,
@@ -107,10 +125,31 @@ def _fit_json(fit: Any, data: str) -> dict[str, Any]:
 
 @app.command("hand-eye")
 def hand_eye_command(
-    robot: Annotated[str, typer.Argument(help="The nominal robot (built-in name or robot "
-                                         "file); its tool frame is the camera's flange.")],
-    data: Annotated[str, typer.Option("--data", "-d", help="Camera measurement CSV from "
-                                      "`kincal import images` (mount=hand).")],
+    robot: Annotated[str | None, typer.Argument(help="The nominal robot (built-in name or "
+                                                "robot file); its tool frame is the "
+                                                "camera's flange. Not with --poses.")] = None,
+    data: Annotated[str | None, typer.Option("--data", "-d", help="Camera measurement CSV "
+                                             "from `kincal import images` (mount=hand).")
+                    ] = None,
+    images: Annotated[str | None, typer.Option("--images", help="Folder of board images "
+                                               "(or pose folders): hand-eye and intrinsics "
+                                               "in one fit from the raw pixels.")] = None,
+    board: Annotated[str | None, typer.Option("--board", help="Board YAML (with --images)."
+                                              )] = None,
+    joints: Annotated[str | None, typer.Option("--joints", help="Joint values per image "
+                                               "(with --images and ROBOT).")] = None,
+    poses: Annotated[str | None, typer.Option("--poses", help="Folder of flange poses "
+                                              "NAME.yaml (x y z m, qx qy qz qw) matching the "
+                                              "images: no robot needed.")] = None,
+    intrinsics: Annotated[str | None, typer.Option("--intrinsics", help="Start intrinsics "
+                                                   "(default: the pose folders', else "
+                                                   "OpenCV's calibrateCamera).")] = None,
+    mount: Annotated[str, typer.Option("--mount", help="hand: camera on the flange; fixed: "
+                                       "camera fixed, board on the flange (with --images)."
+                                       )] = "hand",
+    lens: Annotated[str, typer.Option("--lens", help="Intrinsics fitted with --images: all "
+                                      "(fx fy cx cy k1 k2 p1 p2 k3), pinhole (fx fy cx cy), "
+                                      "none.")] = "all",
     holdout: Annotated[float, typer.Option("--holdout", help="Fraction of the images kept "
                                            "aside to check the fit.")] = 0.25,
     free: Annotated[list[str] | None, typer.Option("--free", help="Robot parameters (names "
@@ -125,8 +164,10 @@ def hand_eye_command(
                                       "hand-eye (jackknife).")] = False,
     json_out: JsonOpt = None,
 ) -> None:
-    """Hand-eye of a camera on the flange: order-free closed-form start, joint fit of the
-    reprojection errors, expected error and held-out images."""
+    """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
+    the flange or fixed): order-free closed-form start, joint fit of the reprojection
+    errors (with the intrinsics and distortion from --images), expected error with the
+    unmodelled floor, held-out images."""
     import numpy as np
 
     from kincal.identify.hand_eye_fit import fit_hand_camera
@@ -138,6 +179,15 @@ def hand_eye_command(
     from kincal.units import parse_quantity
 
     out = out_console(json_out)
+    if images is not None or data is None:
+        _hand_eye_images(out, robot, images, board, joints, poses, intrinsics, mount, lens,
+                         holdout, free, min_rotation, loo, output, json_out, data)
+        return
+    if mount != "hand":
+        raise KincalError("--mount fixed: give the images (--images FOLDER --board ...); "
+                          "the measurement file is for a camera on the hand")
+    if robot is None:
+        raise KincalError("ROBOT: the robot the camera is on is missing")
     check_outputs({"-o": output, "--json": json_out}, {"--data": [data], "ROBOT": [robot]})
     r = serial(load(robot), "hand-eye")
     blocks = read_camera(data, r)
@@ -161,9 +211,12 @@ def hand_eye_command(
     out.print("camera in the tool frame (x y z mm, rz ry rx deg): "
               + " ".join(f"{v * 1e3:.2f}" for v in f[:3]) + ", "
               + " ".join(f"{np.degrees(v):.3f}" for v in f[3:]))
-    out.print(f"expected error of the hand-eye (1 sigma, covariance): "
-              f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg; "
-              f"sigma0 {fit.result.sigma0:.2f}")
+    out.print(f"expected error of the hand-eye (1 sigma): {fit.expected_position * 1e3:.2f} "
+              f"mm, {np.degrees(fit.expected_rotation):.3f} deg: covariance "
+              f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg "
+              f"(sigma0 {fit.result.sigma0:.2f}) with the unmodelled floor "
+              f"{fit.floor_position * 1e3:.2f} mm, {np.degrees(fit.floor_rotation):.3f} deg "
+              "(images disagreeing beyond their corner noise)")
     extra = [n for n in fit.result.estimated if not n.startswith(("tool.", "camera."))]
     if extra:
         out.print("robot parameters fitted: " + ", ".join(
@@ -177,12 +230,7 @@ def hand_eye_command(
         from kincal.identify.hand_eye_fit import leave_one_out
 
         lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
-        out.print(f"leave-one-out ({len(lo.images)} fits): held-out RMS "
-                  f"{np.sqrt(np.mean(lo.rms_px ** 2)):.2f} px = "
-                  f"{np.sqrt(np.mean(lo.rms_3d ** 2)) * 1e3:.2f} mm at the board, worst "
-                  f"{lo.images[int(np.argmax(lo.rms_px))]} {lo.rms_px.max():.2f} px; "
-                  f"hand-eye spread (jackknife) {lo.position_spread * 1e3:.2f} mm, "
-                  f"{np.degrees(lo.rotation_spread):.3f} deg")
+        _print_loo(out, lo)
         doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
                                 "rms_3d_m": lo.rms_3d.tolist(),
                                 "position_spread_m": lo.position_spread,
@@ -192,3 +240,188 @@ def hand_eye_command(
         out.print(f"robot (camera as tool frame) -> {escape(output)}")
     if json_out:
         write_json(json_out, doc)
+
+
+def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str | None,
+                     joints: str | None, poses: str | None, intrinsics: str | None,
+                     mount: str, lens: str, holdout: float, free: list[str] | None,
+                     min_rotation: str, loo: bool, output: str | None, json_out: str | None,
+                     data: str | None) -> None:
+    """``kincal hand-eye --images``: detect, closed-form start, one fit of the hand-eye,
+    the board and the intrinsics on the raw pixels (:mod:`kincal.identify.hand_eye_lens`)."""
+    import numpy as np
+
+    from kincal.identify.hand_eye_lens import LENS, calibrate_board_camera, lens_leave_one_out
+    from kincal.io import check_outputs, write_json
+    from kincal.measure.camera_board import read_board
+    from kincal.measure.camera_images import (
+        detect_images,
+        drop_oblique,
+        estimate_intrinsics,
+        read_flange_poses,
+        read_intrinsics,
+        read_joints_csv,
+    )
+    from kincal.units import parse_quantity
+
+    if images is None:
+        raise KincalError("--data (a camera measurement file) or --images FOLDER is needed")
+    if data is not None:
+        raise KincalError("--data and --images: give one of them")
+    if board is None:
+        raise KincalError("--images needs --board (the board YAML)")
+    if mount not in ("hand", "fixed"):
+        raise KincalError(f"--mount {mount}: use hand or fixed")
+    fitted = {"all": LENS, "pinhole": LENS[:4], "none": ()}.get(lens)
+    if fitted is None:
+        raise KincalError(f"--lens {lens}: use all, pinhole or none")
+    if free and (mount != "hand" or poses is not None):
+        raise KincalError("--free: robot parameters are fitted with a camera on the hand "
+                          "and the robot's joint values (not with --mount fixed or --poses)")
+    if output and (mount != "hand" or poses is not None):
+        raise KincalError("-o writes the robot with the camera as its tool frame: a camera "
+                          "on the hand and joint values (use --json)")
+    if poses is not None and (robot is not None or joints is not None):
+        raise KincalError("--poses gives the flange poses: no ROBOT and no --joints with it")
+    check_outputs({"--json": json_out, "-o": output}, {"--images": [images], "--board": [board],
+                                         "--joints": joints, "--poses": poses,
+                                         "--intrinsics": intrinsics})
+    b = read_board(board)
+    table = read_joints_csv(joints) if joints else None
+    found = detect_images(images, b, table, require_joints=poses is None)
+    if len(found.detections) < 3:
+        raise KincalError(f"the board was found in {len(found.detections)} images; a "
+                          "hand-eye needs 3 at least (better 10 or more)", source=images)
+    intr = (read_intrinsics(intrinsics) if intrinsics else found.intrinsics
+            or estimate_intrinsics(found, b))
+    found = drop_oblique(found, b, intr)
+    if len(found.detections) < 3:
+        raise KincalError(f"{len(found.detections)} images left after dropping the too "
+                          "oblique ones; a hand-eye needs 3 at least", source=images)
+    r: Any = None
+    if poses is not None:
+        given = read_flange_poses(poses)
+        missing = [d.image for d in found.detections if Path(d.image).stem not in given]
+        if missing:
+            raise KincalError(f"no pose file for image {missing[0]} ({Path(missing[0]).stem}"
+                              ".yaml)", source=poses)
+        A = np.array([given[Path(d.image).stem] for d in found.detections])
+        frame = "the base frame" if mount == "fixed" else "the flange frame"
+    else:
+        if robot is None:
+            raise KincalError("ROBOT: the robot is missing (or give --poses)")
+        r = serial(load(robot), "hand-eye")
+        A = r.fk(np.array([d.q for d in found.detections]))
+        frame = "the base frame" if mount == "fixed" else "the tool frame"
+    lens0 = np.r_[intr.pinhole, (list(intr.dist) + [0.0] * 5)[:5]]
+    names = [d.image for d in found.detections]
+    pts = [b.corner_points(d.ids) for d in found.detections]
+    uv = [d.uv for d in found.detections]
+    min_deg = float(np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
+                                              minimum=0.0)))
+    q = np.array([d.q for d in found.detections]) if r is not None else None
+    fit = calibrate_board_camera(A, pts, uv, names, lens0, mount, holdout, fitted,
+                                 0.5, min_deg, robot=r, q=q, free=free or ())
+    _print_lens_fit(out, fit, found, intr, frame, mount)
+    doc = _lens_json(fit, images, mount)
+    if loo:
+        lo = lens_leave_one_out(A, pts, uv, names, lens0, mount, fitted, 0.5, min_deg, r, q,
+                                free or ())
+        _print_loo(out, lo)
+        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
+                                "rms_3d_m": lo.rms_3d.tolist(),
+                                "position_spread_m": lo.position_spread,
+                                "rotation_spread_rad": lo.rotation_spread}
+    if output:
+        from kincal.io import atomic_write_text
+        from kincal.robots.files import robot_yaml_text
+        from kincal.spatial import frame_from_matrix, matrix_from_frame
+
+        tool = frame_from_matrix(matrix_from_frame(r.frame_parameters("tool")) @ fit.X)
+        values = {n: v for n, (v, _) in fit.robot.items()}
+        values.update(zip((f"tool.{c}" for c in ("x", "y", "z", "rz", "ry", "rx")),
+                          tool.tolist(), strict=True))
+        atomic_write_text(output, robot_yaml_text(r.with_params(values)))
+        out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    if json_out:
+        write_json(json_out, doc)
+
+
+def _print_loo(out: Any, lo: Any) -> None:
+    import numpy as np
+
+    out.print(f"leave-one-out ({len(lo.images)} fits): held-out RMS "
+              f"{np.sqrt(np.mean(lo.rms_px ** 2)):.2f} px = "
+              f"{np.sqrt(np.mean(lo.rms_3d ** 2)) * 1e3:.2f} mm at the board, worst "
+              f"{escape(lo.images[int(np.argmax(lo.rms_px))])} {lo.rms_px.max():.2f} px; "
+              f"hand-eye spread (jackknife) {lo.position_spread * 1e3:.2f} mm, "
+              f"{np.degrees(lo.rotation_spread):.3f} deg")
+
+
+def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount: str) -> None:
+    import numpy as np
+
+    from kincal.identify.hand_eye_lens import LENS
+    from kincal.spatial import frame_from_matrix
+
+    out.print(f"{len(found.detections)} images with the board, {len(found.dropped)} dropped"
+              + "".join(f"; dropped {escape(i)}: {escape(why)}" for i, why in found.dropped))
+    rot = ", ".join(f"{v:.1f}" for v in fit.rotation_deg)
+    out.print(f"{len(fit.training)} training images, {len(fit.held_out)} held out"
+              + (f" ({', '.join(fit.held_out)})" if fit.held_out else "")
+              + f"; the flange turned {rot} deg RMS about its principal axes")
+    out.print(f"start: intrinsics {escape(intr.source)}; closed-form camera at "
+              + " ".join(f"{v * 1e3:.2f}" for v in fit.start.X[:3, 3])
+              + f" mm in {frame}; pair residuals {fit.start.rotation_rms_deg:.3f} deg, "
+              f"{fit.start.translation_rms * 1e3:.2f} mm RMS")
+    f = frame_from_matrix(fit.X)
+    out.print(f"camera in {frame} (x y z mm, rz ry rx deg): "
+              + " ".join(f"{v * 1e3:.2f}" for v in f[:3]) + ", "
+              + " ".join(f"{np.degrees(v):.3f}" for v in f[3:]))
+    z = frame_from_matrix(fit.Z)
+    where = "the flange frame" if mount == "fixed" else "the base frame"
+    out.print(f"board in {where} (x y z mm, rz ry rx deg): "
+              + " ".join(f"{v * 1e3:.2f}" for v in z[:3]) + ", "
+              + " ".join(f"{np.degrees(v):.3f}" for v in z[3:]))
+    fitted = [n for n in fit.names if n in LENS]
+    out.print("intrinsics: " + ", ".join(
+        f"{n} {fit.lens[k]:.5g}" + (f" ± {fit.lens_std[k]:.2g}" if n in fitted else " (held)")
+        for k, n in enumerate(LENS)))
+    if fit.robot:
+        out.print("robot parameters fitted: " + ", ".join(
+            f"{n} {v:.6g} ± {s:.2g}" for n, (v, s) in fit.robot.items()))
+    out.print(f"expected error of the hand-eye (1 sigma): {fit.expected_position * 1e3:.2f} "
+              f"mm, {np.degrees(fit.expected_rotation):.3f} deg: covariance "
+              f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg "
+              f"(sigma0 {fit.sigma0:.2f}) with the unmodelled floor "
+              f"{fit.floor_position * 1e3:.2f} mm, {np.degrees(fit.floor_rotation):.3f} deg")
+    held = (f"held out {fit.held_rms_px:.2f} px = {fit.held_rms_3d * 1e3:.2f} mm at the board"
+            " (" + ", ".join(f"{k} {v:.2f}" for k, v in fit.held_per_image.items()) + ")"
+            if fit.held_out else "no held-out images")
+    out.print(f"reprojection RMS: training {fit.train_rms_px:.2f} px; {held}")
+
+
+def _lens_json(fit: Any, images: str, mount: str) -> dict[str, Any]:
+    from kincal.identify.hand_eye_lens import LENS
+    from kincal.spatial import frame_from_matrix
+
+    return {"images": images, "mount": mount, "training": fit.training,
+            "held_out": fit.held_out,
+            "camera": {"matrix": fit.X.tolist(),
+                       "frame_m_rad": frame_from_matrix(fit.X).tolist()},
+            "board": {"matrix": fit.Z.tolist(),
+                      "frame_m_rad": frame_from_matrix(fit.Z).tolist()},
+            "closed_form_start": fit.start.X.tolist(),
+            "intrinsics": dict(zip(LENS, fit.lens.tolist(), strict=True)),
+            "intrinsics_std": dict(zip(LENS, fit.lens_std.tolist(), strict=True)),
+            "robot_parameters": {n: {"value": v, "std": s} for n, (v, s) in fit.robot.items()},
+            "expected_error": {"position_m": fit.expected_position,
+                               "rotation_rad": fit.expected_rotation,
+                               "covariance_position_m": fit.std_position,
+                               "covariance_rotation_rad": fit.std_rotation,
+                               "floor_position_m": fit.floor_position,
+                               "floor_rotation_rad": fit.floor_rotation},
+            "reprojection_rms_px": {"training": fit.train_rms_px,
+                                    "held_out": fit.held_rms_px},
+            "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image,
+            "flange_rotation_deg": fit.rotation_deg.tolist(), "sigma0": fit.sigma0}

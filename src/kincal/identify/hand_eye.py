@@ -41,8 +41,8 @@ from kincal.spatial import inverse, log_so3
 
 Array = NDArray[np.float64]
 
-__all__ = ["HandEye", "hand_eye", "quaternion", "rotation_spread", "check_rotations",
-           "average_pose"]
+__all__ = ["HandEye", "hand_eye", "robot_world", "quaternion", "rotation_spread",
+           "check_rotations", "average_pose"]
 
 
 def quaternion(R: ArrayLike) -> Array:
@@ -157,6 +157,57 @@ def hand_eye(robot_poses: ArrayLike, board_poses: ArrayLike, mount: str = "hand"
     Z = average_pose(chain)
     return HandEye(X, Z, float(np.degrees(np.sqrt(np.mean(np.sum(rot_res**2, 1))))),
                    float(np.sqrt(np.mean(np.sum(tr_res**2, 1)))),
+                   np.linalg.norm(chain[:, :3, 3] - Z[:3, 3], axis=1))
+
+
+def robot_world(robot_poses: ArrayLike, board_poses: ArrayLike, mount: str = "hand"
+                ) -> HandEye:
+    """``X`` and ``Z`` together from the samples themselves (the robot-world form
+    ``A_i X = Z B_i^-1``), no pairs: a closed form that uses every image once.
+
+    Rotation: ``R_A R_X = R_Z R_B'`` (``B' = B^-1``) is linear in both,
+    ``(I kron R_A) vec(R_X) - (R_B'^T kron I) vec(R_Z) = 0`` (column-major ``vec``); the
+    stacked (9N, 18) system's right singular vector of the smallest singular value gives
+    ``R_X`` and ``R_Z`` up to a common scale and sign, each projected on SO(3) by SVD
+    (the sign from ``det``).  Translation: ``R_A t_X - t_Z = R_Z t_B' - t_A``, least
+    squares over all samples (6 unknowns).  Sums over the samples: shuffling them changes
+    nothing but the order of floating-point additions.  ``mount="fixed"`` inverts ``A`` as
+    :func:`hand_eye` does.  Residuals are reported per sample in the pair fields'
+    place: ``rotation_rms_deg`` the angle of ``R_A R_X (R_Z R_B')^T``,
+    ``translation_rms`` the translation equation's residual [m].
+    """
+    A = _check(robot_poses, "robot poses")
+    B = _check(board_poses, "board poses")
+    if len(A) != len(B):
+        raise KincalError(f"{len(A)} robot poses but {len(B)} board poses")
+    if len(A) < 3:
+        raise IdentifiabilityError(f"{len(A)} images: a hand-eye needs at least 3 poses")
+    if mount == "fixed":
+        A = inverse(A)
+    elif mount != "hand":
+        raise KincalError(f"mount={mount!r}: use 'hand' or 'fixed'")
+    Bi = inverse(B)
+    I3 = np.eye(3)
+    M = np.concatenate([np.concatenate([np.kron(I3, a[:3, :3]), -np.kron(b[:3, :3].T, I3)],
+                                       axis=1) for a, b in zip(A, Bi, strict=True)])
+    v = np.linalg.eigh(M.T @ M)[1][:, 0]
+
+    def so3(m: Array) -> Array:
+        U, _, Vt = np.linalg.svd(m)
+        return np.asarray(U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, dtype=float)
+
+    mx = v[:9].reshape(3, 3, order="F")
+    sign = 1.0 if np.linalg.det(mx) > 0 else -1.0
+    Rx, Rz = so3(sign * mx), so3(sign * v[9:].reshape(3, 3, order="F"))
+    C = np.concatenate([np.concatenate([a[:3, :3], -I3], axis=1) for a in A])
+    d = np.concatenate([Rz @ b[:3, 3] - a[:3, 3] for a, b in zip(A, Bi, strict=True)])
+    t = np.linalg.lstsq(C, d, rcond=None)[0]
+    X, Z = np.eye(4), np.eye(4)
+    X[:3, :3], X[:3, 3], Z[:3, :3], Z[:3, 3] = Rx, t[:3], Rz, t[3:]
+    rot = log_so3(A[:, :3, :3] @ Rx @ np.swapaxes(Rz @ Bi[:, :3, :3], 1, 2))
+    chain = A @ X @ B
+    return HandEye(X, Z, float(np.degrees(np.sqrt(np.mean(np.sum(rot**2, 1))))),
+                   float(np.sqrt(np.mean((C @ t - d) ** 2) * 3.0)),
                    np.linalg.norm(chain[:, :3, 3] - Z[:3, 3], axis=1))
 
 

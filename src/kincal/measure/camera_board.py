@@ -11,6 +11,20 @@ A board is described by a small YAML file (lengths with their unit)::
 (the keys of OpenCV's and other capture tools' board files are accepted too:
 ``board_size``, ``square_length``, ``marker_length`` in metres, ``aruco_dictionary``).
 
+A grid of ArUco or AprilTag markers (``type: aruco_grid`` or ``apriltag_grid``)::
+
+    type: apriltag_grid      # or aruco_grid
+    markers: [4, 6]          # markers along x (columns) and y (rows)
+    marker: 40 mm            # side of a marker (its black border included)
+    separation: 10 mm        # gap between two markers
+    dictionary: DICT_APRILTAG_36H11   # default; DICT_6X6_250 for an aruco_grid
+
+has marker ``m`` (OpenCV's GridBoard numbering, ids from 0) at column ``m mod c``, row
+``floor(m / c)``; its corner ``j`` (0 top-left, 1 top-right, 2 bottom-right, 3
+bottom-left, as OpenCV orders them) has the id ``4 m + j`` and sits at
+``((m mod c) p + L [j in {1, 2}], floor(m / c) p + L [j in {2, 3}], 0)``, ``L`` the marker
+side, ``p = L + separation`` the pitch.
+
 Corner ``k`` is an inner corner of the square grid, numbered row by row as OpenCV numbers
 ChArUco corners (and chessboard corners); its position in the board frame (z = 0 on the
 printed face, x along the columns) is::
@@ -42,7 +56,7 @@ from kincal.spatial import exp_so3
 
 Array = NDArray[np.float64]
 
-BOARD_TYPES = ("charuco", "chessboard")
+BOARD_TYPES = ("charuco", "chessboard", "aruco_grid", "apriltag_grid")
 
 _LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "in": 0.0254}
 _DICT_NUMBERS = {10: "DICT_6X6_250", 0: "DICT_4X4_50", 1: "DICT_4X4_100", 2: "DICT_4X4_250",
@@ -55,10 +69,11 @@ class Board:
     """A planar calibration board.
 
     Attributes:
-        kind: ``"charuco"`` or ``"chessboard"``.
-        columns, rows: number of squares along x and y.
-        square: side of a square [m].
-        marker: side of a ChArUco marker [m] (0 for a chessboard).
+        kind: ``"charuco"``, ``"chessboard"`` or ``"aruco_grid"`` (ArUco or AprilTag
+            markers).
+        columns, rows: number of squares (markers on a grid) along x and y.
+        square: side of a square [m]; on a marker grid the pitch, marker + separation.
+        marker: side of a ChArUco or grid marker [m] (0 for a chessboard).
         dictionary: OpenCV ArUco dictionary name (ChArUco), e.g. ``"DICT_6X6_250"``.
     """
 
@@ -71,7 +86,10 @@ class Board:
 
     @property
     def num_corners(self) -> int:
-        """Inner corners of the square grid: ``(columns - 1) (rows - 1)``."""
+        """Inner corners of the square grid: ``(columns - 1) (rows - 1)``; on a marker
+        grid the four corners of every marker, ``4 columns rows``."""
+        if self.kind == "aruco_grid":
+            return 4 * self.columns * self.rows
         return (self.columns - 1) * (self.rows - 1)
 
     def corner_points(self, ids: ArrayLike) -> Array:
@@ -79,6 +97,11 @@ class Board:
         k = np.asarray(ids, dtype=np.int64).reshape(-1)
         if np.any((k < 0) | (k >= self.num_corners)):
             raise KincalError(f"corner id out of range 0..{self.num_corners - 1}")
+        if self.kind == "aruco_grid":
+            m, c = k // 4, k % 4
+            x = (m % self.columns) * self.square + np.where((c == 1) | (c == 2), self.marker, 0)
+            y = (m // self.columns) * self.square + np.where(c >= 2, self.marker, 0)
+            return np.column_stack([x, y, np.zeros(len(k))]).astype(float)
         per_row = self.columns - 1
         return np.column_stack([((k % per_row) + 1) * self.square,
                                 ((k // per_row) + 1) * self.square, np.zeros(len(k))])
@@ -102,6 +125,33 @@ def _length(value: Any, key: str, source: str) -> float:
     return v
 
 
+def _dictionary(d: Any, src: str) -> str:
+    name = _DICT_NUMBERS.get(d, "") if isinstance(d, int) else str(d).upper()
+    if not re.fullmatch(r"DICT_[A-Z0-9_]+", name):
+        raise KincalError(f"dictionary: {d!r} is not an OpenCV ArUco dictionary name "
+                          "(e.g. DICT_6X6_250, DICT_APRILTAG_36H11)", source=src)
+    return name
+
+
+def _grid_board(data: dict[str, Any], kind: str, src: str) -> Board:
+    """``markers: [columns, rows]``, ``marker`` (side), ``separation`` (gap between
+    markers), ``dictionary`` (default ``DICT_APRILTAG_36H11`` for an AprilTag grid)."""
+    markers = data.get("markers")
+    if (not isinstance(markers, list) or len(markers) != 2
+            or not all(isinstance(v, int) and v >= 1 for v in markers)
+            or markers[0] * markers[1] < 2):
+        raise KincalError("markers: two whole numbers (columns, rows), e.g. [4, 6]",
+                          source=src)
+    for key in ("marker", "separation"):
+        if key not in data:
+            raise KincalError(f"{key}: missing (a length, e.g. '40 mm')", source=src)
+    marker = _length(data["marker"], "marker", src)
+    gap = _length(data["separation"], "separation", src)
+    default = "DICT_APRILTAG_36H11" if kind == "apriltag_grid" else "DICT_6X6_250"
+    name = _dictionary(data.get("dictionary", default), src)
+    return Board("aruco_grid", int(markers[0]), int(markers[1]), marker + gap, marker, name)
+
+
 def read_board(path: str | Path) -> Board:
     """Read a board description (module docstring); a bad file raises one line naming it."""
     src = str(path)
@@ -118,6 +168,8 @@ def read_board(path: str | Path) -> Board:
     if kind not in BOARD_TYPES:
         raise KincalError(f"type: {kind or '(missing)'!r}; use one of {', '.join(BOARD_TYPES)}"
                           " (circle grids are not supported yet)", source=src)
+    if kind in ("aruco_grid", "apriltag_grid"):
+        return _grid_board(data, kind, src)
     squares = data.get("squares", data.get("board_size"))
     if (not isinstance(squares, list) or len(squares) != 2
             or not all(isinstance(v, int) and v >= 2 for v in squares)):
@@ -138,10 +190,7 @@ def read_board(path: str | Path) -> Board:
     if marker >= square:
         raise KincalError(f"{mk_key}: the marker must be smaller than the square", source=src)
     d = data.get("dictionary", data.get("aruco_dictionary", "DICT_6X6_250"))
-    name = _DICT_NUMBERS.get(d, "") if isinstance(d, int) else str(d).upper()
-    if not re.fullmatch(r"DICT_[A-Z0-9_]+", name):
-        raise KincalError(f"dictionary: {d!r} is not an OpenCV ArUco dictionary name "
-                          "(e.g. DICT_6X6_250)", source=src)
+    name = _dictionary(d, src)
     return Board(kind, int(squares[0]), int(squares[1]), square, marker, name)
 
 

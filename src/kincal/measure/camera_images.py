@@ -4,8 +4,13 @@ Every image of a folder is searched for the board (:mod:`kincal.measure.camera_b
 with OpenCV (the optional extra ``kincal[camera]``, imported only here and only when an
 image is read): ChArUco corners by ``cv2.aruco.CharucoDetector``, chessboard corners by
 ``cv2.findChessboardCorners``, both refined by ``cv2.cornerSubPix`` (window kept off the
-ChArUco markers, see :func:`_refine`).  An image is dropped, with its reason, when it
-cannot be read, the board is not found, or fewer than ``min_corners`` corners are seen.
+ChArUco markers, see :func:`_refine`); the corners of ArUco / AprilTag grid markers by
+``cv2.aruco.ArucoDetector``, refined as the intersections of the markers' edge lines
+(:func:`_edge_refine`). An image is dropped, with its reason, when it cannot be read, the
+board is not found, fewer than ``min_corners`` corners are seen, the board is blurred
+(:func:`board_sharpness` under ``min_sharpness``, default 0.15 px^-3) or, once the
+intrinsics are known, seen too obliquely (:func:`drop_oblique`: more than 60 deg between
+its normal and the viewing ray by default).
 
 Two folder layouts:
 
@@ -51,7 +56,8 @@ Array = NDArray[np.float64]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 __all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrinsics",
-           "detect_images", "write_image_measurements", "read_image_labels"]
+           "detect_images", "write_image_measurements", "read_image_labels",
+           "read_flange_poses", "board_sharpness", "tilt_deg", "drop_oblique"]
 
 
 def require_opencv() -> Any:
@@ -100,7 +106,9 @@ def _intrinsics_from(K: Any, dist: Any, source: str) -> Intrinsics:
 
 def read_intrinsics(path: str | Path) -> Intrinsics:
     """A ROS ``camera_info`` YAML (``camera_matrix: {data: [9]}``,
-    ``distortion_coefficients: {data: [...]}``) or an OpenCV FileStorage YAML."""
+    ``distortion_coefficients: {data: [...]}``), an OpenCV FileStorage YAML, or
+    ROS-Industrial industrial_calibration's ``intrinsics: {fx, fy, cx, cy}`` (no
+    distortion)."""
     src = str(path)
     if not Path(path).is_file():
         raise KincalError("no such intrinsics file", source=src)
@@ -118,6 +126,13 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
     except yaml.YAMLError:
         raise KincalError("not valid YAML", source=src) from None
     cm = data.get("camera_matrix") if isinstance(data, dict) else None
+    ic = data.get("intrinsics") if isinstance(data, dict) else None
+    if cm is None and isinstance(ic, dict) and all(k in ic for k in ("fx", "fy", "cx", "cy")):
+        try:                                  # industrial_calibration's form, no distortion
+            fx, fy, cx, cy = (float(ic[k]) for k in ("fx", "fy", "cx", "cy"))
+        except (TypeError, ValueError):
+            raise KincalError("intrinsics: fx, fy, cx, cy must be numbers", source=src) from None
+        return _intrinsics_from([fx, 0, cx, 0, fy, cy, 0, 0, 1], None, src)
     if not isinstance(cm, dict) or "data" not in cm:
         raise KincalError("expected camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}",
                           source=src)
@@ -212,10 +227,94 @@ def _refine(cv2: Any, gray: Any, uv: Array, board: Board) -> Array:
     return np.asarray(out, dtype=float).reshape(-1, 2)
 
 
+def aruco_dictionary(cv2: Any, name: str) -> Any:
+    """OpenCV's predefined ArUco dictionary ``name`` (case-insensitive: DICT_APRILTAG_36H11
+    is OpenCV's DICT_APRILTAG_36h11), or one line saying it is not one of OpenCV's."""
+    found = [a for a in dir(getattr(cv2, "aruco", None)) if a.upper() == name.upper()]
+    if not found:
+        raise KincalError(f"dictionary {name!r} is not one of OpenCV's")
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, found[0]))
+
+
+def _bilinear(img: Array, x: Array, y: Array) -> Array:
+    x0 = np.clip(np.floor(x).astype(int), 0, img.shape[1] - 2)
+    y0 = np.clip(np.floor(y).astype(int), 0, img.shape[0] - 2)
+    fx, fy = x - x0, y - y0
+    return np.asarray((1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1])
+            + fy * ((1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]), dtype=float)
+
+
+def _edge_refine(gray: Any, quad: Array, bits: int) -> Array:
+    """A marker's four corners (4, 2) [px] as the intersections of its four edge lines.
+    Along each edge, 21 profiles across it (between 15 % and 85 % of its length), each
+    sampled every 0.1 px over half a border bit each side; the edge point is where the
+    profile crosses halfway between its dark and bright ends (linear interpolation); a
+    line through the points by total least squares.  A blurred straight edge crosses
+    halfway at the edge itself, where the rounded tip of a blurred corner pulls a
+    corner detector inwards."""
+    img = np.asarray(gray, dtype=float)
+    centre = quad.mean(axis=0)
+    lines = []
+    for a, b in ((0, 1), (1, 2), (2, 3), (3, 0)):
+        d = quad[b] - quad[a]
+        length = float(np.linalg.norm(d))
+        n = np.array([d[1], -d[0]]) / length
+        if n @ (quad[a] - centre) < 0:
+            n = -n                                              # outwards
+        half = float(np.clip(0.45 * length / (bits + 2), 1.0, 4.0))
+        s = np.arange(-half, half + 1e-9, 0.1)
+        p = quad[a] + np.linspace(0.15, 0.85, 21)[:, None] * d
+        prof = _bilinear(img, p[:, None, 0] + s * n[0], p[:, None, 1] + s * n[1])
+        mid = 0.5 * (prof[:, :3].mean(axis=1) + prof[:, -3:].mean(axis=1))
+        pts = []
+        for k in range(len(p)):
+            above = np.flatnonzero(prof[k] >= mid[k])
+            if len(above) == 0 or above[0] == 0:
+                continue
+            j = above[0]
+            f = (mid[k] - prof[k, j - 1]) / max(prof[k, j] - prof[k, j - 1], 1e-9)
+            pts.append(p[k] + (s[j - 1] + 0.1 * f) * n)
+        if len(pts) < 5:
+            return quad
+        P = np.array(pts)
+        c = P.mean(axis=0)
+        normal = np.linalg.svd(P - c)[2][-1]
+        lines.append((normal, float(normal @ c)))
+    out = np.zeros((4, 2))
+    for k in range(4):                          # corner k: edges (k-1, k) and (k, k+1)
+        (n1, c1), (n2, c2) = lines[(k - 1) % 4], lines[k]
+        M = np.array([n1, n2])
+        if abs(np.linalg.det(M)) < 1e-6:
+            return quad
+        out[k] = np.linalg.solve(M, [c1, c2])
+    return out if np.abs(out - quad).max() < 2.0 else quad
+
+
+def _detect_grid(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
+    """The four corners of every grid marker found (OpenCV's ArucoDetector with its
+    ``CORNER_REFINE_SUBPIX``, then :func:`_edge_refine`), ids ``4 m + j``."""
+    params = cv2.aruco.DetectorParameters()
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    det = cv2.aruco.ArucoDetector(aruco_dictionary(cv2, board.dictionary), params)
+    corners, ids, _ = det.detectMarkers(gray)
+    if ids is None or len(ids) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    m = np.asarray(ids, dtype=np.int64).reshape(-1)
+    bits = int(det.getDictionary().markerSize)
+    uv = np.array([_edge_refine(gray, q, bits)
+                   for q in np.asarray(corners, dtype=float).reshape(-1, 4, 2)])
+    keep = m < board.columns * board.rows            # markers of other boards are ignored
+    k = (4 * m[keep, None] + np.arange(4)).reshape(-1)
+    order = np.argsort(k, kind="stable")
+    return k[order], uv[keep].reshape(-1, 2)[order]
+
+
 def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
     """Corner ids and sub-pixel pixels [px] of ``board`` in a grey image (empty if none)."""
+    if board.kind == "aruco_grid":
+        return _detect_grid(cv2, gray, board)
     if board.kind == "charuco":
-        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
+        d = aruco_dictionary(cv2, board.dictionary)
         cb = cv2.aruco.CharucoBoard((board.columns, board.rows), board.square, board.marker, d)
         corners, ids, _, _ = cv2.aruco.CharucoDetector(cb).detectBoard(gray)
         if ids is None or len(ids) == 0:
@@ -231,17 +330,77 @@ def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], 
     return np.arange(len(uv), dtype=np.int64), _refine(cv2, gray, uv, board)
 
 
+#: Default of ``min_sharpness`` (:func:`board_sharpness`, px^-3): the real sets give
+#: 2.6-3.5 (Franka, RealSense) and 0.25-0.77 (ABB, one image out of focus at 0.25); a
+#: rendered chessboard 0.43 sharp, 0.17 / 0.11 / 0.07 under 8 / 14 / 20 px of motion blur.
+MIN_SHARPNESS = 0.15
+#: Default of ``max_tilt_deg`` (:func:`drop_oblique`): beyond 60 deg the squares are
+#: foreshortened to less than half (cos 60 deg) along the tilt and the corners' sub-pixel
+#: windows see skewed edges.  The real sets reach 26 deg (Franka) and 55 deg (ABB).
+MAX_TILT_DEG = 60.0
+
+
+def board_sharpness(cv2: Any, gray: Any, uv: Array) -> float:
+    """How sharp the board looks: ``var(Laplacian) s / C^2`` [px^-3] over the convex hull of
+    the corners ``uv``: the variance of the 4-neighbour Laplacian of the grey levels,
+    times the corner spacing ``s`` [px] (median distance to the nearest corner), over the
+    board's contrast ``C`` squared (the 5-95 percentile range of its grey levels).  An
+    edge blurred over ``w`` px has a Laplacian ``~ C / w^2`` on a band ``~ w`` wide, one
+    such band per square: the figure goes as ``1 / w^3`` whatever the contrast and the
+    board's size in the image."""
+    hull = cv2.convexHull(uv.astype(np.float32)).astype(np.int32)
+    mask = np.zeros(gray.shape, np.uint8)
+    cv2.fillConvexPoly(mask, hull, 1)
+    inside = mask > 0
+    lap = cv2.Laplacian(np.asarray(gray, dtype=np.float64), cv2.CV_64F)[inside]
+    grey = np.asarray(gray, dtype=float)[inside]
+    C = float(np.percentile(grey, 95) - np.percentile(grey, 5))
+    d = np.linalg.norm(uv[:, None] - uv[None], axis=2)
+    d[d == 0] = np.inf
+    s = float(np.median(d.min(axis=1)))
+    return float(lap.var() * s / C**2) if C > 0 else 0.0
+
+
+def tilt_deg(board: Board, det: Detection, intr: Intrinsics) -> float:
+    """Angle [deg] between the board's normal and the viewing ray to the centre of its
+    detected corners (board pose from the undistorted pixels)."""
+    from kincal.measure.camera_board import board_pose
+
+    P = board.corner_points(det.ids)
+    T = board_pose(P, undistort(det.uv, intr), intr.pinhole)[0]
+    c = T[:3, :3] @ P.mean(axis=0) + T[:3, 3]
+    return float(np.degrees(np.arccos(min(abs(T[:3, 2] @ c) / np.linalg.norm(c), 1.0))))
+
+
+def drop_oblique(images: ImageSet, board: Board, intr: Intrinsics,
+                 max_tilt_deg: float = MAX_TILT_DEG) -> ImageSet:
+    """``images`` without the detections whose board is tilted more than ``max_tilt_deg``
+    from the viewing ray (:func:`tilt_deg`), each listed as dropped with its angle."""
+    keep, dropped = [], list(images.dropped)
+    for d in images.detections:
+        a = tilt_deg(board, d, intr)
+        if a > max_tilt_deg:
+            dropped.append((d.image, f"board too oblique ({a:.0f} deg between its normal "
+                                     f"and the viewing ray > {max_tilt_deg:g} deg)"))
+        else:
+            keep.append(d)
+    return ImageSet(keep, dropped, images.size, images.intrinsics, images.notes)
+
+
 def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] | None = None,
-                  min_corners: int = 6, require_joints: bool = True) -> ImageSet:
+                  min_corners: int = 6, require_joints: bool = True,
+                  min_sharpness: float = MIN_SHARPNESS) -> ImageSet:
     """Detect ``board`` in every image of ``folder`` (module docstring for the layouts);
     ``require_joints=False``: images without joint values get an empty ``q`` (for robot
-    poses given otherwise, e.g. flange poses of an eye-to-hand set)."""
+    poses given otherwise, e.g. flange poses of an eye-to-hand set).  An image whose
+    board is less sharp than ``min_sharpness`` (:func:`board_sharpness`) is dropped as
+    blurred (motion blur: the robot still moving)."""
     cv2 = require_opencv()
     if board.kind == "charuco" and not hasattr(getattr(cv2, "aruco", None), "CharucoDetector"):
         raise KincalError(f"OpenCV {cv2.__version__} has no ChArUco detector; pip install "
                           "'opencv-python-headless>=4.7'")
-    if board.kind == "charuco" and not hasattr(cv2.aruco, board.dictionary):
-        raise KincalError(f"dictionary {board.dictionary!r} is not one of OpenCV's")
+    if board.kind in ("charuco", "aruco_grid"):
+        aruco_dictionary(cv2, board.dictionary)
     out = ImageSet([], [], (0, 0))
     given: list[Intrinsics] = []
     for label, image, data in _sources(Path(folder)):
@@ -270,6 +429,10 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
             out.dropped.append((label, "board not found"))
         elif len(ids) < min_corners:
             out.dropped.append((label, f"too few corners ({len(ids)} < {min_corners})"))
+        elif (sharp := board_sharpness(cv2, gray, uv)) < min_sharpness:
+            out.dropped.append((label, f"motion blur (sharpness {sharp:.2g} < "
+                                       f"{min_sharpness:g} px^-3: variance of the Laplacian"
+                                       " on the board x corner spacing / contrast^2)"))
         else:
             out.detections.append(Detection(label, ids, uv, q))
     if given:
@@ -328,13 +491,50 @@ def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
     cols.append(("corner", np.concatenate([d.ids for d in images.detections]), "text"))
     dist = " ".join(f"{v:.6g}" for v in intr.dist)
     write_block_table(path, block_tags("camera", block, mount="hand"), q, cols, None, robot,
-                      [f"board: {board.kind} {board.columns}x{board.rows} squares of "
-                       f"{board.square * 1e3:g} mm; corners from OpenCV, sub-pixel",
+                      [(f"board: {board.kind} {board.columns}x{board.rows} markers of "
+                        f"{board.marker * 1e3:g} mm, pitch {board.square * 1e3:g} mm "
+                        f"({board.dictionary})" if board.kind == "aruco_grid" else
+                        f"board: {board.kind} {board.columns}x{board.rows} squares of "
+                        f"{board.square * 1e3:g} mm") + "; corners from OpenCV, sub-pixel",
                        f"intrinsics {intr.source}; distortion (k1 k2 p1 p2 k3) {dist} "
                        "removed: u = fx x/z + cx, v = fy y/z + cy",
                        f"{len(images.detections)} images, {len(q)} corners; dropped: "
                        + (", ".join(f"{i} ({r})" for i, r in images.dropped) or "none")])
     return block
+
+
+def read_flange_poses(folder: str | Path) -> dict[str, Array]:
+    """``{name: 4x4}`` [m] from a folder of pose files ``NAME.yaml``, each ``x, y, z`` [m]
+    and a unit quaternion ``qx, qy, qz, qw`` (ROS-Industrial industrial_calibration's
+    form): the flange in the robot's base frame, matched to the image of the same name."""
+    from kincal.spatial import quat_to_matrix
+
+    root = Path(folder)
+    if not root.is_dir():
+        raise KincalError("no such folder of pose files", source=str(folder))
+    out: dict[str, Array] = {}
+    for f in sorted(root.glob("*.yaml")):
+        try:
+            d = yaml.safe_load(f.read_text(encoding="utf-8"))
+        except yaml.YAMLError:
+            raise KincalError("not valid YAML", source=str(f)) from None
+        keys = ("x", "y", "z", "qw", "qx", "qy", "qz")
+        if not isinstance(d, dict) or any(k not in d for k in keys):
+            raise KincalError("a pose file holds x, y, z [m] and qx, qy, qz, qw",
+                              source=str(f))
+        try:
+            v = np.array([float(d[k]) for k in keys])
+        except (TypeError, ValueError):
+            raise KincalError("x, y, z, qx, qy, qz, qw must be numbers", source=str(f)) from None
+        if not np.all(np.isfinite(v)) or abs(np.linalg.norm(v[3:]) - 1.0) > 1e-3:
+            raise KincalError("the quaternion qx, qy, qz, qw is not a unit one",
+                              source=str(f))
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = quat_to_matrix(v[3:]), v[:3]
+        out[f.stem] = T
+    if not out:
+        raise KincalError("no pose files (NAME.yaml)", source=str(folder))
+    return out
 
 
 def read_image_labels(path: str | Path) -> list[str]:

@@ -1,0 +1,394 @@
+"""Hand-eye and camera intrinsics in one fit, from the raw (distorted) board pixels.
+
+Every image ``i`` gives the flange pose ``A_i`` (4x4, base -> flange, from the robot's
+joints or a pose file) and the detected corners: board points ``P_ij`` (board frame, z = 0)
+[m] and their raw pixels ``uv_ij`` [px].  The board's pose in the camera is
+
+* eye-in-hand (camera on the flange, board fixed): ``B_i = X^-1 A_i^-1 Z``, ``X`` the
+  camera in the flange frame, ``Z`` the board in the base frame;
+* eye-to-hand (camera fixed, board on the flange): ``B_i = X^-1 A_i Z``, ``X`` the camera
+  in the base frame, ``Z`` the board in the flange frame.
+
+A camera-frame point ``x = B_i P`` projects with OpenCV's pinhole + radial-tangential model
+(``lens = fx fy cx cy k1 k2 p1 p2 k3``)::
+
+    a = x1 / x3,  b = x2 / x3,  r^2 = a^2 + b^2,  g = 1 + k1 r^2 + k2 r^4 + k3 r^6
+    a' = a g + 2 p1 a b + p2 (r^2 + 2 a^2),   b' = b g + p1 (r^2 + 2 b^2) + 2 p2 a b
+    u = fx a' + cx,   v = fy b' + cy                                              [px]
+
+The fit (:func:`fit_board_camera`) minimises ``sum |uv_pred - uv| ^ 2 / sigma^2`` over
+``X``, ``Z`` and the intrinsics named in ``fit_lens`` by Levenberg-Marquardt (Jacobian by
+central differences: 21 parameters), from a closed-form start: the intrinsics given or
+estimated beforehand (OpenCV's ``calibrateCamera``, or without distortion as the ABB
+set's), the pixels undistorted with them (:func:`undistort_pixels`), the board pose per
+image (:func:`~kincal.measure.camera_board.board_pose`) and the order-free hand-eye
+(:func:`~kincal.identify.hand_eye.hand_eye`).  Poses are updated as ``t <- t + dv``,
+``R <- exp(dw) R``, so the position and rotation blocks of the covariance are those of
+the camera's position [m] and of a small rotation vector [rad].
+
+Quality, as :mod:`~kincal.identify.hand_eye_fit`: the covariance ``sigma0^2 (J^T J)^-1``,
+the image-clustered covariance (the images as the independent units), the expected error
+``sqrt(sigma^2 + floor^2)`` with the unmodelled floor ``max(0, sigma_img^2 - sigma^2)``,
+and the held-out images' reprojection RMS [px] (:func:`calibrate_board_camera`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kincal.errors import IdentifiabilityError, KincalError
+from kincal.identify.hand_eye import HandEye, average_pose, check_rotations, hand_eye
+from kincal.identify.hand_eye_fit import (
+    LeaveOneOut,
+    clustered_covariance,
+    fit_hand_camera,
+    split_images,
+)
+from kincal.measure.camera_board import board_pose
+from kincal.measure.instruments.camera import HandCameraMeasurement
+from kincal.robots.chain import Robot
+from kincal.spatial import exp_so3, inverse, log_so3
+
+Array = NDArray[np.float64]
+
+LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+POSE = ("x", "y", "z", "wx", "wy", "wz")
+
+__all__ = ["LENS", "LensFit", "project_lens", "undistort_pixels", "fit_board_camera",
+           "calibrate_board_camera", "lens_leave_one_out"]
+
+
+def project_lens(x: Array, lens: ArrayLike) -> Array:
+    """Raw pixels (n, 2) of camera-frame points ``x`` (n, 3) [m] (module docstring)."""
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in np.asarray(lens).reshape(9))
+    a, b = x[:, 0] / x[:, 2], x[:, 1] / x[:, 2]
+    r2 = a * a + b * b
+    g = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    ad = a * g + 2.0 * p1 * a * b + p2 * (r2 + 2.0 * a * a)
+    bd = b * g + p1 * (r2 + 2.0 * b * b) + 2.0 * p2 * a * b
+    return np.column_stack([fx * ad + cx, fy * bd + cy])
+
+
+def undistort_pixels(uv: Array, lens: ArrayLike, iterations: int = 50) -> Array:
+    """The pinhole pixels ``(fx a + cx, fy b + cy)`` of raw pixels ``uv`` (n, 2): ``(a, b)``
+    by the fixed-point iteration ``(a, b) <- ((a', b') - tangential(a, b)) / g(a, b)``
+    (OpenCV's), converged to 1e-12 of the normalised coordinates or ``iterations``."""
+    fx, fy, cx, cy, k1, k2, p1, p2, k3 = (float(v) for v in np.asarray(lens).reshape(9))
+    ad, bd = (uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy
+    a, b = ad.copy(), bd.copy()
+    for _ in range(iterations):
+        r2 = a * a + b * b
+        g = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        na = (ad - 2.0 * p1 * a * b - p2 * (r2 + 2.0 * a * a)) / g
+        nb = (bd - p1 * (r2 + 2.0 * b * b) - 2.0 * p2 * a * b) / g
+        done = max(float(np.abs(na - a).max(initial=0.0)),
+                   float(np.abs(nb - b).max(initial=0.0))) < 1e-12
+        a, b = na, nb
+        if done:
+            break
+    return np.column_stack([fx * a + cx, fy * b + cy])
+
+
+def _chain(A: Array, mount: str) -> Array:
+    """``C_i`` with ``B_i = X^-1 C_i Z``: ``A_i^-1`` (hand) or ``A_i`` (fixed)."""
+    if mount == "hand":
+        return inverse(A)
+    if mount == "fixed":
+        return A
+    raise KincalError(f"mount={mount!r}: use 'hand' or 'fixed'")
+
+
+def _moved(T: Array, d: Array) -> Array:
+    out = T.copy()
+    out[:3, 3] = T[:3, 3] + d[:3]
+    out[:3, :3] = exp_so3(d[3:]) @ T[:3, :3]
+    return out
+
+
+@dataclass
+class LensFit:
+    """The outcome of :func:`fit_board_camera` (lengths in m, angles in rad).
+
+    Attributes:
+        X, Z: the hand-eye and the board (module docstring), 4x4.
+        lens: the intrinsics ``fx fy cx cy k1 k2 p1 p2 k3`` [px, 1].
+        lens_std: their standard errors from the covariance (0 where not fitted).
+        names: the fitted parameters (``X.x .. X.wz, Z.x .. Z.wz``, then the intrinsics).
+        covariance, clustered: ``sigma0^2 (J^T J)^-1`` and the image-clustered one over
+            ``names``.
+        sigma0: the noise scale (RMS whitened residual, ``M - p`` degrees of freedom).
+        std_position, std_rotation, robust_position, robust_rotation: the camera's 3-D
+            position [m] and direction [rad] error from each covariance.
+        training, held_out: image names; train_rms_px, held_rms_px: reprojection RMS [px].
+        held_per_image: ``{image: RMS px}`` on the held-out images; held_rms_3d: the
+            3-D error their pixels imply at the board, ``|duv| z / f`` [m] per corner.
+        robot: ``{name: (value, standard error)}`` of the robot parameters fitted.
+        start: the closed-form hand-eye; rotation_deg: the flange's rotation spread.
+    """
+
+    X: Array
+    Z: Array
+    lens: Array
+    lens_std: Array
+    names: list[str]
+    covariance: Array
+    clustered: Array
+    sigma0: float
+    std_position: float
+    std_rotation: float
+    robust_position: float
+    robust_rotation: float
+    training: list[str] = field(default_factory=list)
+    held_out: list[str] = field(default_factory=list)
+    train_rms_px: float = float("nan")
+    held_rms_px: float = float("nan")
+    held_per_image: dict[str, float] = field(default_factory=dict)
+    held_rms_3d: float = float("nan")
+    start: HandEye | None = None
+    robot: dict[str, tuple[float, float]] = field(default_factory=dict)
+    rotation_deg: Array = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def floor_position(self) -> float:
+        """``sqrt(max(0, sigma_p,img^2 - sigma_p^2))`` [m]: the unmodelled floor."""
+        return float(np.sqrt(max(self.robust_position**2 - self.std_position**2, 0.0)))
+
+    @property
+    def floor_rotation(self) -> float:
+        """The unmodelled floor of the camera direction [rad]."""
+        return float(np.sqrt(max(self.robust_rotation**2 - self.std_rotation**2, 0.0)))
+
+    @property
+    def expected_position(self) -> float:
+        """Expected 3-D error of the camera position [m]: covariance plus floor."""
+        return float(max(self.std_position, self.robust_position))
+
+    @property
+    def expected_rotation(self) -> float:
+        """Expected error of the camera direction [rad]: covariance plus floor."""
+        return float(max(self.std_rotation, self.robust_rotation))
+
+
+def _residuals(C: Sequence[Array], points: Sequence[Array], uv: Sequence[Array], X: Array,
+               Z: Array, lens: Array) -> Array:
+    Xi = inverse(X)
+    out = []
+    for Ci, P, obs in zip(C, points, uv, strict=True):
+        B = Xi @ Ci @ Z
+        out.append((project_lens(P @ B[:3, :3].T + B[:3, 3], lens) - obs).reshape(-1))
+    return np.concatenate(out)
+
+
+def _refuse_if_singular(J: Array, names: Sequence[str]) -> None:
+    """One line naming the parameters the images cannot tell apart (a near-null direction
+    of the column-scaled ``J^T J``, condition above 1e12)."""
+    s = np.linalg.norm(J, axis=0)
+    if np.any(s == 0):
+        raise IdentifiabilityError(f"the images do not see {names[int(np.argmin(s))]}")
+    lam, V = np.linalg.eigh((J / s).T @ (J / s))
+    if lam[0] < 1e-12 * lam[-1]:
+        top = np.argsort(-np.abs(V[:, 0]))[:3]
+        raise IdentifiabilityError(
+            "the images cannot tell apart " + ", ".join(names[k] for k in top)
+            + ": add images with the board nearer the image corners and tilted (or give "
+            "the intrinsics and fit fewer)")
+
+
+def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
+                     images: Sequence[str], lens0: ArrayLike, X0: Array, Z0: Array,
+                     mount: str = "hand", fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
+                     iterations: int = 100,
+                     kinematics: Callable[[Array], Array] | None = None,
+                     robot_names: Sequence[str] = (), robot_values: ArrayLike = ()
+                     ) -> LensFit:
+    """Levenberg-Marquardt over ``X``, ``Z`` and the intrinsics ``fit_lens`` (module
+    docstring) from ``(X0, Z0, lens0)``; one entry of ``points`` (n_i, 3) [m] and raw
+    ``uv`` (n_i, 2) [px] per image, ``sigma`` the stated corner noise [px].
+
+    With ``kinematics`` (robot parameter values -> the flange poses (N, 4, 4) of the
+    images), the robot parameters ``robot_names`` are fitted too, from ``robot_values``
+    (``robot_poses`` is then unused)."""
+    unknown = [n for n in fit_lens if n not in LENS]
+    if unknown:
+        raise KincalError(f"{unknown[0]!r} is not an intrinsic; use {', '.join(LENS)}")
+    lk = [LENS.index(n) for n in fit_lens]
+    rv = np.asarray(robot_values, dtype=float).reshape(-1)
+    nr = len(rv) if kinematics is not None else 0
+    names = ([f"X.{n}" for n in POSE] + [f"Z.{n}" for n in POSE] + list(fit_lens)
+             + list(robot_names)[:nr])
+    steps = np.r_[np.full(12, 1e-7), [1e-4 if k < 4 else 1e-7 for k in lk], np.full(nr, 1e-7)]
+    X, Z, lens = np.array(X0, dtype=float), np.array(Z0, dtype=float), np.array(lens0, float)
+    C0 = list(_chain(np.asarray(robot_poses, dtype=float), mount)) if nr == 0 else []
+    nl = 12 + len(lk)
+
+    def moved(p: Array) -> tuple[Array, Array, Array, Array]:
+        ln = lens.copy()
+        ln[lk] += p[12:nl]
+        return _moved(X, p[:6]), _moved(Z, p[6:12]), ln, rv + p[nl:]
+
+    def res(p: Array) -> Array:
+        Xp, Zp, ln, th = moved(p)
+        C = list(_chain(kinematics(th), mount)) if kinematics is not None and nr else C0
+        return _residuals(C, points, uv, Xp, Zp, ln) / sigma
+
+    def jac() -> Array:
+        cols = []
+        for k, h in enumerate(steps):
+            d = np.zeros(len(names))
+            d[k] = h
+            cols.append((res(d) - res(-d)) / (2.0 * h))
+        return np.column_stack(cols)
+
+    r = res(np.zeros(len(names)))
+    lam = 1e-3
+    for _ in range(iterations):
+        J = jac()
+        H, g = J.T @ J, J.T @ r
+        cost = float(r @ r)
+        while True:
+            step = np.asarray(-np.linalg.solve(H + lam * np.diag(np.diag(H)), g), dtype=float)
+            r_new = res(step)
+            if float(r_new @ r_new) <= cost:
+                X, Z, lens, rv = moved(step)
+                r, lam = r_new, max(lam / 10.0, 1e-12)
+                break
+            lam *= 10.0
+            if lam > 1e12:
+                break
+        if lam > 1e12 or cost - float(r @ r) <= 1e-12 * cost:
+            break
+    J = jac()
+    _refuse_if_singular(J, names)
+    Ainv = np.asarray(np.linalg.inv(J.T @ J), dtype=float)
+    dof = max(len(r) - len(names), 1)
+    sigma0 = float(np.sqrt(r @ r / dof))
+    cov: Array = sigma0**2 * Ainv
+    owner = np.concatenate([np.full(2 * len(P), n, dtype=object)
+                            for n, P in zip(images, points, strict=True)])
+    clus = np.asarray(clustered_covariance(J, r, owner.astype(str)), dtype=float)
+    std = np.zeros(len(LENS))
+    std[lk] = np.sqrt(np.diag(cov)[12:nl])
+
+    def tr(M: Array, s: slice) -> float:
+        return float(np.sqrt(max(np.trace(M[s, s]), 0.0)))
+
+    e = np.hypot(*(r * sigma).reshape(-1, 2).T)
+    return LensFit(X, Z, lens, std, names, cov, clus, sigma0, tr(cov, slice(0, 3)),
+                   tr(cov, slice(3, 6)), tr(clus, slice(0, 3)), tr(clus, slice(3, 6)),
+                   sorted(set(images)), train_rms_px=float(np.sqrt(np.mean(e**2))),
+                   robot={n: (float(v), float(np.sqrt(cov[nl + k, nl + k])))
+                          for k, (n, v) in enumerate(zip(names[nl:], rv, strict=True))})
+
+
+def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
+                           images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
+                           holdout: float = 0.25, fit_lens: Sequence[str] = LENS,
+                           sigma: float = 0.5, min_rotation_deg: float = 5.0,
+                           held_out: Sequence[str] | None = None, robot: Robot | None = None,
+                           q: ArrayLike | None = None, free: Sequence[str] = ()) -> LensFit:
+    """Held-out images kept aside (:func:`~kincal.identify.hand_eye_fit.split_images`),
+    the rotation check, the closed-form start on the pixels undistorted with ``lens0``,
+    :func:`fit_board_camera` on the training images, and the held-out images' raw-pixel
+    reprojection RMS under the fitted ``X``, ``Z`` and intrinsics.
+
+    ``free`` (eye-in-hand, with the ``robot`` and the joint values ``q`` (N, n) of the
+    images; ``robot_poses`` = ``robot.fk(q)``): robot parameter names or patterns fitted
+    too.  Which of them the images identify is kincal's solver's answer on the pinhole
+    fit with the pixels undistorted by ``lens0``
+    (:func:`~kincal.identify.hand_eye_fit.fit_hand_camera`, which also gives the start);
+    the joint fit then frees exactly those."""
+    A = np.asarray(robot_poses, dtype=float)
+    names = list(images)
+    if not len(A) == len(points) == len(uv) == len(names):
+        raise KincalError(f"{len(A)} poses, {len(points)} point sets, {len(uv)} pixel sets "
+                          f"and {len(names)} image names")
+    if len(set(names)) != len(names):
+        raise KincalError("image names repeat")
+    train, held = split_images(names, holdout)
+    if held_out is not None:
+        held = sorted(set(held_out))
+        train = [n for n in sorted(names) if n not in held]
+    if len(train) < 3:
+        raise KincalError(f"{len(train)} training images: a hand-eye needs 3 at least "
+                          "(better 10 or more)")
+    idx = {n: k for k, n in enumerate(names)}
+    it = [idx[n] for n in train]
+    rot = check_rotations(A[it], min_rotation_deg, mount=mount)
+    L0 = np.asarray(lens0, dtype=float)
+    B = np.array([board_pose(points[k], undistort_pixels(uv[k], L0), L0[:4])[0]
+                  for k in it])
+    start = hand_eye(A[it], B, mount)
+    if free:
+        if robot is None or q is None or mount != "hand":
+            raise KincalError("robot parameters are fitted with a camera on the hand, from "
+                              "the robot and the joint values of the images")
+        Q = np.asarray(q, dtype=float)
+        rn, rv, X0, Z0 = _robot_start(robot, Q[it], [points[k] for k in it],
+                                      [undistort_pixels(uv[k], L0) for k in it], train, L0,
+                                      free, sigma)
+
+        def kin(th: Array) -> Array:
+            return robot.with_params(dict(zip(rn, th.tolist(), strict=True))).fk(Q[it])
+
+        fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
+                               X0, Z0, mount, fit_lens, sigma, kinematics=kin,
+                               robot_names=rn, robot_values=rv)
+        A = robot.with_params({n: v for n, (v, _) in fit.robot.items()}).fk(Q)
+    else:
+        fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
+                               start.X, start.Z, mount, fit_lens, sigma)
+    fit.start, fit.rotation_deg, fit.held_out = start, rot, held
+    if held:
+        C = _chain(A[[idx[n] for n in held]], mount)
+        e, e3 = {}, []
+        for j, n in enumerate(held):
+            P = points[idx[n]]
+            e[n] = np.hypot(*_residuals([C[j]], [P], [uv[idx[n]]], fit.X, fit.Z,
+                                        fit.lens).reshape(-1, 2).T)
+            B = inverse(fit.X) @ C[j] @ fit.Z
+            e3.append(e[n] * (P @ B[2, :3] + B[2, 3]) / (0.5 * (fit.lens[0] + fit.lens[1])))
+        fit.held_per_image = {n: float(np.sqrt(np.mean(v**2))) for n, v in e.items()}
+        fit.held_rms_px = float(np.sqrt(np.mean(np.concatenate(list(e.values())) ** 2)))
+        fit.held_rms_3d = float(np.sqrt(np.mean(np.concatenate(e3) ** 2)))
+    return fit
+
+
+def _robot_start(robot: Robot, q: Array, points: Sequence[Array], uv: Sequence[Array],
+                 images: Sequence[str], lens: Array, free: Sequence[str], sigma: float
+                 ) -> tuple[list[str], Array, Array, Array]:
+    """The robot parameters of ``free`` that the images identify, their values, ``X`` and
+    ``Z`` from the pinhole fit on undistorted pixels (``fit_hand_camera``)."""
+    block = HandCameraMeasurement("camera", np.repeat(q, [len(P) for P in points], axis=0),
+                                  np.vstack(points), np.vstack(uv), sigma,
+                                  tuple(float(v) for v in lens[:4]))
+    labels = [n for n, P in zip(images, points, strict=True) for _ in range(len(P))]
+    pin = fit_hand_camera(robot, block, labels, 0.0, free, 0.0)
+    res = pin.result
+    names = [n for n in res.estimated if not n.startswith(("tool.", "camera."))]
+    return names, np.array([res.params[n] for n in names]), pin.X, pin.board
+
+
+def lens_leave_one_out(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
+                       images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
+                       fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
+                       min_rotation_deg: float = 5.0, robot: Robot | None = None,
+                       q: ArrayLike | None = None, free: Sequence[str] = ()) -> LeaveOneOut:
+    """:func:`calibrate_board_camera` once per image with that image held out: its
+    reprojection RMS [px] and 3-D error [m], and the jackknife spread of the hand-eye
+    (as :func:`~kincal.identify.hand_eye_fit.leave_one_out`)."""
+    names = sorted(images)
+    fits = [calibrate_board_camera(robot_poses, points, uv, images, lens0, mount, 0.0,
+                                   fit_lens, sigma, min_rotation_deg, [n], robot, q, free)
+            for n in names]
+    X = np.array([f.X for f in fits])
+    n = len(names)
+    t = X[:, :3, 3]
+    ang = np.linalg.norm(log_so3(X[:, :3, :3] @ average_pose(X)[:3, :3].T), axis=1)
+    return LeaveOneOut(names, np.array([f.held_rms_px for f in fits]),
+                       np.array([f.held_rms_3d for f in fits]),
+                       float(np.sqrt((n - 1) / n * np.sum((t - t.mean(0)) ** 2))),
+                       float(np.sqrt((n - 1) / n * np.sum(ang**2))))
