@@ -252,6 +252,10 @@ def drift_cmd(
                                                "(HTML) here.")] = None,
     all_robots: Annotated[bool, typer.Option("--all", help="List every robot, not only the "
                                              "flagged ones.")] = False,
+    reproducibility: Annotated[str, typer.Option(
+        "--reproducibility", help="fleet: add the session-to-session (placement-to-"
+        "placement) error estimated from the other robots of the model to each change's "
+        "covariance; none: the calibrations' own standard errors alone.")] = "fleet",
     json_out: JsonOpt = None,
 ) -> None:
     """Compare each robot's latest calibration with its previous one: per-parameter change
@@ -265,7 +269,10 @@ def drift_cmd(
 
         check_outputs({"--report": report, "--json": json_out}, {})
     with _store(db, create=False) as store:
-        check = fleet_drift(store, false_alarm)
+        if reproducibility not in ("fleet", "none"):
+            raise KincalError(f"option --reproducibility: {reproducibility!r} is not fleet "
+                              "or none")
+        check = fleet_drift(store, false_alarm, reproducibility=reproducibility == "fleet")
         drifts, flagged = check.robots, check.flagged
         if report:
             from kincal.fleet.page import fleet_page
@@ -303,6 +310,7 @@ def drift_cmd(
         out.print(f"{len(flagged)} of {len(drifts)} robot(s) flagged (per-parameter threshold "
                   f"|z| > {z:.2f} for {len(drifts[0].changes)} parameters, or the chi-square "
                   f"test; false-alarm probability {false_alarm:g} per robot)")
+        out.print(check.reproducibility_line())
     if report:
         out.print(f"fleet page: {escape(report)}")
     if json_out:

@@ -4,17 +4,37 @@ For a robot's previous calibration ``a`` and latest ``b`` (two session dates), o
 robot parameters estimated in both (the instruments' frames move between sessions and
 are not compared):
 
-* per parameter, the change ``delta_i = b_i - a_i`` in units of the combined standard
-  error ``s_i = sqrt(var_a,i + var_b,i)`` (independent sessions): ``z_i = delta_i / s_i``;
-* the chi-square statistic on the identifiable set,
-  ``chi2 = delta^T (C_a + C_b)^+ delta`` with ``dof = rank(C_a + C_b)``, and its p-value;
-* the previous calibration's position RMS on the new session's data (the cross-check,
+* the change ``delta = b - a`` has, for a robot that did not change, the covariance
+
+      C = C_a + C_b + 2 T,
+
+  ``C_a``, ``C_b`` the two calibrations' covariances (their measurement noise) and
+  ``T`` the session-to-session (placement-to-placement) reproducibility covariance: what the unmodelled errors put into the parameters differently in each
+  session (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by
+  the method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / (2 n)`` made positive
+  semi-definite, over the other robots ``r`` of the same model with two sessions
+  (``V_r = diag(C_a,ii + C_b,ii)``),
+  leaving the robot under test out; ``nu = n - 1`` pairs stand behind it.  Without two
+  other robots of the model, or with ``reproducibility=False``, ``T = 0`` (the
+  calibrations' own covariances alone: placements or set-ups that differ between sessions
+  then raise false alarms);
+* per parameter, the change in units of its standard error ``s_i = sqrt(C_ii)``:
+  ``z_i = delta_i / s_i``;
+* the chi-square statistic on the identifiable set, ``chi2 = delta^T C^+ delta`` with
+  ``dof = rank(C)``, and its p-value;
+* the previous calibration's RMS on the new session's data (the cross-check,
   :func:`kincal.fleet.tasks.crosscheck_session`) beside the new calibration's own.
 
 A robot is flagged when either test rejects "no change" at a family-wise false-alarm
 probability ``false_alarm`` per robot (default 0.001), split evenly between the two:
 ``max |z_i| > z_crit`` with ``z_crit = Phi^-1(1 - false_alarm / (4 p))`` (two-sided,
-Bonferroni over ``p`` parameters), or ``P(chi2_dof > chi2) < false_alarm / 2``.
+Bonferroni over ``p`` parameters), or ``P(chi2_dof > chi2) < false_alarm / 2``.  With
+``T`` estimated from ``nu`` pairs the covariance is itself uncertain, and both tails are
+taken from the distributions that account for it: ``z_crit = t_nu^-1(1 - false_alarm /
+(4 p))`` (Student t), and for the chi-square Hotelling's ``chi2 (nu - dof + 1) / (nu dof)
+~ F(dof, nu - dof + 1)`` (exact when ``T`` dominates ``C_a + C_b``, conservative
+otherwise); with ``nu <= dof`` the joint test has no reference and only the
+per-parameter test runs.
 
 The parameters beyond ``z_crit`` are the ones that moved; each gets a sentence
 (``d[3] +0.42 mm, 11σ: joint 3 hit something?``).
@@ -31,6 +51,13 @@ from typing import Any
 import numpy as np
 
 from kincal.errors import KincalError
+from kincal.fleet.reproducibility import (
+    PairTerms,
+    Reproducibility,
+    ReproducibilityPool,
+    pair_terms,
+)
+from kincal.fleet.tasks import summary_rms
 from kincal.robots.chain import ROLES
 from kincal.units import display_scale
 
@@ -98,6 +125,8 @@ class Drift:
         rms_latest_m: the latest calibration's training position RMS [m].
         rms_previous_model_m: the previous calibration on the latest data [m] (None
             until the cross-check is stored).
+        reproducibility: the session-to-session variance ``T`` in the test (None:
+            not estimated, ``T = 0``).
     """
 
     serial: str
@@ -112,6 +141,7 @@ class Drift:
     moved: list[ParameterChange]
     rms_latest_m: float | None = None
     rms_previous_model_m: float | None = None
+    reproducibility: Reproducibility | None = None
 
     @property
     def z_max(self) -> float:
@@ -138,17 +168,23 @@ class Drift:
                 "rms_latest_m": self.rms_latest_m,
                 "rms_previous_model_m": self.rms_previous_model_m,
                 "moved": [c.name for c in self.moved], "notes": self.notes(),
+                "reproducibility": (self.reproducibility.to_dict()
+                                    if self.reproducibility is not None else None),
                 "changes": [{"name": c.name, "unit": c.unit, "role": c.role,
                              "before": c.before, "after": c.after, "change": c.change,
                              "sigma": c.sigma, "z": c.z} for c in self.changes]}
 
 
-def z_threshold(p: int, false_alarm: float) -> float:
+def z_threshold(p: int, false_alarm: float, nu: int | None = None) -> float:
     """``Phi^-1(1 - false_alarm / (4 p))``: the per-parameter two-sided Bonferroni
-    threshold holding half of the false-alarm budget over ``p`` parameters."""
+    threshold holding half of the false-alarm budget over ``p`` parameters; with ``nu``
+    (the pairs behind an estimated reproducibility variance) the Student-t quantile
+    ``t_nu^-1(1 - false_alarm / (4 p))``."""
     from scipy.stats import norm
+    from scipy.stats import t as student
 
-    return float(norm.isf(false_alarm / (4.0 * max(p, 1))))
+    q = false_alarm / (4.0 * max(p, 1))
+    return float(norm.isf(q) if nu is None else student.isf(q, nu))
 
 
 def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], np.ndarray,
@@ -159,9 +195,13 @@ def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], 
 
 
 def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
-            false_alarm: float = 1e-3) -> Drift:
-    """:class:`Drift` of two full records of one robot (``previous`` first)."""
+            false_alarm: float = 1e-3, reproducibility: Reproducibility | None = None
+            ) -> Drift:
+    """:class:`Drift` of two full records of one robot (``previous`` first);
+    ``reproducibility``: the session-to-session variance ``T`` (module docstring) of the
+    robot's model, estimated without this robot (None: ``T = 0``)."""
     from scipy.stats import chi2 as chi2_dist
+    from scipy.stats import f as f_dist
 
     if not 0 < false_alarm < 1:
         raise KincalError(f"option --false-alarm: must be between 0 and 1 (got "
@@ -172,6 +212,10 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
     ia = [ea.index(n) for n in common]
     ib = [eb.index(n) for n in common]
     C = Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)]
+    nu = None
+    if reproducibility is not None:
+        C = C + 2.0 * reproducibility.block(common)
+        nu = reproducibility.pairs
     changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
                                float(pb[n]["estimate"]), float(math.sqrt(max(C[k, k], 0.0))))
                for k, n in enumerate(common)]
@@ -182,17 +226,24 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
         keep = w > w.max() * 1e-12 if w.size and w.max() > 0 else np.zeros(w.size, bool)
         proj = V[:, keep].T @ delta
         chi2, dof = float(np.sum(proj**2 / w[keep])), int(keep.sum())
-    p_value = float(chi2_dist.sf(chi2, dof)) if dof else 1.0
-    z_crit = z_threshold(len(common), false_alarm)
+    if not dof:
+        p_value = 1.0
+    elif nu is None:
+        p_value = float(chi2_dist.sf(chi2, dof))
+    elif nu > dof:              # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
+        p_value = float(f_dist.sf(chi2 * (nu - dof + 1) / (nu * dof), dof, nu - dof + 1))
+    else:                       # too few pairs for the joint test: the per-parameter one only
+        p_value = 1.0
+    z_crit = z_threshold(len(common), false_alarm, nu)
     changes.sort(key=lambda c: -abs(c.z))
     moved = [c for c in changes if abs(c.z) > z_crit]
     flagged = bool(moved) or p_value < false_alarm / 2
     if flagged and not moved:
         moved = changes[:3]
-    rms = (latest.get("metrics") or {}).get("train") or {}
     return Drift(latest["serial"], (int(previous["id"]), previous["date"]),
                  (int(latest["id"]), latest["date"]), changes, chi2, dof, p_value, z_crit,
-                 flagged, moved, rms.get("rms_position_m"))
+                 flagged, moved, summary_rms((latest.get("metrics") or {}).get("train")),
+                 reproducibility=reproducibility)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,6 +253,7 @@ class FleetDrift:
 
     robots: list[Drift]
     false_alarm: float
+    reproducibility: bool = True
 
     def __iter__(self) -> Iterator[Drift]:
         return iter(self.robots)
@@ -214,6 +266,23 @@ class FleetDrift:
         """The robots either test flagged."""
         return [d for d in self.robots if d.flagged]
 
+    def reproducibility_line(self) -> str:
+        """One sentence: how the session-to-session error entered the tests."""
+        used = [d.reproducibility for d in self.robots if d.reproducibility is not None]
+        if not self.reproducibility:
+            return ("session-to-session (placement-to-placement) error left out "
+                    "(--reproducibility none): the changes are judged by the calibrations' "
+                    "own standard errors alone")
+        if not used:
+            return ("session-to-session (placement-to-placement) error not estimated (it "
+                    "needs two other robots of the model with two sessions): the changes "
+                    "are judged by the calibrations' own standard errors alone")
+        nus = sorted({r.pairs for r in used})
+        return (f"session-to-session (placement-to-placement) error estimated from "
+                f"{nus[0] if len(nus) == 1 else f'{nus[0]}-{nus[-1]}'} other robot(s) of "
+                f"the model and added to each change's covariance ({len(used)} of "
+                f"{len(self.robots)} robot(s); thresholds from Student t / F)")
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``kincal fleet drift --json``."""
         return {"false_alarm": self.false_alarm, "flagged": len(self.flagged),
@@ -221,22 +290,44 @@ class FleetDrift:
 
 
 def fleet_drift(store: Any, false_alarm: float = 1e-3,
-                serials: Sequence[str] | None = None) -> FleetDrift:
-    """:func:`compare` for every robot of a history with two calibrated session dates."""
+                serials: Sequence[str] | None = None, reproducibility: bool = True
+                ) -> FleetDrift:
+    """:func:`compare` for every robot of a history with two calibrated session dates.
+
+    ``reproducibility``: estimate the session-to-session variance ``T`` of each robot
+    model from the other robots' pairs (module docstring); False: ``T = 0``.  The
+    estimate uses every robot of the history, also when ``serials`` selects a few."""
     from kincal.fleet.store import latest_pairs
 
-    pairs = latest_pairs(store.summaries(serials))
+    every = latest_pairs(store.summaries())
+    wanted = None if serials is None else set(serials)
+    pairs = [p for p in every if wanted is None or p[1]["serial"] in wanted]
     if not pairs:
-        return FleetDrift([], false_alarm)
+        return FleetDrift([], false_alarm, reproducibility)
+    terms: dict[str, PairTerms] = {}
+    if reproducibility:
+        for chunk in _chunks(store, every):
+            for prev, new in chunk:
+                terms[new["serial"]] = pair_terms(prev, new)
+    pool = ReproducibilityPool(list(terms.values()))
     checks = store.crosscheck_rows()
     out = []
-    for start in range(0, len(pairs), 200):
-        chunk = pairs[start:start + 200]
-        full = {r["id"]: r for r in store.records([x["id"] for pair in chunk for x in pair])}
+    for chunk in _chunks(store, pairs):
         for prev, new in chunk:
-            d = compare(full[prev["id"]], full[new["id"]], false_alarm)
+            own = terms.get(new["serial"])
+            repro = (pool.without(own, own.model) if own is not None else None)
+            d = compare(prev, new, false_alarm, repro)
             row = checks.get((new["id"], prev["id"]))
             if row is not None and row["status"] == "ok":
                 d.rms_previous_model_m = row["rms_position_m"]
             out.append(d)
-    return FleetDrift(out, false_alarm)
+    return FleetDrift(out, false_alarm, reproducibility)
+
+
+def _chunks(store: Any, pairs: Sequence[tuple[Any, Any]]
+            ) -> Iterator[list[tuple[dict[str, Any], dict[str, Any]]]]:
+    """The full records of ``pairs``, 200 pairs at a time (memory stays flat)."""
+    for start in range(0, len(pairs), 200):
+        chunk = pairs[start:start + 200]
+        full = {r["id"]: r for r in store.records([x["id"] for pair in chunk for x in pair])}
+        yield [(full[p["id"]], full[n["id"]]) for p, n in chunk]

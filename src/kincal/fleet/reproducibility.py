@@ -1,0 +1,167 @@
+"""Session-to-session reproducibility: the error a calibration repeats only within a session.
+
+Two calibrations of a robot that did not change still differ by more than their standard
+errors say.  Each session samples the workspace its own way (the artifact put at other
+places on the table, the tracker elsewhere, other poses), and what the model does not
+describe (elasticity, gear errors, temperature) is absorbed into the parameters
+differently each time.  The model of a session's estimate is
+
+    theta_hat_s = theta + u_s + e_s,    e_s ~ N(0, C_s),    u_s ~ N(0, T),
+
+with ``C_s`` the calibration's own covariance (the noise of its measurements) and ``u_s``
+the session's share of the unmodelled error, the same for every session of the robot
+model, independent between sessions: ``T`` [m^2 / rad^2, m rad, ...], the
+placement-to-placement (session-to-session) variance.  The change between two sessions of
+an unchanged robot then has ``Cov(delta) = C_a + C_b + 2 T``.
+
+``T`` is estimated across the fleet by the method of moments: over ``n`` pairs of
+sessions of robots of the same model (the previous and latest calibration of each),
+``E[delta delta^T] = V + 2 T`` with ``V = diag(C_a,ii + C_b,ii)`` on the diagonal (the
+parameters' off-diagonal noise terms are left in ``T``: small beside it), so
+
+    T_ij = sum_r (delta_ri delta_rj - V_r,ij) / (2 n_ij),
+
+``n_ij`` the pairs in which both parameters were estimated in both sessions; ``T`` is then
+made positive semi-definite (negative eigenvalues set to zero).  The drift test
+of a robot uses the estimate from the *other* robots' pairs (leave one robot out), so a
+robot that did drift neither hides itself nor takes part in its own threshold, and its
+statistic is independent of ``T``; with ``nu = n - 1`` pairs behind ``T`` the thresholds
+become Student-t / F quantiles with ``nu`` denominator degrees of freedom
+(:mod:`kincal.fleet.drift`).  Fewer than :data:`MIN_PAIRS` other pairs: not estimated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from kincal.robots.chain import ROLES
+
+__all__ = ["Reproducibility", "PairTerms", "pair_terms", "estimate_reproducibility",
+           "MIN_PAIRS", "ReproducibilityPool"]
+
+#: Pairs of sessions (other robots of the same model) needed to estimate ``T``.
+MIN_PAIRS = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class PairTerms:
+    """One robot's previous-to-latest change: ``{parameter: (delta, v)}`` with ``delta``
+    the change and ``v = C_a,ii + C_b,ii`` its variance from the two calibrations alone
+    (SI), and the robot model the pair belongs to."""
+
+    serial: str
+    model: str
+    terms: Mapping[str, tuple[float, float]]
+
+
+@dataclasses.dataclass(frozen=True)
+class Reproducibility:
+    """The placement-to-placement covariance ``T`` over ``names`` (SI squared) and the
+    number of session pairs ``pairs`` it was estimated from (its degrees of freedom)."""
+
+    names: tuple[str, ...]
+    matrix: np.ndarray
+    pairs: int
+
+    @property
+    def variance(self) -> dict[str, float]:
+        """``tau_i^2`` per parameter."""
+        return {n: float(self.matrix[k, k]) for k, n in enumerate(self.names)}
+
+    def block(self, names: Sequence[str]) -> np.ndarray:
+        """``T`` over ``names`` (zero rows and columns for parameters it does not cover)."""
+        at = {n: k for k, n in enumerate(self.names)}
+        idx = [at.get(n, -1) for n in names]
+        out = np.zeros((len(names), len(names)))
+        for a, i in enumerate(idx):
+            for b, j in enumerate(idx):
+                if i >= 0 and j >= 0:
+                    out[a, b] = self.matrix[i, j]
+        return out
+
+    def std(self, name: str) -> float:
+        """``tau_i`` [m or rad] (0 for a parameter without an estimate)."""
+        return float(np.sqrt(self.variance.get(name, 0.0)))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"pairs": self.pairs, "std": {k: float(np.sqrt(v))
+                                             for k, v in self.variance.items()}}
+
+
+def _block(record: Mapping[str, Any]) -> tuple[dict[str, float], dict[str, float]]:
+    est = {p["name"]: float(p["estimate"]) for p in record["parameters"]
+           if p["role"] in ROLES and p["estimated"]}
+    C = np.asarray(record["covariance"], dtype=float)
+    names = list(record["estimated"])
+    var = {n: float(C[k, k]) for k, n in enumerate(names) if n in est}
+    return est, var
+
+
+def pair_terms(previous: Mapping[str, Any], latest: Mapping[str, Any]) -> PairTerms:
+    """The :class:`PairTerms` of two full records of one robot (``previous`` first)."""
+    ea, va = _block(previous)
+    eb, vb = _block(latest)
+    terms = {n: (eb[n] - ea[n], va[n] + vb[n]) for n in eb if n in ea and n in va
+             and n in vb}
+    return PairTerms(str(latest["serial"]), str(latest.get("robot") or ""), terms)
+
+
+class ReproducibilityPool:
+    """The sums behind ``T`` for every robot model of a fleet, so that the estimate
+    leaving one robot out costs ``O(p^2)`` (a fleet of 100,000 robots is one pass)."""
+
+    def __init__(self, pairs: Sequence[PairTerms]) -> None:
+        self.names: dict[str, list[str]] = {}
+        self.sums: dict[str, np.ndarray] = {}
+        self.counts: dict[str, np.ndarray] = {}
+        self.pairs: dict[str, int] = {}
+        for p in pairs:
+            names = self.names.setdefault(p.model, [])
+            names += [n for n in p.terms if n not in names]
+        for model, names in self.names.items():
+            self.sums[model] = np.zeros((len(names), len(names)))
+            self.counts[model] = np.zeros((len(names), len(names)), dtype=int)
+        for p in pairs:
+            self.pairs[p.model] = self.pairs.get(p.model, 0) + 1
+            idx, S = self._outer(p, p.model)
+            self.sums[p.model][np.ix_(idx, idx)] += S
+            self.counts[p.model][np.ix_(idx, idx)] += 1
+
+    def _outer(self, p: PairTerms, model: str) -> tuple[list[int], np.ndarray]:
+        """Indices of ``p``'s parameters and ``delta delta^T - diag(v)`` over them."""
+        names = self.names[model]
+        idx = [names.index(n) for n in p.terms]
+        d = np.array([p.terms[n][0] for n in p.terms])
+        v = np.array([p.terms[n][1] for n in p.terms])
+        return idx, np.outer(d, d) - np.diag(v)
+
+    def without(self, pair: PairTerms | None, model: str) -> Reproducibility | None:
+        """``T`` of ``model`` from every pair but ``pair`` (module docstring); None with
+        fewer than :data:`MIN_PAIRS` pairs."""
+        n = self.pairs.get(model, 0) - (pair is not None)
+        if n < MIN_PAIRS:
+            return None
+        S, N = self.sums[model].copy(), self.counts[model].copy()
+        if pair is not None:
+            idx, own = self._outer(pair, model)
+            S[np.ix_(idx, idx)] -= own
+            N[np.ix_(idx, idx)] -= 1
+        T = np.where(N >= MIN_PAIRS, S / (2.0 * np.maximum(N, 1)), 0.0)
+        w, V = np.linalg.eigh((T + T.T) / 2)
+        T = (V * np.maximum(w, 0.0)) @ V.T            # nearest positive semi-definite
+        return Reproducibility(tuple(self.names[model]), T, n)
+
+
+def estimate_reproducibility(pairs: Sequence[PairTerms], exclude: str | None = None
+                             ) -> Reproducibility | None:
+    """``tau_i^2`` (module docstring) from ``pairs`` of one robot model, leaving out the
+    robot ``exclude``; None with fewer than :data:`MIN_PAIRS` pairs."""
+    use = [p for p in pairs if p.serial != exclude]
+    if not use:
+        return None
+    return ReproducibilityPool([dataclasses.replace(p, model="") for p in use]).without(
+        None, "")
