@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from kincal.fleet.drift import compare, z_threshold
+from kincal.fleet.drift import compare, fleet_reproducibility, z_threshold
 from kincal.fleet.reproducibility import (
     ReproducibilityPool,
     estimate_reproducibility,
@@ -45,7 +45,7 @@ def _fleet(rng, n, tau, correlated=False, drift=None):
         C = np.linalg.inv(J.T @ J) * 1e-8
         theta = rng.standard_normal(P) * 1e-3
         recs = []
-        for s in range(2):
+        for _ in range(2):
             u = mix @ (tau * rng.standard_normal(P))
             recs.append(theta + u + rng.multivariate_normal(np.zeros(P), C))
         if drift is not None and drift[0] == r:
@@ -58,10 +58,8 @@ def _fleet(rng, n, tau, correlated=False, drift=None):
 
 
 def _drifts(fleet, alpha, use=True):
-    terms = [pair_terms(a, b) for a, b in fleet]
-    pool = ReproducibilityPool(terms)
-    return [compare(a, b, alpha, pool.without(t, "model") if use else None)
-            for (a, b), t in zip(fleet, terms, strict=True)]
+    repro = fleet_reproducibility([pair_terms(a, b) for a, b in fleet], alpha)
+    return [compare(a, b, alpha, repro[b["serial"]] if use else None) for a, b in fleet]
 
 
 def _tau(rng):
@@ -108,7 +106,7 @@ def test_the_estimate_recovers_the_placement_variance():
 def test_a_drift_of_a_few_sigma_is_still_found(sigmas):
     rng = np.random.default_rng(int(sigmas))
     n, robots, hits, right = 200, 50, 0, 0
-    for i in range(n):
+    for _ in range(n):
         k = int(rng.integers(P))
         d = _drifts(_fleet(rng, robots, _tau(rng), drift=(0, k, sigmas)), 1e-3)[0]
         hits += d.flagged

@@ -9,12 +9,14 @@ are not compared):
       C = C_a + C_b + 2 T,
 
   ``C_a``, ``C_b`` the two calibrations' covariances (their measurement noise) and
-  ``T`` the session-to-session (placement-to-placement) reproducibility covariance: what the unmodelled errors put into the parameters differently in each
-  session (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by
+  ``T`` the session-to-session (placement-to-placement) reproducibility covariance:
+  what the unmodelled errors put into the parameters differently in each session (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by
   the method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / (2 n)`` made positive
   semi-definite, over the other robots ``r`` of the same model with two sessions
-  (``V_r = diag(C_a,ii + C_b,ii)``),
-  leaving the robot under test out; ``nu = n - 1`` pairs stand behind it.  Without two
+  (``V_r = C_a + C_b`` of robot ``r``),
+  leaving the robot under test out; ``nu = n - 1`` pairs stand behind it.  Robots that
+  did drift would pass for session-to-session error: the pairs these tests flag with the
+  current estimate leave it, twice (:func:`fleet_reproducibility`).  Without two
   other robots of the model, or with ``reproducibility=False``, ``T = 0`` (the
   calibrations' own covariances alone: placements or set-ups that differ between sessions
   then raise false alarms);
@@ -61,7 +63,8 @@ from kincal.fleet.tasks import summary_rms
 from kincal.robots.chain import ROLES
 from kincal.units import display_scale
 
-__all__ = ["ParameterChange", "Drift", "FleetDrift", "compare", "z_threshold", "fleet_drift"]
+__all__ = ["ParameterChange", "Drift", "FleetDrift", "compare", "z_threshold", "fleet_drift",
+           "fleet_reproducibility", "joint_test"]
 
 
 @dataclasses.dataclass
@@ -194,14 +197,67 @@ def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], 
     return params, np.asarray(record["covariance"], dtype=float), list(record["estimated"])
 
 
+def joint_test(delta: np.ndarray, C: np.ndarray, nu: int | None) -> tuple[float, int, float]:
+    """``(chi2, dof, p)``: ``delta^T C^+ delta`` on the identifiable set and its p-value,
+    chi-square, or Hotelling's F with ``nu`` pairs behind ``C`` (1 when ``nu <= dof``)."""
+    from scipy.stats import chi2 as chi2_dist
+    from scipy.stats import f as f_dist
+
+    chi2, dof = 0.0, 0
+    if delta.size:
+        w, V = np.linalg.eigh(C)
+        keep = w > w.max() * 1e-12 if w.size and w.max() > 0 else np.zeros(w.size, bool)
+        proj = V[:, keep].T @ delta
+        chi2, dof = float(np.sum(proj**2 / w[keep])), int(keep.sum())
+    if not dof:
+        return chi2, dof, 1.0
+    if nu is None:
+        return chi2, dof, float(chi2_dist.sf(chi2, dof))
+    if nu > dof:                # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
+        return chi2, dof, float(f_dist.sf(chi2 * (nu - dof + 1) / (nu * dof), dof,
+                                          nu - dof + 1))
+    return chi2, dof, 1.0       # too few pairs for the joint test: the per-parameter one only
+
+
+def _pair_flagged(pair: PairTerms, repro: Reproducibility | None, false_alarm: float
+                  ) -> bool:
+    """Would :func:`compare` flag this pair (its change and ``V``) with ``repro``?"""
+    C = pair.V + (2.0 * repro.block(pair.names) if repro is not None else 0.0)
+    nu = repro.pairs if repro is not None else None
+    sd = np.sqrt(np.maximum(np.diag(C), 0.0))
+    z = np.abs(pair.delta) / np.where(sd > 0, sd, np.inf)
+    if z.size and z.max() > z_threshold(len(pair.names), false_alarm, nu):
+        return True
+    return joint_test(pair.delta, C, nu)[2] < false_alarm / 2
+
+
+def fleet_reproducibility(pairs: Sequence[PairTerms], false_alarm: float = 1e-3,
+                          rounds: int = 2) -> dict[str, Reproducibility | None]:
+    """Per serial, the session-to-session covariance ``T`` of its model estimated from
+    the other robots' pairs (:mod:`kincal.fleet.reproducibility`), robust to the robots
+    that did drift: ``rounds`` times, the pairs flagged at ``false_alarm`` with the
+    current estimate leave the estimate (a drift would otherwise pass for session-to-
+    session error and hide itself and others)."""
+    use = list(pairs)
+    for _ in range(rounds):
+        pool = ReproducibilityPool(use)
+        keep = [p for p in use if not _pair_flagged(p, pool.without(p, p.model),
+                                                     false_alarm)]
+        if len(keep) == len(use):
+            break
+        use = keep
+    pool = ReproducibilityPool(use)
+    kept = {p.serial for p in use}
+    return {p.serial: pool.without(p if p.serial in kept else None, p.model)
+            for p in pairs}
+
+
 def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
             false_alarm: float = 1e-3, reproducibility: Reproducibility | None = None
             ) -> Drift:
     """:class:`Drift` of two full records of one robot (``previous`` first);
     ``reproducibility``: the session-to-session variance ``T`` (module docstring) of the
     robot's model, estimated without this robot (None: ``T = 0``)."""
-    from scipy.stats import chi2 as chi2_dist
-    from scipy.stats import f as f_dist
 
     if not 0 < false_alarm < 1:
         raise KincalError(f"option --false-alarm: must be between 0 and 1 (got "
@@ -219,21 +275,7 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
     changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
                                float(pb[n]["estimate"]), float(math.sqrt(max(C[k, k], 0.0))))
                for k, n in enumerate(common)]
-    delta = np.array([c.change for c in changes])
-    chi2, dof = 0.0, 0
-    if common:
-        w, V = np.linalg.eigh(C)
-        keep = w > w.max() * 1e-12 if w.size and w.max() > 0 else np.zeros(w.size, bool)
-        proj = V[:, keep].T @ delta
-        chi2, dof = float(np.sum(proj**2 / w[keep])), int(keep.sum())
-    if not dof:
-        p_value = 1.0
-    elif nu is None:
-        p_value = float(chi2_dist.sf(chi2, dof))
-    elif nu > dof:              # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
-        p_value = float(f_dist.sf(chi2 * (nu - dof + 1) / (nu * dof), dof, nu - dof + 1))
-    else:                       # too few pairs for the joint test: the per-parameter one only
-        p_value = 1.0
+    chi2, dof, p_value = joint_test(np.array([c.change for c in changes]), C, nu)
     z_crit = z_threshold(len(common), false_alarm, nu)
     changes.sort(key=lambda c: -abs(c.z))
     moved = [c for c in changes if abs(c.z) > z_crit]
@@ -309,14 +351,12 @@ def fleet_drift(store: Any, false_alarm: float = 1e-3,
         for chunk in _chunks(store, every):
             for prev, new in chunk:
                 terms[new["serial"]] = pair_terms(prev, new)
-    pool = ReproducibilityPool(list(terms.values()))
+    repro = fleet_reproducibility(list(terms.values()), false_alarm)
     checks = store.crosscheck_rows()
     out = []
     for chunk in _chunks(store, pairs):
         for prev, new in chunk:
-            own = terms.get(new["serial"])
-            repro = (pool.without(own, own.model) if own is not None else None)
-            d = compare(prev, new, false_alarm, repro)
+            d = compare(prev, new, false_alarm, repro.get(new["serial"]))
             row = checks.get((new["id"], prev["id"]))
             if row is not None and row["status"] == "ok":
                 d.rms_previous_model_m = row["rms_position_m"]

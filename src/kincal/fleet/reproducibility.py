@@ -16,13 +16,12 @@ an unchanged robot then has ``Cov(delta) = C_a + C_b + 2 T``.
 
 ``T`` is estimated across the fleet by the method of moments: over ``n`` pairs of
 sessions of robots of the same model (the previous and latest calibration of each),
-``E[delta delta^T] = V + 2 T`` with ``V = diag(C_a,ii + C_b,ii)`` on the diagonal (the
-parameters' off-diagonal noise terms are left in ``T``: small beside it), so
+``E[delta delta^T] = V + 2 T`` with ``V = C_a + C_b``, so
 
     T_ij = sum_r (delta_ri delta_rj - V_r,ij) / (2 n_ij),
 
 ``n_ij`` the pairs in which both parameters were estimated in both sessions; ``T`` is then
-made positive semi-definite (negative eigenvalues set to zero).  The drift test
+made positive semi-definite (:func:`_denoise`: negative eigenvalues set to zero).  The drift test
 of a robot uses the estimate from the *other* robots' pairs (leave one robot out), so a
 robot that did drift neither hides itself nor takes part in its own threshold, and its
 statistic is independent of ``T``; with ``nu = n - 1`` pairs behind ``T`` the thresholds
@@ -49,13 +48,15 @@ MIN_PAIRS = 2
 
 @dataclasses.dataclass(frozen=True)
 class PairTerms:
-    """One robot's previous-to-latest change: ``{parameter: (delta, v)}`` with ``delta``
-    the change and ``v = C_a,ii + C_b,ii`` its variance from the two calibrations alone
-    (SI), and the robot model the pair belongs to."""
+    """One robot's previous-to-latest change over the parameters ``names`` estimated in
+    both: ``delta`` and ``V = C_a + C_b`` (its covariance from the two calibrations alone,
+    SI), and the robot model the pair belongs to."""
 
     serial: str
     model: str
-    terms: Mapping[str, tuple[float, float]]
+    names: tuple[str, ...]
+    delta: np.ndarray
+    V: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,22 +93,21 @@ class Reproducibility:
                                              for k, v in self.variance.items()}}
 
 
-def _block(record: Mapping[str, Any]) -> tuple[dict[str, float], dict[str, float]]:
+def _block(record: Mapping[str, Any]) -> tuple[dict[str, float], np.ndarray, list[str]]:
     est = {p["name"]: float(p["estimate"]) for p in record["parameters"]
            if p["role"] in ROLES and p["estimated"]}
-    C = np.asarray(record["covariance"], dtype=float)
-    names = list(record["estimated"])
-    var = {n: float(C[k, k]) for k, n in enumerate(names) if n in est}
-    return est, var
+    return est, np.asarray(record["covariance"], dtype=float), list(record["estimated"])
 
 
 def pair_terms(previous: Mapping[str, Any], latest: Mapping[str, Any]) -> PairTerms:
     """The :class:`PairTerms` of two full records of one robot (``previous`` first)."""
-    ea, va = _block(previous)
-    eb, vb = _block(latest)
-    terms = {n: (eb[n] - ea[n], va[n] + vb[n]) for n in eb if n in ea and n in va
-             and n in vb}
-    return PairTerms(str(latest["serial"]), str(latest.get("robot") or ""), terms)
+    ea, Ca, na = _block(previous)
+    eb, Cb, nb = _block(latest)
+    names = tuple(n for n in nb if n in ea and n in eb and n in na)
+    ia, ib = [na.index(n) for n in names], [nb.index(n) for n in names]
+    return PairTerms(str(latest["serial"]), str(latest.get("robot") or ""), names,
+                     np.array([eb[n] - ea[n] for n in names]),
+                     Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)])
 
 
 class ReproducibilityPool:
@@ -119,25 +119,25 @@ class ReproducibilityPool:
         self.sums: dict[str, np.ndarray] = {}
         self.counts: dict[str, np.ndarray] = {}
         self.pairs: dict[str, int] = {}
+        self.noise: dict[str, np.ndarray] = {}
         for p in pairs:
             names = self.names.setdefault(p.model, [])
-            names += [n for n in p.terms if n not in names]
+            names += [n for n in p.names if n not in names]
         for model, names in self.names.items():
             self.sums[model] = np.zeros((len(names), len(names)))
             self.counts[model] = np.zeros((len(names), len(names)), dtype=int)
+            self.noise[model] = np.zeros((len(names), len(names)))
         for p in pairs:
             self.pairs[p.model] = self.pairs.get(p.model, 0) + 1
             idx, S = self._outer(p, p.model)
             self.sums[p.model][np.ix_(idx, idx)] += S
             self.counts[p.model][np.ix_(idx, idx)] += 1
+            self.noise[p.model][np.ix_(idx, idx)] += p.V
 
     def _outer(self, p: PairTerms, model: str) -> tuple[list[int], np.ndarray]:
-        """Indices of ``p``'s parameters and ``delta delta^T - diag(v)`` over them."""
+        """Indices of ``p``'s parameters and ``delta delta^T - V`` over them."""
         names = self.names[model]
-        idx = [names.index(n) for n in p.terms]
-        d = np.array([p.terms[n][0] for n in p.terms])
-        v = np.array([p.terms[n][1] for n in p.terms])
-        return idx, np.outer(d, d) - np.diag(v)
+        return [names.index(n) for n in p.names], np.outer(p.delta, p.delta) - p.V
 
     def without(self, pair: PairTerms | None, model: str) -> Reproducibility | None:
         """``T`` of ``model`` from every pair but ``pair`` (module docstring); None with
@@ -151,15 +151,25 @@ class ReproducibilityPool:
             S[np.ix_(idx, idx)] -= own
             N[np.ix_(idx, idx)] -= 1
         T = np.where(N >= MIN_PAIRS, S / (2.0 * np.maximum(N, 1)), 0.0)
-        w, V = np.linalg.eigh((T + T.T) / 2)
-        T = (V * np.maximum(w, 0.0)) @ V.T            # nearest positive semi-definite
-        return Reproducibility(tuple(self.names[model]), T, n)
+        W = self.noise[model] / np.maximum(self.counts[model], 1)
+        return Reproducibility(tuple(self.names[model]), _denoise(T, W, n), n)
+
+
+def _denoise(T: np.ndarray, W: np.ndarray, n: int) -> np.ndarray:
+    """``T`` made positive semi-definite: negative eigenvalues set to zero.  (Clipping
+    noise biases ``T`` upwards, by up to ``sqrt(p/n)`` times the calibrations' own
+    covariance ``W``: a conservative test, at the price of some power in small fleets;
+    lowering the eigenvalues by that edge lost the false-alarm rate when the placement
+    effect is correlated between parameters.)"""
+    w, V = np.linalg.eigh((T + T.T) / 2)
+    out: np.ndarray = (V * np.maximum(w, 0.0)) @ V.T
+    return out
 
 
 def estimate_reproducibility(pairs: Sequence[PairTerms], exclude: str | None = None
                              ) -> Reproducibility | None:
-    """``tau_i^2`` (module docstring) from ``pairs`` of one robot model, leaving out the
-    robot ``exclude``; None with fewer than :data:`MIN_PAIRS` pairs."""
+    """``T`` (module docstring) from ``pairs`` of one robot model, leaving out the robot
+    ``exclude``; None with fewer than :data:`MIN_PAIRS` pairs."""
     use = [p for p in pairs if p.serial != exclude]
     if not use:
         return None
