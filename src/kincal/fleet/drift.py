@@ -10,16 +10,16 @@ are not compared):
 
   ``C_a``, ``C_b`` the two calibrations' covariances (their measurement noise) and
   ``T`` the session-to-session (placement-to-placement) reproducibility covariance:
-  what the unmodelled errors put into the parameters differently in each session (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by
-  the method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / (2 n)`` made positive
+  what the unmodelled errors put into the parameters differently in each session
+  (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by the
+  method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / (2 n)`` made positive
   semi-definite, over the other robots ``r`` of the same model with two sessions
-  (``V_r = C_a + C_b`` of robot ``r``),
-  leaving the robot under test out; ``nu = n - 1`` pairs stand behind it.  Robots that
-  did drift would pass for session-to-session error: the pairs these tests flag with the
-  current estimate leave it, twice (:func:`fleet_reproducibility`).  Without two
-  other robots of the model, or with ``reproducibility=False``, ``T = 0`` (the
-  calibrations' own covariances alone: placements or set-ups that differ between sessions
-  then raise false alarms);
+  (``V_r = C_a + C_b`` of robot ``r``), leaving the robot under test out; ``nu = n - 1``
+  pairs stand behind it.  Robots that did drift would pass for session-to-session error:
+  the pairs these tests flag with the current estimate leave it, twice
+  (:func:`fleet_reproducibility`).  Without two other robots of the model, or with
+  ``reproducibility=False``, ``T = 0`` (the calibrations' own covariances alone:
+  placements or set-ups that differ between sessions then raise false alarms);
 * per parameter, the change in units of its standard error ``s_i = sqrt(C_ii)``:
   ``z_i = delta_i / s_i``;
 * the chi-square statistic on the identifiable set, ``chi2 = delta^T C^+ delta`` with
