@@ -418,3 +418,51 @@ def _robot_files(records: list[Any]) -> dict[str, str]:
             raise KincalError(f"option --out-dir: serial {serial!r} cannot be a file name")
         out[serial] = robot_yaml_text(calibrated_robot(r))
     return out
+
+
+# --------------------------------------------------------------------------- prior
+@fleet_app.command("prior")
+def prior_cmd(
+    output: Annotated[str, typer.Option("-o", "--output", help="Robot file to write (YAML): "
+                                        "the model with the fleet means as values and the "
+                                        "fleet spread as its tolerances.")],
+    db: DbOpt = DEFAULT_DB,
+    serials: Annotated[list[str] | None, typer.Option(
+        "--serial", help="Use only these robots (repeat the option); default: every "
+        "robot of the history.")] = None,
+    json_out: JsonOpt = None,
+) -> None:
+    """Estimate the fleet prior of a robot model from the latest calibration of each robot
+    (mean and between-robot spread of every parameter the data fixed, each robot's own
+    standard error removed) and write it as a robot file: `kincal calibrate FILE -d DATA`
+    (or `robot: FILE` in a setup file) then calibrates a new robot of the model with it."""
+    from kincal.fleet.prior import fleet_prior, write_fleet_prior
+    from kincal.io import check_outputs
+
+    out = out_console(json_out)
+    check_outputs({"--output": output, "--json": json_out}, {})
+    with _store(db, create=False) as store:
+        latest: dict[str, Any] = {}
+        for s in store.summaries(serials):
+            if s["status"] == "ok":
+                latest[s["serial"]] = s
+        records = store.records([s["id"] for s in latest.values()])
+    prior = fleet_prior(records)
+    write_fleet_prior(prior, output)
+    t = Table(title=f"Fleet prior from {len(prior.serials)} robot(s)")
+    for c in ("parameter", "nominal", "fleet mean", "between robots", "prior (1σ)"):
+        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for p in prior.parameters:
+        f, u = display_scale(p.unit)
+        t.add_row(escape(p.name), f"{p.nominal * f:.4f} {u}", f"{p.mean * f:.4f} {u}",
+                  f"{p.spread * f:.4f} {u}", f"{p.std * f:.4f} {u}")
+    out.print(t)
+    out.print(f"fleet prior of {len(prior.parameters)} parameter(s) -> {escape(output)} "
+              f"(use it as the robot: kincal calibrate {escape(output)} -d DATA ..., or "
+              f"robot: {escape(output)} in a setup file)")
+    if json_out:
+        from kincal.io import write_json
+
+        write_json(json_out, {"robot": prior.robot, "serials": list(prior.serials),
+                              "parameters": [dict(vars(p), std=p.std)
+                                             for p in prior.parameters]})

@@ -18,16 +18,25 @@ identifiable, and with a standard error below half of the prior it was calibrate
 around the nominal value that held it).  The estimation variance ``v_ri`` is removed from
 the spread (``tau_i^2`` is the robots' own spread, not their calibrations' noise).
 
-The prior of a new robot's parameter is the predictive distribution
-``N(mu_i, tau_i^2 + var(mu_i))``: its mean becomes the parameter's value in the robot file
+The prior of a new robot's parameter is the predictive distribution of a new member of
+the population.  With ``tau_i`` known it is ``N(mu_i, tau_i^2 + var(mu_i))``; estimated
+from ``k`` robots it is a Student t with ``k - 1`` degrees of freedom, whose variance is
+``(k - 1) / (k - 3)`` times larger (a factor 3 for four robots, 1.3 for ten).  The prior
+is the Gaussian of that variance,
+
+    sigma_i^2 = (tau_i^2 + var(mu_i)) (k - 1) / (k - 3)       (k >= MIN_ROBOTS = 4),
+
+and its mean ``mu_i`` becomes the parameter's value in the robot file
 :func:`write_fleet_prior` writes, its standard deviation the parameter's ``tolerances:``
 entry (the 1-sigma of the calibration prior).  Parameters seen in fewer than
 :data:`MIN_ROBOTS` robots keep the nominal value and the default tolerance.  The
 population covariance between parameters is not used (each prior is independent, as the
 calibration prior is).
 
-``kincal calibrate --robot prior.yaml`` (or ``robot: prior.yaml`` in a setup file) then
-calibrates a new robot with the fleet prior.
+``kincal calibrate prior.yaml -d DATA`` (or ``robot: prior.yaml`` in a setup file) then
+calibrates a new robot with the fleet prior.  With few poses, free every parameter the
+prior covers (``--free``: the prior's names and the instrument's), so that the prior, not
+the data alone, decides what is estimated.
 """
 
 from __future__ import annotations
@@ -46,8 +55,9 @@ from kincal.units import display_scale
 __all__ = ["FleetPrior", "ParameterPrior", "fleet_prior", "fleet_prior_robot",
            "write_fleet_prior", "MIN_ROBOTS"]
 
-#: Robots whose data fixed a parameter, needed to give it a fleet prior.
-MIN_ROBOTS = 2
+#: Robots whose data fixed a parameter, needed to give it a fleet prior (the Student-t
+#: predictive variance ``(k - 1) / (k - 3)`` needs ``k >= 4``).
+MIN_ROBOTS = 4
 #: A calibration fixed a parameter from its data when its standard error is below this
 #: fraction of the prior it was calibrated with.
 DATA_FRACTION = 0.5
@@ -56,8 +66,8 @@ DATA_FRACTION = 0.5
 @dataclasses.dataclass(frozen=True)
 class ParameterPrior:
     """One parameter's population (SI): ``mean`` ``mu``, ``spread`` ``tau`` (between
-    robots), ``mean_std`` ``sqrt(var(mu))``, from ``robots`` robots; ``std`` is the prior's
-    standard deviation ``sqrt(tau^2 + var(mu))``."""
+    robots), ``mean_std`` ``sqrt(var(mu))``, from ``robots`` robots ``k``; ``std`` is the
+    prior's standard deviation ``sqrt((tau^2 + var(mu)) (k - 1) / (k - 3))``."""
 
     name: str
     unit: str
@@ -69,7 +79,8 @@ class ParameterPrior:
 
     @property
     def std(self) -> float:
-        return math.hypot(self.spread, self.mean_std)
+        k = self.robots
+        return math.hypot(self.spread, self.mean_std) * math.sqrt((k - 1) / max(k - 3, 1))
 
 
 @dataclasses.dataclass(frozen=True)
