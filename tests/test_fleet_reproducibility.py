@@ -111,7 +111,7 @@ def test_a_drift_of_a_few_sigma_is_still_found(sigmas):
         d = _drifts(_fleet(rng, robots, _tau(rng), drift=(0, k, sigmas)), 1e-3)[0]
         hits += d.flagged
         right += d.flagged and d.moved[0].name == NAMES[k]
-    zc = z_threshold(P, 1e-3, robots - 1)
+    zc = z_threshold(P, 1e-3)      # normal-equivalent z; t tails with nu = robots - 1 below
     # the per-parameter test alone finds a drift of k total sigma with probability about
     # Phi(k - z_crit) (t tails: a little less); the chi-square test adds to it
     from scipy.stats import norm

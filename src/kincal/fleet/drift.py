@@ -6,13 +6,14 @@ are not compared):
 
 * the change ``delta = b - a`` has, for a robot that did not change, the covariance
 
-      C = C_a + C_b + 2 T,
+      C = C_a + C_b + w T,    w = 1 / m_a + 1 / m_b,
 
-  ``C_a``, ``C_b`` the two calibrations' covariances (their measurement noise) and
-  ``T`` the session-to-session (placement-to-placement) reproducibility covariance:
-  what the unmodelled errors put into the parameters differently in each session
+  ``C_a``, ``C_b`` the two calibrations' covariances (their measurement noise), ``T``
+  the placement-to-placement reproducibility covariance: what the unmodelled errors put
+  into the parameters differently at each placement of the artifact or set-up of the
+  instrument, averaged over the ``m`` placements (training files) of each session
   (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by the
-  method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / (2 n)`` made positive
+  method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / sum_r w_r`` made positive
   semi-definite, over the other robots ``r`` of the same model with two sessions
   (``V_r = C_a + C_b`` of robot ``r``), leaving the robot under test out; ``nu = n - 1``
   pairs stand behind it.  Robots that did drift would pass for session-to-session error:
@@ -31,12 +32,15 @@ A robot is flagged when either test rejects "no change" at a family-wise false-a
 probability ``false_alarm`` per robot (default 0.001), split evenly between the two:
 ``max |z_i| > z_crit`` with ``z_crit = Phi^-1(1 - false_alarm / (4 p))`` (two-sided,
 Bonferroni over ``p`` parameters), or ``P(chi2_dof > chi2) < false_alarm / 2``.  With
-``T`` estimated from ``nu`` pairs the covariance is itself uncertain, and both tails are
-taken from the distributions that account for it: ``z_crit = t_nu^-1(1 - false_alarm /
-(4 p))`` (Student t), and for the chi-square Hotelling's ``chi2 (nu - dof + 1) / (nu dof)
-~ F(dof, nu - dof + 1)`` (exact when ``T`` dominates ``C_a + C_b``, conservative
-otherwise); with ``nu <= dof`` the joint test has no reference and only the
-per-parameter test runs.
+``T`` estimated from ``nu`` pairs the covariance is itself uncertain, and the tails
+account for it (Welch-Satterthwaite): the standard error ``s_i^2 = v_i + w T_ii`` (the
+moment estimate of ``T_ii`` clipped at zero, free of the clipping of the whole matrix) has
+``nu_i = nu (s_i^2 / w T_ii)^2`` degrees of freedom (``nu`` when ``T`` dominates,
+infinite when ``T_ii = 0``), each ``z_i`` is the normal equivalent of its Student t,
+``Phi^-1(F_t,nu_i(delta_i / s_i))``, against the same ``z_crit``; the chi-square becomes
+Hotelling's ``chi2 (nu' - dof + 1) / (nu' dof) ~ F(dof, nu' - dof + 1)`` with ``nu' = nu
+(tr C / tr wT)^2`` (the chi-square itself when ``T = 0``; with ``nu' <= 2 dof`` the
+estimated correlations are too uncertain and only the per-parameter test runs).
 
 The parameters beyond ``z_crit`` are the ones that moved; each gets a sentence
 (``d[3] +0.42 mm, 11σ: joint 3 hit something?``).
@@ -58,6 +62,7 @@ from kincal.fleet.reproducibility import (
     Reproducibility,
     ReproducibilityPool,
     pair_terms,
+    placements,
 )
 from kincal.fleet.tasks import summary_rms
 from kincal.robots.chain import ROLES
@@ -77,14 +82,25 @@ class ParameterChange:
     before: float
     after: float
     sigma: float          # combined standard error of the change
+    dof: float = math.inf  # degrees of freedom of sigma (finite: T estimated, Satterthwaite)
+    _z: float | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def change(self) -> float:
         return self.after - self.before
 
     @property
-    def z(self) -> float:
+    def t(self) -> float:
+        """``change / sigma``."""
         return self.change / self.sigma if self.sigma > 0 else math.inf * np.sign(self.change)
+
+    @property
+    def z(self) -> float:
+        """The normal-equivalent of :attr:`t`: ``Phi^-1(F_t,dof(t))`` (``t`` itself when
+        ``dof`` is infinite), so that one threshold serves every parameter."""
+        if self._z is None:
+            self._z = float(_normal_equivalent(np.array([self.t]), np.array([self.dof]))[0])
+        return self._z
 
     def text(self, why: bool = True) -> str:
         """``d[3] +0.4200 mm, 11.0σ: joint 3 hit something?`` (without the guess when
@@ -92,6 +108,18 @@ class ParameterChange:
         f, u = display_scale(self.unit)
         text = f"{self.name} {self.change * f:+.4g} {u}, {abs(self.z):.1f}σ"
         return f"{text}: {hint(self.name, self.role)}" if why else text
+
+
+def _normal_equivalent(t: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """``sign(t) Phi^-1(F_t,dof(|t|))`` element-wise; ``t`` where ``dof`` is infinite."""
+    from scipy.stats import norm
+    from scipy.stats import t as student
+
+    out = np.array(t, dtype=float)
+    fin = np.isfinite(dof) & np.isfinite(out) & (out != 0)
+    if fin.any():
+        out[fin] = np.sign(out[fin]) * norm.isf(student.sf(np.abs(out[fin]), dof[fin]))
+    return out
 
 
 def _joint(name: str) -> str:
@@ -197,9 +225,20 @@ def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], 
     return params, np.asarray(record["covariance"], dtype=float), list(record["estimated"])
 
 
-def joint_test(delta: np.ndarray, C: np.ndarray, nu: int | None) -> tuple[float, int, float]:
+def _satterthwaite(total: float, estimated: float, nu: int) -> float:
+    """Degrees of freedom of ``total = known + estimated`` when ``estimated`` comes from
+    ``nu`` degrees of freedom (Welch-Satterthwaite): ``nu (total / estimated)^2``,
+    infinite when nothing is estimated."""
+    if estimated <= 0 or total <= 0:
+        return math.inf
+    return nu * (total / estimated) ** 2
+
+
+def joint_test(delta: np.ndarray, C: np.ndarray, nu: float | None
+               ) -> tuple[float, int, float]:
     """``(chi2, dof, p)``: ``delta^T C^+ delta`` on the identifiable set and its p-value,
-    chi-square, or Hotelling's F with ``nu`` pairs behind ``C`` (1 when ``nu <= dof``)."""
+    chi-square, or Hotelling's F with ``nu`` pairs behind ``C`` (1 when ``nu <= 2 dof``:
+    too few pairs to trust the estimated correlations)."""
     from scipy.stats import chi2 as chi2_dist
     from scipy.stats import f as f_dist
 
@@ -213,22 +252,25 @@ def joint_test(delta: np.ndarray, C: np.ndarray, nu: int | None) -> tuple[float,
         return chi2, dof, 1.0
     if nu is None:
         return chi2, dof, float(chi2_dist.sf(chi2, dof))
-    if nu > dof:                # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
+    if nu > 2 * dof:            # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
         return chi2, dof, float(f_dist.sf(chi2 * (nu - dof + 1) / (nu * dof), dof,
                                           nu - dof + 1))
-    return chi2, dof, 1.0       # too few pairs for the joint test: the per-parameter one only
+    return chi2, dof, 1.0       # too few pairs for T's correlations: per-parameter test only
 
 
 def _pair_flagged(pair: PairTerms, repro: Reproducibility | None, false_alarm: float
                   ) -> bool:
     """Would :func:`compare` flag this pair (its change and ``V``) with ``repro``?"""
-    C = pair.V + (2.0 * repro.block(pair.names) if repro is not None else 0.0)
-    nu = repro.pairs if repro is not None else None
-    sd = np.sqrt(np.maximum(np.diag(C), 0.0))
-    z = np.abs(pair.delta) / np.where(sd > 0, sd, np.inf)
-    if z.size and z.max() > z_threshold(len(pair.names), false_alarm, nu):
-        return True
-    return joint_test(pair.delta, C, nu)[2] < false_alarm / 2
+    names = list(pair.names)
+    record: dict[str, Any] = {"parameters": [{"name": n, "unit": "", "role": ROLES[0],
+                                              "estimate": v,
+                              "estimated": True} for n, v in zip(names, pair.delta,
+                                                                 strict=True)],
+              "covariance": pair.V, "estimated": names, "serial": pair.serial, "id": 0,
+              "date": ""}
+    zero = {**record, "parameters": [{**p, "estimate": 0.0} for p in record["parameters"]],
+            "covariance": np.zeros_like(pair.V)}
+    return compare(zero, record, false_alarm, repro, pair.weight).flagged
 
 
 def fleet_reproducibility(pairs: Sequence[PairTerms], false_alarm: float = 1e-3,
@@ -253,11 +295,12 @@ def fleet_reproducibility(pairs: Sequence[PairTerms], false_alarm: float = 1e-3,
 
 
 def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
-            false_alarm: float = 1e-3, reproducibility: Reproducibility | None = None
-            ) -> Drift:
+            false_alarm: float = 1e-3, reproducibility: Reproducibility | None = None,
+            weight: float | None = None) -> Drift:
     """:class:`Drift` of two full records of one robot (``previous`` first);
     ``reproducibility``: the session-to-session variance ``T`` (module docstring) of the
-    robot's model, estimated without this robot (None: ``T = 0``)."""
+    robot's model, estimated without this robot (None: ``T = 0``); ``weight``: ``w = 1 /
+    m_a + 1 / m_b`` (None: from the records' training files)."""
 
     if not 0 < false_alarm < 1:
         raise KincalError(f"option --false-alarm: must be between 0 and 1 (got "
@@ -268,15 +311,31 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
     ia = [ea.index(n) for n in common]
     ib = [eb.index(n) for n in common]
     C = Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)]
-    nu = None
+    nu: float | None = None
+    dofs = [math.inf] * len(common)
     if reproducibility is not None:
-        C = C + 2.0 * reproducibility.block(common)
-        nu = reproducibility.pairs
+        if weight is None:
+            weight = 1.0 / placements(previous) + 1.0 / placements(latest)
+        var = reproducibility.variance
+        t2 = np.array([weight * var.get(n, 0.0) for n in common])
+        dofs = [_satterthwaite(C[k, k] + t2[k], t2[k], reproducibility.pairs)
+                for k in range(len(common))]
+        sd = np.sqrt(np.maximum(np.diag(C), 0.0) + t2)
+        T2 = weight * reproducibility.block(common)
+        nu = _satterthwaite(float(np.trace(C + T2)), float(np.trace(T2)),
+                            reproducibility.pairs)
+        C = C + T2
+    else:
+        sd = np.sqrt(np.maximum(np.diag(C), 0.0))
     changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
-                               float(pb[n]["estimate"]), float(math.sqrt(max(C[k, k], 0.0))))
+                               float(pb[n]["estimate"]), float(sd[k]), dofs[k])
                for k, n in enumerate(common)]
-    chi2, dof, p_value = joint_test(np.array([c.change for c in changes]), C, nu)
-    z_crit = z_threshold(len(common), false_alarm, nu)
+    zs = _normal_equivalent(np.array([c.t for c in changes]), np.array(dofs))
+    for c, z in zip(changes, zs, strict=True):
+        c._z = float(z)
+    chi2, dof, p_value = joint_test(np.array([c.change for c in changes]), C,
+                                    None if nu is None or not math.isfinite(nu) else nu)
+    z_crit = z_threshold(len(common), false_alarm)
     changes.sort(key=lambda c: -abs(c.z))
     moved = [c for c in changes if abs(c.z) > z_crit]
     flagged = bool(moved) or p_value < false_alarm / 2
@@ -323,7 +382,7 @@ class FleetDrift:
         return (f"session-to-session (placement-to-placement) error estimated from "
                 f"{nus[0] if len(nus) == 1 else f'{nus[0]}-{nus[-1]}'} other robot(s) of "
                 f"the model and added to each change's covariance ({len(used)} of "
-                f"{len(self.robots)} robot(s); thresholds from Student t / F)")
+                f"{len(self.robots)} robot(s); the thresholds allow for its uncertainty)")
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``kincal fleet drift --json``."""

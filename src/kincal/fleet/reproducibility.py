@@ -6,27 +6,30 @@ places on the table, the tracker elsewhere, other poses), and what the model doe
 describe (elasticity, gear errors, temperature) is absorbed into the parameters
 differently each time.  The model of a session's estimate is
 
-    theta_hat_s = theta + u_s + e_s,    e_s ~ N(0, C_s),    u_s ~ N(0, T),
+    theta_hat_s = theta + u_s + e_s,    e_s ~ N(0, C_s),    u_s ~ N(0, T / m_s),
 
 with ``C_s`` the calibration's own covariance (the noise of its measurements) and ``u_s``
-the session's share of the unmodelled error, the same for every session of the robot
-model, independent between sessions: ``T`` [m^2 / rad^2, m rad, ...], the
-placement-to-placement (session-to-session) variance.  The change between two sessions of
-an unchanged robot then has ``Cov(delta) = C_a + C_b + 2 T``.
+the session's share of the unmodelled error: the mean of one effect per placement (per
+training file: an artifact placement, a tracker set-up), each ``N(0, T)`` and independent,
+over the session's ``m_s`` placements.  ``T`` [m^2 / rad^2, m rad, ...], the
+placement-to-placement covariance, is the same for every robot of the model.  The change
+between two sessions of an unchanged robot then has
+
+    Cov(delta) = C_a + C_b + w T,    w = 1 / m_a + 1 / m_b.
 
 ``T`` is estimated across the fleet by the method of moments: over ``n`` pairs of
 sessions of robots of the same model (the previous and latest calibration of each),
-``E[delta delta^T] = V + 2 T`` with ``V = C_a + C_b``, so
+``E[delta delta^T] = V + w T`` with ``V = C_a + C_b``, so
 
-    T_ij = sum_r (delta_ri delta_rj - V_r,ij) / (2 n_ij),
+    T_ij = sum_r (delta_ri delta_rj - V_r,ij) / sum_r w_r,
 
-``n_ij`` the pairs in which both parameters were estimated in both sessions; ``T`` is then
-made positive semi-definite (:func:`_denoise`: negative eigenvalues set to zero).  The drift test
-of a robot uses the estimate from the *other* robots' pairs (leave one robot out), so a
-robot that did drift neither hides itself nor takes part in its own threshold, and its
-statistic is independent of ``T``; with ``nu = n - 1`` pairs behind ``T`` the thresholds
-become Student-t / F quantiles with ``nu`` denominator degrees of freedom
-(:mod:`kincal.fleet.drift`).  Fewer than :data:`MIN_PAIRS` other pairs: not estimated.
+over the pairs in which both parameters were estimated in both sessions; ``T`` is then
+made positive semi-definite (:func:`_denoise`: negative eigenvalues set to zero).  The
+drift test of a robot uses the estimate from the *other* robots' pairs (leave one robot
+out), so a robot that did drift neither hides itself nor takes part in its own threshold,
+and its statistic is independent of ``T``; with ``nu = n - 1`` pairs behind ``T`` the
+thresholds account for its uncertainty (:mod:`kincal.fleet.drift`).  Fewer than
+:data:`MIN_PAIRS` other pairs: not estimated.
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ import numpy as np
 from kincal.robots.chain import ROLES
 
 __all__ = ["Reproducibility", "PairTerms", "pair_terms", "estimate_reproducibility",
-           "MIN_PAIRS", "ReproducibilityPool"]
+           "MIN_PAIRS", "ReproducibilityPool", "placements"]
 
 #: Pairs of sessions (other robots of the same model) needed to estimate ``T``.
 MIN_PAIRS = 2
@@ -57,6 +60,7 @@ class PairTerms:
     names: tuple[str, ...]
     delta: np.ndarray
     V: np.ndarray
+    weight: float = 2.0     # 1/m_a + 1/m_b: m placements (data files) in each session
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,11 +71,14 @@ class Reproducibility:
     names: tuple[str, ...]
     matrix: np.ndarray
     pairs: int
+    diagonal: np.ndarray | None = None     # T_ii each clipped at 0 (None: the matrix's)
 
     @property
     def variance(self) -> dict[str, float]:
-        """``tau_i^2`` per parameter."""
-        return {n: float(self.matrix[k, k]) for k, n in enumerate(self.names)}
+        """``tau_i^2`` per parameter: the moment estimate of each, clipped at zero (not
+        the diagonal of the positive semi-definite matrix, biased upwards by clipping)."""
+        d = np.diag(self.matrix) if self.diagonal is None else self.diagonal
+        return {n: float(d[k]) for k, n in enumerate(self.names)}
 
     def block(self, names: Sequence[str]) -> np.ndarray:
         """``T`` over ``names`` (zero rows and columns for parameters it does not cover)."""
@@ -107,7 +114,14 @@ def pair_terms(previous: Mapping[str, Any], latest: Mapping[str, Any]) -> PairTe
     ia, ib = [na.index(n) for n in names], [nb.index(n) for n in names]
     return PairTerms(str(latest["serial"]), str(latest.get("robot") or ""), names,
                      np.array([eb[n] - ea[n] for n in names]),
-                     Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)])
+                     Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)],
+                     1.0 / placements(previous) + 1.0 / placements(latest))
+
+
+def placements(record: Mapping[str, Any]) -> int:
+    """The placements of a session: its training files (each file is one set-up of the
+    instrument or one placement of the artifact), at least one."""
+    return max(1, len(record.get("data") or ()))
 
 
 class ReproducibilityPool:
@@ -118,6 +132,7 @@ class ReproducibilityPool:
         self.names: dict[str, list[str]] = {}
         self.sums: dict[str, np.ndarray] = {}
         self.counts: dict[str, np.ndarray] = {}
+        self.weights: dict[str, np.ndarray] = {}
         self.pairs: dict[str, int] = {}
         self.noise: dict[str, np.ndarray] = {}
         for p in pairs:
@@ -126,12 +141,14 @@ class ReproducibilityPool:
         for model, names in self.names.items():
             self.sums[model] = np.zeros((len(names), len(names)))
             self.counts[model] = np.zeros((len(names), len(names)), dtype=int)
+            self.weights[model] = np.zeros((len(names), len(names)))
             self.noise[model] = np.zeros((len(names), len(names)))
         for p in pairs:
             self.pairs[p.model] = self.pairs.get(p.model, 0) + 1
             idx, S = self._outer(p, p.model)
             self.sums[p.model][np.ix_(idx, idx)] += S
             self.counts[p.model][np.ix_(idx, idx)] += 1
+            self.weights[p.model][np.ix_(idx, idx)] += p.weight
             self.noise[p.model][np.ix_(idx, idx)] += p.V
 
     def _outer(self, p: PairTerms, model: str) -> tuple[list[int], np.ndarray]:
@@ -146,13 +163,16 @@ class ReproducibilityPool:
         if n < MIN_PAIRS:
             return None
         S, N = self.sums[model].copy(), self.counts[model].copy()
+        Wt = self.weights[model].copy()
         if pair is not None:
             idx, own = self._outer(pair, model)
             S[np.ix_(idx, idx)] -= own
             N[np.ix_(idx, idx)] -= 1
-        T = np.where(N >= MIN_PAIRS, S / (2.0 * np.maximum(N, 1)), 0.0)
+            Wt[np.ix_(idx, idx)] -= pair.weight
+        T = np.where((N >= MIN_PAIRS) & (Wt > 0), S / np.where(Wt > 0, Wt, 1.0), 0.0)
         W = self.noise[model] / np.maximum(self.counts[model], 1)
-        return Reproducibility(tuple(self.names[model]), _denoise(T, W, n), n)
+        return Reproducibility(tuple(self.names[model]), _denoise(T, W, n), n,
+                               np.maximum(np.diag(T), 0.0))
 
 
 def _denoise(T: np.ndarray, W: np.ndarray, n: int) -> np.ndarray:
