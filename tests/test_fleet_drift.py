@@ -90,7 +90,9 @@ def test_every_injected_drift_is_found_on_its_parameter(drifted_fleet):
     for serial, truth in injected.items():
         d = drifts[serial]
         change = next(c for c in d.changes if c.name == truth["parameter"])
-        assert abs(truth["change"]) / change.sigma > 5     # a drift above 5σ ...
+        # a drift above 5σ (of the change's standard error with the fleet's
+        # session-to-session error, kincal.fleet.reproducibility) ...
+        assert abs(truth["change"]) / change.sigma > 5
         assert d.flagged                                   # ... is found
         assert d.moved[0].name == truth["parameter"]       # on the parameter that moved
         assert change.change == pytest.approx(truth["change"], abs=4 * change.sigma)
@@ -98,14 +100,22 @@ def test_every_injected_drift_is_found_on_its_parameter(drifted_fleet):
 
 
 def test_at_most_one_percent_of_undrifted_robots_are_flagged(drifted_fleet):
-    fleet, drifts, _ = drifted_fleet
+    fleet, drifts, db = drifted_fleet
     clean = [r["serial"] for r in fleet.robots if not r["drift"]]
     flagged = [s for s in clean if drifts[s].flagged]
     assert len(flagged) <= 0.01 * len(clean), flagged
-    # the statistic is calibrated: chi2 / dof averages 1 over undrifted robots
-    ratio = np.mean([drifts[s].chi2 / drifts[s].dof for s in clean])
-    dof = drifts[clean[0]].dof
-    assert abs(ratio - 1) < 4 * math.sqrt(2 / (dof * len(clean))), ratio
+    # the calibrations' covariances are right: with them alone (no session-to-session
+    # error: this simulation has none) chi2 / dof averages 1 over undrifted robots
+    with HistoryStore(str(db)) as store:
+        own = {d.serial: d for d in fleet_drift(store, ALPHA, reproducibility=False)}
+    ratio = np.mean([own[s].chi2 / own[s].dof for s in clean])
+    dof = own[clean[0]].dof
+    tol = 4 * math.sqrt(2 / (dof * len(clean)))
+    assert abs(ratio - 1) < tol, ratio
+    # the fleet's estimate of that error (zero here, estimated from noise and kept positive
+    # semi-definite) only makes the test more cautious, never less
+    with_t = np.mean([drifts[s].chi2 / drifts[s].dof for s in clean])
+    assert with_t < 1 + tol, with_t
 
 
 def test_drift_command_lists_flagged_robots_and_writes_the_page(drifted_fleet, tmp_path,

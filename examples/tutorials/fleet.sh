@@ -39,6 +39,10 @@ PY
 kincal fleet drift --db history.db --report fleet.html || echo "exit status $?"
 # --8<-- [end:drift]
 
+# --8<-- [start:drift-own]
+kincal fleet drift --db history.db --reproducibility none || echo "exit status $?"
+# --8<-- [end:drift-own]
+
 # --8<-- [start:history]
 kincal fleet history R-00005 --db history.db
 # --8<-- [end:history]

@@ -252,6 +252,10 @@ def drift_cmd(
                                                "(HTML) here.")] = None,
     all_robots: Annotated[bool, typer.Option("--all", help="List every robot, not only the "
                                              "flagged ones.")] = False,
+    reproducibility: Annotated[str, typer.Option(
+        "--reproducibility", help="fleet: add the session-to-session (placement-to-"
+        "placement) error estimated from the other robots of the model to each change's "
+        "covariance; none: the calibrations' own standard errors alone.")] = "fleet",
     json_out: JsonOpt = None,
 ) -> None:
     """Compare each robot's latest calibration with its previous one: per-parameter change
@@ -265,7 +269,10 @@ def drift_cmd(
 
         check_outputs({"--report": report, "--json": json_out}, {})
     with _store(db, create=False) as store:
-        check = fleet_drift(store, false_alarm)
+        if reproducibility not in ("fleet", "none"):
+            raise KincalError(f"option --reproducibility: {reproducibility!r} is not fleet "
+                              "or none")
+        check = fleet_drift(store, false_alarm, reproducibility=reproducibility == "fleet")
         drifts, flagged = check.robots, check.flagged
         if report:
             from kincal.fleet.page import fleet_page
@@ -303,6 +310,7 @@ def drift_cmd(
         out.print(f"{len(flagged)} of {len(drifts)} robot(s) flagged (per-parameter threshold "
                   f"|z| > {z:.2f} for {len(drifts[0].changes)} parameters, or the chi-square "
                   f"test; false-alarm probability {false_alarm:g} per robot)")
+        out.print(check.reproducibility_line())
     if report:
         out.print(f"fleet page: {escape(report)}")
     if json_out:
@@ -411,3 +419,51 @@ def _robot_files(records: list[Any]) -> dict[str, str]:
             raise KincalError(f"option --out-dir: serial {serial!r} cannot be a file name")
         out[serial] = robot_yaml_text(calibrated_robot(r))
     return out
+
+
+# --------------------------------------------------------------------------- prior
+@fleet_app.command("prior")
+def prior_cmd(
+    output: Annotated[str, typer.Option("-o", "--output", help="Robot file to write (YAML): "
+                                        "the model with the fleet means as values and the "
+                                        "fleet spread as its tolerances.")],
+    db: DbOpt = DEFAULT_DB,
+    serials: Annotated[list[str] | None, typer.Option(
+        "--serial", help="Use only these robots (repeat the option); default: every "
+        "robot of the history.")] = None,
+    json_out: JsonOpt = None,
+) -> None:
+    """Estimate the fleet prior of a robot model from the latest calibration of each robot
+    (mean and between-robot spread of every parameter the data fixed, each robot's own
+    standard error removed) and write it as a robot file: `kincal calibrate FILE -d DATA`
+    (or `robot: FILE` in a setup file) then calibrates a new robot of the model with it."""
+    from kincal.fleet.prior import fleet_prior, write_fleet_prior
+    from kincal.io import check_outputs
+
+    out = out_console(json_out)
+    check_outputs({"--output": output, "--json": json_out}, {})
+    with _store(db, create=False) as store:
+        latest: dict[str, Any] = {}
+        for s in store.summaries(serials):
+            if s["status"] == "ok":
+                latest[s["serial"]] = s
+        records = store.records([s["id"] for s in latest.values()])
+    prior = fleet_prior(records)
+    write_fleet_prior(prior, output)
+    t = Table(title=f"Fleet prior from {len(prior.serials)} robot(s)")
+    for c in ("parameter", "nominal", "fleet mean", "between robots", "prior (1σ)"):
+        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for p in prior.parameters:
+        f, u = display_scale(p.unit)
+        t.add_row(escape(p.name), f"{p.nominal * f:.4f} {u}", f"{p.mean * f:.4f} {u}",
+                  f"{p.spread * f:.4f} {u}", f"{p.std * f:.4f} {u}")
+    out.print(t)
+    out.print(f"fleet prior of {len(prior.parameters)} parameter(s) -> {escape(output)} "
+              f"(use it as the robot: kincal calibrate {escape(output)} -d DATA ..., or "
+              f"robot: {escape(output)} in a setup file)")
+    if json_out:
+        from kincal.io import write_json
+
+        write_json(json_out, {"robot": prior.robot, "serials": list(prior.serials),
+                              "parameters": [dict(vars(p), std=p.std)
+                                             for p in prior.parameters]})

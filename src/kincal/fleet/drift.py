@@ -4,17 +4,43 @@ For a robot's previous calibration ``a`` and latest ``b`` (two session dates), o
 robot parameters estimated in both (the instruments' frames move between sessions and
 are not compared):
 
-* per parameter, the change ``delta_i = b_i - a_i`` in units of the combined standard
-  error ``s_i = sqrt(var_a,i + var_b,i)`` (independent sessions): ``z_i = delta_i / s_i``;
-* the chi-square statistic on the identifiable set,
-  ``chi2 = delta^T (C_a + C_b)^+ delta`` with ``dof = rank(C_a + C_b)``, and its p-value;
-* the previous calibration's position RMS on the new session's data (the cross-check,
+* the change ``delta = b - a`` has, for a robot that did not change, the covariance
+
+      C = C_a + C_b + w T,    w = 1 / m_a + 1 / m_b,
+
+  ``C_a``, ``C_b`` the two calibrations' covariances (their measurement noise), ``T``
+  the placement-to-placement reproducibility covariance: what the unmodelled errors put
+  into the parameters differently at each placement of the artifact or set-up of the
+  instrument, averaged over the ``m`` placements (training files) of each session
+  (:mod:`kincal.fleet.reproducibility`).  ``T`` is estimated across the fleet by the
+  method of moments, ``T = sum_r (delta_r delta_r^T - V_r) / sum_r w_r`` made positive
+  semi-definite, over the other robots ``r`` of the same model with two sessions
+  (``V_r = C_a + C_b`` of robot ``r``), leaving the robot under test out; ``nu = n - 1``
+  pairs stand behind it.  Robots that did drift would pass for session-to-session error:
+  the pairs these tests flag with the current estimate leave it, twice
+  (:func:`fleet_reproducibility`).  Without two other robots of the model, or with
+  ``reproducibility=False``, ``T = 0`` (the calibrations' own covariances alone:
+  placements or set-ups that differ between sessions then raise false alarms);
+* per parameter, the change in units of its standard error ``s_i = sqrt(C_ii)``:
+  ``z_i = delta_i / s_i``;
+* the chi-square statistic on the identifiable set, ``chi2 = delta^T C^+ delta`` with
+  ``dof = rank(C)``, and its p-value;
+* the previous calibration's RMS on the new session's data (the cross-check,
   :func:`kincal.fleet.tasks.crosscheck_session`) beside the new calibration's own.
 
 A robot is flagged when either test rejects "no change" at a family-wise false-alarm
 probability ``false_alarm`` per robot (default 0.001), split evenly between the two:
 ``max |z_i| > z_crit`` with ``z_crit = Phi^-1(1 - false_alarm / (4 p))`` (two-sided,
-Bonferroni over ``p`` parameters), or ``P(chi2_dof > chi2) < false_alarm / 2``.
+Bonferroni over ``p`` parameters), or ``P(chi2_dof > chi2) < false_alarm / 2``.  With
+``T`` estimated from ``nu`` pairs the covariance is itself uncertain, and the tails
+account for it (Welch-Satterthwaite): the standard error ``s_i^2 = v_i + w T_ii`` (the
+moment estimate of ``T_ii`` clipped at zero, free of the clipping of the whole matrix) has
+``nu_i = nu (s_i^2 / w T_ii)^2`` degrees of freedom (``nu`` when ``T`` dominates,
+infinite when ``T_ii = 0``), each ``z_i`` is the normal equivalent of its Student t,
+``Phi^-1(F_t,nu_i(delta_i / s_i))``, against the same ``z_crit``; the chi-square becomes
+Hotelling's ``chi2 (nu' - dof + 1) / (nu' dof) ~ F(dof, nu' - dof + 1)`` with ``nu' = nu
+(tr C / tr wT)^2`` (the chi-square itself when ``T = 0``; with ``nu' <= 2 dof`` the
+estimated correlations are too uncertain and only the per-parameter test runs).
 
 The parameters beyond ``z_crit`` are the ones that moved; each gets a sentence
 (``d[3] +0.42 mm, 11σ: joint 3 hit something?``).
@@ -31,10 +57,19 @@ from typing import Any
 import numpy as np
 
 from kincal.errors import KincalError
+from kincal.fleet.reproducibility import (
+    PairTerms,
+    Reproducibility,
+    ReproducibilityPool,
+    pair_terms,
+    placements,
+)
+from kincal.fleet.tasks import summary_rms
 from kincal.robots.chain import ROLES
 from kincal.units import display_scale
 
-__all__ = ["ParameterChange", "Drift", "FleetDrift", "compare", "z_threshold", "fleet_drift"]
+__all__ = ["ParameterChange", "Drift", "FleetDrift", "compare", "z_threshold", "fleet_drift",
+           "fleet_reproducibility", "joint_test"]
 
 
 @dataclasses.dataclass
@@ -47,14 +82,25 @@ class ParameterChange:
     before: float
     after: float
     sigma: float          # combined standard error of the change
+    dof: float = math.inf  # degrees of freedom of sigma (finite: T estimated, Satterthwaite)
+    _z: float | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def change(self) -> float:
         return self.after - self.before
 
     @property
-    def z(self) -> float:
+    def t(self) -> float:
+        """``change / sigma``."""
         return self.change / self.sigma if self.sigma > 0 else math.inf * np.sign(self.change)
+
+    @property
+    def z(self) -> float:
+        """The normal-equivalent of :attr:`t`: ``Phi^-1(F_t,dof(t))`` (``t`` itself when
+        ``dof`` is infinite), so that one threshold serves every parameter."""
+        if self._z is None:
+            self._z = float(_normal_equivalent(np.array([self.t]), np.array([self.dof]))[0])
+        return self._z
 
     def text(self, why: bool = True) -> str:
         """``d[3] +0.4200 mm, 11.0σ: joint 3 hit something?`` (without the guess when
@@ -62,6 +108,18 @@ class ParameterChange:
         f, u = display_scale(self.unit)
         text = f"{self.name} {self.change * f:+.4g} {u}, {abs(self.z):.1f}σ"
         return f"{text}: {hint(self.name, self.role)}" if why else text
+
+
+def _normal_equivalent(t: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """``sign(t) Phi^-1(F_t,dof(|t|))`` element-wise; ``t`` where ``dof`` is infinite."""
+    from scipy.stats import norm
+    from scipy.stats import t as student
+
+    out = np.array(t, dtype=float)
+    fin = np.isfinite(dof) & np.isfinite(out) & (out != 0)
+    if fin.any():
+        out[fin] = np.sign(out[fin]) * norm.isf(student.sf(np.abs(out[fin]), dof[fin]))
+    return out
 
 
 def _joint(name: str) -> str:
@@ -98,6 +156,8 @@ class Drift:
         rms_latest_m: the latest calibration's training position RMS [m].
         rms_previous_model_m: the previous calibration on the latest data [m] (None
             until the cross-check is stored).
+        reproducibility: the session-to-session variance ``T`` in the test (None:
+            not estimated, ``T = 0``).
     """
 
     serial: str
@@ -112,6 +172,7 @@ class Drift:
     moved: list[ParameterChange]
     rms_latest_m: float | None = None
     rms_previous_model_m: float | None = None
+    reproducibility: Reproducibility | None = None
 
     @property
     def z_max(self) -> float:
@@ -138,17 +199,23 @@ class Drift:
                 "rms_latest_m": self.rms_latest_m,
                 "rms_previous_model_m": self.rms_previous_model_m,
                 "moved": [c.name for c in self.moved], "notes": self.notes(),
+                "reproducibility": (self.reproducibility.to_dict()
+                                    if self.reproducibility is not None else None),
                 "changes": [{"name": c.name, "unit": c.unit, "role": c.role,
                              "before": c.before, "after": c.after, "change": c.change,
                              "sigma": c.sigma, "z": c.z} for c in self.changes]}
 
 
-def z_threshold(p: int, false_alarm: float) -> float:
+def z_threshold(p: int, false_alarm: float, nu: int | None = None) -> float:
     """``Phi^-1(1 - false_alarm / (4 p))``: the per-parameter two-sided Bonferroni
-    threshold holding half of the false-alarm budget over ``p`` parameters."""
+    threshold holding half of the false-alarm budget over ``p`` parameters; with ``nu``
+    (the pairs behind an estimated reproducibility variance) the Student-t quantile
+    ``t_nu^-1(1 - false_alarm / (4 p))``."""
     from scipy.stats import norm
+    from scipy.stats import t as student
 
-    return float(norm.isf(false_alarm / (4.0 * max(p, 1))))
+    q = false_alarm / (4.0 * max(p, 1))
+    return float(norm.isf(q) if nu is None else student.isf(q, nu))
 
 
 def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], np.ndarray,
@@ -158,10 +225,82 @@ def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], 
     return params, np.asarray(record["covariance"], dtype=float), list(record["estimated"])
 
 
-def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
-            false_alarm: float = 1e-3) -> Drift:
-    """:class:`Drift` of two full records of one robot (``previous`` first)."""
+def _satterthwaite(total: float, estimated: float, nu: int) -> float:
+    """Degrees of freedom of ``total = known + estimated`` when ``estimated`` comes from
+    ``nu`` degrees of freedom (Welch-Satterthwaite): ``nu (total / estimated)^2``,
+    infinite when nothing is estimated."""
+    if estimated <= 0 or total <= 0:
+        return math.inf
+    return nu * (total / estimated) ** 2
+
+
+def joint_test(delta: np.ndarray, C: np.ndarray, nu: float | None
+               ) -> tuple[float, int, float]:
+    """``(chi2, dof, p)``: ``delta^T C^+ delta`` on the identifiable set and its p-value,
+    chi-square, or Hotelling's F with ``nu`` pairs behind ``C`` (1 when ``nu <= 2 dof``:
+    too few pairs to trust the estimated correlations)."""
     from scipy.stats import chi2 as chi2_dist
+    from scipy.stats import f as f_dist
+
+    chi2, dof = 0.0, 0
+    if delta.size:
+        w, V = np.linalg.eigh(C)
+        keep = w > w.max() * 1e-12 if w.size and w.max() > 0 else np.zeros(w.size, bool)
+        proj = V[:, keep].T @ delta
+        chi2, dof = float(np.sum(proj**2 / w[keep])), int(keep.sum())
+    if not dof:
+        return chi2, dof, 1.0
+    if nu is None:
+        return chi2, dof, float(chi2_dist.sf(chi2, dof))
+    if nu > 2 * dof:            # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
+        return chi2, dof, float(f_dist.sf(chi2 * (nu - dof + 1) / (nu * dof), dof,
+                                          nu - dof + 1))
+    return chi2, dof, 1.0       # too few pairs for T's correlations: per-parameter test only
+
+
+def _pair_flagged(pair: PairTerms, repro: Reproducibility | None, false_alarm: float
+                  ) -> bool:
+    """Would :func:`compare` flag this pair (its change and ``V``) with ``repro``?"""
+    names = list(pair.names)
+    record: dict[str, Any] = {"parameters": [{"name": n, "unit": "", "role": ROLES[0],
+                                              "estimate": v,
+                              "estimated": True} for n, v in zip(names, pair.delta,
+                                                                 strict=True)],
+              "covariance": pair.V, "estimated": names, "serial": pair.serial, "id": 0,
+              "date": ""}
+    zero = {**record, "parameters": [{**p, "estimate": 0.0} for p in record["parameters"]],
+            "covariance": np.zeros_like(pair.V)}
+    return compare(zero, record, false_alarm, repro, pair.weight).flagged
+
+
+def fleet_reproducibility(pairs: Sequence[PairTerms], false_alarm: float = 1e-3,
+                          rounds: int = 2) -> dict[str, Reproducibility | None]:
+    """Per serial, the session-to-session covariance ``T`` of its model estimated from
+    the other robots' pairs (:mod:`kincal.fleet.reproducibility`), robust to the robots
+    that did drift: ``rounds`` times, the pairs flagged at ``false_alarm`` with the
+    current estimate leave the estimate (a drift would otherwise pass for session-to-
+    session error and hide itself and others)."""
+    use = list(pairs)
+    for _ in range(rounds):
+        pool = ReproducibilityPool(use)
+        keep = [p for p in use if not _pair_flagged(p, pool.without(p, p.model),
+                                                     false_alarm)]
+        if len(keep) == len(use):
+            break
+        use = keep
+    pool = ReproducibilityPool(use)
+    kept = {p.serial for p in use}
+    return {p.serial: pool.without(p if p.serial in kept else None, p.model)
+            for p in pairs}
+
+
+def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
+            false_alarm: float = 1e-3, reproducibility: Reproducibility | None = None,
+            weight: float | None = None) -> Drift:
+    """:class:`Drift` of two full records of one robot (``previous`` first);
+    ``reproducibility``: the session-to-session variance ``T`` (module docstring) of the
+    robot's model, estimated without this robot (None: ``T = 0``); ``weight``: ``w = 1 /
+    m_a + 1 / m_b`` (None: from the records' training files)."""
 
     if not 0 < false_alarm < 1:
         raise KincalError(f"option --false-alarm: must be between 0 and 1 (got "
@@ -172,27 +311,40 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
     ia = [ea.index(n) for n in common]
     ib = [eb.index(n) for n in common]
     C = Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)]
+    nu: float | None = None
+    dofs = [math.inf] * len(common)
+    if reproducibility is not None:
+        if weight is None:
+            weight = 1.0 / placements(previous) + 1.0 / placements(latest)
+        var = reproducibility.variance
+        t2 = np.array([weight * var.get(n, 0.0) for n in common])
+        dofs = [_satterthwaite(C[k, k] + t2[k], t2[k], reproducibility.pairs)
+                for k in range(len(common))]
+        sd = np.sqrt(np.maximum(np.diag(C), 0.0) + t2)
+        T2 = weight * reproducibility.block(common)
+        nu = _satterthwaite(float(np.trace(C + T2)), float(np.trace(T2)),
+                            reproducibility.pairs)
+        C = C + T2
+    else:
+        sd = np.sqrt(np.maximum(np.diag(C), 0.0))
     changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
-                               float(pb[n]["estimate"]), float(math.sqrt(max(C[k, k], 0.0))))
+                               float(pb[n]["estimate"]), float(sd[k]), dofs[k])
                for k, n in enumerate(common)]
-    delta = np.array([c.change for c in changes])
-    chi2, dof = 0.0, 0
-    if common:
-        w, V = np.linalg.eigh(C)
-        keep = w > w.max() * 1e-12 if w.size and w.max() > 0 else np.zeros(w.size, bool)
-        proj = V[:, keep].T @ delta
-        chi2, dof = float(np.sum(proj**2 / w[keep])), int(keep.sum())
-    p_value = float(chi2_dist.sf(chi2, dof)) if dof else 1.0
+    zs = _normal_equivalent(np.array([c.t for c in changes]), np.array(dofs))
+    for c, z in zip(changes, zs, strict=True):
+        c._z = float(z)
+    chi2, dof, p_value = joint_test(np.array([c.change for c in changes]), C,
+                                    None if nu is None or not math.isfinite(nu) else nu)
     z_crit = z_threshold(len(common), false_alarm)
     changes.sort(key=lambda c: -abs(c.z))
     moved = [c for c in changes if abs(c.z) > z_crit]
     flagged = bool(moved) or p_value < false_alarm / 2
     if flagged and not moved:
         moved = changes[:3]
-    rms = (latest.get("metrics") or {}).get("train") or {}
     return Drift(latest["serial"], (int(previous["id"]), previous["date"]),
                  (int(latest["id"]), latest["date"]), changes, chi2, dof, p_value, z_crit,
-                 flagged, moved, rms.get("rms_position_m"))
+                 flagged, moved, summary_rms((latest.get("metrics") or {}).get("train")),
+                 reproducibility=reproducibility)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,6 +354,7 @@ class FleetDrift:
 
     robots: list[Drift]
     false_alarm: float
+    reproducibility: bool = True
 
     def __iter__(self) -> Iterator[Drift]:
         return iter(self.robots)
@@ -214,6 +367,23 @@ class FleetDrift:
         """The robots either test flagged."""
         return [d for d in self.robots if d.flagged]
 
+    def reproducibility_line(self) -> str:
+        """One sentence: how the session-to-session error entered the tests."""
+        used = [d.reproducibility for d in self.robots if d.reproducibility is not None]
+        if not self.reproducibility:
+            return ("session-to-session (placement-to-placement) error left out "
+                    "(--reproducibility none): the changes are judged by the calibrations' "
+                    "own standard errors alone")
+        if not used:
+            return ("session-to-session (placement-to-placement) error not estimated (it "
+                    "needs two other robots of the model with two sessions): the changes "
+                    "are judged by the calibrations' own standard errors alone")
+        nus = sorted({r.pairs for r in used})
+        return (f"session-to-session (placement-to-placement) error estimated from "
+                f"{nus[0] if len(nus) == 1 else f'{nus[0]}-{nus[-1]}'} other robot(s) of "
+                f"the model and added to each change's covariance ({len(used)} of "
+                f"{len(self.robots)} robot(s); the thresholds allow for its uncertainty)")
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``kincal fleet drift --json``."""
         return {"false_alarm": self.false_alarm, "flagged": len(self.flagged),
@@ -221,22 +391,42 @@ class FleetDrift:
 
 
 def fleet_drift(store: Any, false_alarm: float = 1e-3,
-                serials: Sequence[str] | None = None) -> FleetDrift:
-    """:func:`compare` for every robot of a history with two calibrated session dates."""
+                serials: Sequence[str] | None = None, reproducibility: bool = True
+                ) -> FleetDrift:
+    """:func:`compare` for every robot of a history with two calibrated session dates.
+
+    ``reproducibility``: estimate the session-to-session variance ``T`` of each robot
+    model from the other robots' pairs (module docstring); False: ``T = 0``.  The
+    estimate uses every robot of the history, also when ``serials`` selects a few."""
     from kincal.fleet.store import latest_pairs
 
-    pairs = latest_pairs(store.summaries(serials))
+    every = latest_pairs(store.summaries())
+    wanted = None if serials is None else set(serials)
+    pairs = [p for p in every if wanted is None or p[1]["serial"] in wanted]
     if not pairs:
-        return FleetDrift([], false_alarm)
+        return FleetDrift([], false_alarm, reproducibility)
+    terms: dict[str, PairTerms] = {}
+    if reproducibility:
+        for chunk in _chunks(store, every):
+            for prev, new in chunk:
+                terms[new["serial"]] = pair_terms(prev, new)
+    repro = fleet_reproducibility(list(terms.values()), false_alarm)
     checks = store.crosscheck_rows()
     out = []
-    for start in range(0, len(pairs), 200):
-        chunk = pairs[start:start + 200]
-        full = {r["id"]: r for r in store.records([x["id"] for pair in chunk for x in pair])}
+    for chunk in _chunks(store, pairs):
         for prev, new in chunk:
-            d = compare(full[prev["id"]], full[new["id"]], false_alarm)
+            d = compare(prev, new, false_alarm, repro.get(new["serial"]))
             row = checks.get((new["id"], prev["id"]))
             if row is not None and row["status"] == "ok":
                 d.rms_previous_model_m = row["rms_position_m"]
             out.append(d)
-    return FleetDrift(out, false_alarm)
+    return FleetDrift(out, false_alarm, reproducibility)
+
+
+def _chunks(store: Any, pairs: Sequence[tuple[Any, Any]]
+            ) -> Iterator[list[tuple[dict[str, Any], dict[str, Any]]]]:
+    """The full records of ``pairs``, 200 pairs at a time (memory stays flat)."""
+    for start in range(0, len(pairs), 200):
+        chunk = pairs[start:start + 200]
+        full = {r["id"]: r for r in store.records([x["id"] for pair in chunk for x in pair])}
+        yield [(full[p["id"]], full[n["id"]]) for p, n in chunk]
