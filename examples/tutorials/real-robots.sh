@@ -12,6 +12,7 @@ done
 # --8<-- [start:tiago-offsets]
 kincal calibrate --config examples/setups/tiago_offsets.yaml > tiago_offsets.txt
 sed -n '/Errors before/,/^train:/p; /Held-out files/,/^ *before/p' tiago_offsets.txt
+sed -n '/^warning/,/^robot:/p' tiago_offsets.txt | grep -v '^robot:'      # the warnings, whole
 # --8<-- [end:tiago-offsets]
 
 # --8<-- [start:tiago-select]
@@ -22,6 +23,7 @@ kincal calibrate ../shared/data/tiago_mocap/tiago_48_schunk.urdf --tip-link wris
 sed -n '/Model selection/,/^converged/p' tiago.txt | grep -v '^converged'
 sed -n '/Errors before/,/^train:/p; /Held-out files/,/^identifiability/p' tiago.txt \
     | grep -v '^identifiability'
+sed -n '/^warning/,/^robot:/p' tiago.txt | grep -v '^robot:'      # the warnings, whole
 # --8<-- [end:tiago-select]
 
 # --8<-- [start:tiago-least-squares]
@@ -34,8 +36,9 @@ tail -n 1 tiago_ls.txt
 
 # --8<-- [start:motoman]
 kincal calibrate --config examples/setups/motoman_right.yaml > motoman.txt
-grep -E "^converged|cross-validation" motoman.txt
+grep -E -A1 "^converged|cross-validation" motoman.txt
 sed -n '/Errors before/,/^train:/p' motoman.txt
+sed -n '/^warning/,/^robot:/p' motoman.txt | grep -v '^robot:'      # the warnings, whole
 # --8<-- [end:motoman]
 
 # --8<-- [start:motoman-iso]
@@ -50,4 +53,5 @@ done
 kincal calibrate --config examples/setups/panda_two_socket.yaml > panda.txt
 grep -E "^converged" panda.txt
 sed -n '/artifact metrics/,/^identifiability/p' panda.txt | grep -v '^identifiability'
+sed -n '/^warning/,/^robot:/p' panda.txt | grep -v '^robot:'      # the warnings, whole
 # --8<-- [end:panda]
