@@ -422,3 +422,21 @@ def test_every_report_figure_has_units_and_uncut_labels(map_fit, figures):
     assert len(figures) >= 5
     for fig in figures:
         _check_figure(fig)
+
+
+def test_robots_show_their_joints_and_parameters_in_mm_and_degrees():
+    """A serial robot and a five-bar in a notebook: mm and degrees, never raw metres."""
+    from kincal.parallel.files import load_fivebar
+
+    robot = kincal.load_robot("puma560")
+    html = robot._repr_html_()
+    assert "Robot puma560" in html and html.count("<tr><td>q") == 6
+    lo = np.degrees(robot.joint_limits[1, 0])
+    assert f"{lo:.4g} deg" in html                                     # q2's lower limit
+    d3 = robot.param_values[robot.param_index("d[3]")] * 1e3
+    assert f"{d3:.4g} mm" in html                                      # a length in mm
+    five = load_fivebar("fivebar_reference")
+    text = repr(five)
+    assert text.startswith("FiveBar('fivebar_reference', l1..l4 = 2000, 2000, 3000, 3000 mm")
+    assert "deg" in text and "e-" not in text
+    assert "2000, 2000 mm" in five._repr_html_()

@@ -97,6 +97,31 @@ class FiveBar:
     source: str = ""
     description: str = ""
 
+    def __repr__(self) -> str:
+        """Lengths in mm and offsets in degrees (the units people read them in)."""
+        mm = ", ".join(f"{v * 1e3:.4g}" for v in (self.l1, self.l2, self.l3, self.l4))
+        return (f"FiveBar({self.name!r}, l1..l4 = {mm} mm, B1 = ({self.base1_x * 1e3:.4g}, "
+                f"{self.base1_y * 1e3:.4g}) mm, B2 = ({self.base2_x * 1e3:.4g}, "
+                f"{self.base2_y * 1e3:.4g}) mm, offsets {np.degrees(self.offset1):.4g}, "
+                f"{np.degrees(self.offset2):.4g} deg, mode {self.working_mode}, "
+                f"assembly {self.assembly:+d})")
+
+    def _repr_html_(self) -> str:
+        """The five-bar in a notebook: one row per geometric quantity, mm and degrees."""
+        from html import escape
+
+        rows = [("l1, l2 (proximal)", f"{self.l1 * 1e3:.4g}, {self.l2 * 1e3:.4g} mm"),
+                ("l3, l4 (distal)", f"{self.l3 * 1e3:.4g}, {self.l4 * 1e3:.4g} mm"),
+                ("base B1", f"({self.base1_x * 1e3:.4g}, {self.base1_y * 1e3:.4g}) mm"),
+                ("base B2", f"({self.base2_x * 1e3:.4g}, {self.base2_y * 1e3:.4g}) mm"),
+                ("encoder offsets", f"{np.degrees(self.offset1):.4g}, "
+                                    f"{np.degrees(self.offset2):.4g} deg"),
+                ("working mode, assembly", f"{self.working_mode}, {self.assembly:+d}")]
+        body = "".join(f"<tr><th style='text-align:left'>{escape(k)}</th><td>{escape(v)}</td>"
+                       "</tr>" for k, v in rows)
+        return (f"<table><caption style='text-align:left'><b>FiveBar {escape(self.name)}</b>"
+                f"</caption>{body}</table>")
+
     def __post_init__(self) -> None:
         for field in _FIELDS:
             object.__setattr__(self, field, float(getattr(self, field)))

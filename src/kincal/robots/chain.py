@@ -277,6 +277,30 @@ class Robot:
         return (f"Robot({self.name!r}, {kinds}, {self.num_params} parameters, "
                 f"{len(self.ets)} elementary transforms)")
 
+    def _repr_html_(self) -> str:
+        """The robot in a notebook: its joints with their limits (deg, mm), then its
+        parameters with values in mm / deg, units and roles (folded)."""
+        from html import escape
+
+        def shown(value: float, unit: str) -> str:
+            if not np.isfinite(value):
+                return "-"
+            return f"{np.degrees(value):.4g} deg" if unit == "rad" else f"{value * 1e3:.4g} mm"
+
+        joints = "".join(f"<tr><td>{escape(j.name)}</td><td>{j.kind}</td>"
+                         f"<td>{shown(j.lower, j.unit)}</td><td>{shown(j.upper, j.unit)}</td>"
+                         "</tr>" for j in self.joints)
+        params = "".join(f"<tr><td>{escape(n)}</td><td>{shown(float(v), u)}</td>"
+                         f"<td>{escape(r)}</td></tr>"
+                         for n, v, u, r in zip(self.param_names, self.param_values,
+                                               self.param_units, self.param_roles,
+                                               strict=True))
+        return (f"<table><caption style='text-align:left'><b>Robot {escape(self.name)}</b>"
+                f" ({self.n} joints)</caption><tr><th>joint</th><th>kind</th>"
+                f"<th>lower</th><th>upper</th></tr>{joints}</table><details><summary>"
+                f"{self.num_params} parameters</summary><table><tr><th>parameter</th>"
+                f"<th>value</th><th>role</th></tr>{params}</table></details>")
+
     # ------------------------------------------------------------- evaluation
     def _check_q(self, q: ArrayLike) -> tuple[Array, bool]:
         q = np.asarray(q, dtype=float)
