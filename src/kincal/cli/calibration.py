@@ -454,6 +454,10 @@ def validate_cmd(
     masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
+    if not terms:                   # the joint model the calibrated robot file carries
+        from kincal.workflow.carried_joint_model import wrap_carried
+
+        blocks = wrap_carried(blocks, r)
     from kincal.measure.data_checks import refuse_joint_data
 
     refuse_joint_data(r, blocks)                  # exit 1, one line, nothing written

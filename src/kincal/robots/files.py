@@ -176,6 +176,8 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
     if data.get("calibration") is not None:             # read by kincal.identify.envelope
         meta["calibration"] = dict(r.mapping(data["calibration"], "calibration"))
         meta["calibration_source"] = r.source
+    if data.get("joint_model") is not None:     # read by kincal.workflow.carried_joint_model
+        meta["joint_model"] = dict(r.mapping(data["joint_model"], "joint_model"))
     return meta
 
 
@@ -513,6 +515,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         doc["controller"] = dict(robot.meta["controller"])
     if isinstance(robot.meta.get("calibration"), Mapping):
         doc["calibration"] = dict(robot.meta["calibration"])
+    if isinstance(robot.meta.get("joint_model"), Mapping):
+        doc["joint_model"] = dict(robot.meta["joint_model"])
     ju = joint_units_of(robot)
     if ju is not None:
         doc["joint_units"] = ju
