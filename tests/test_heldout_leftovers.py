@@ -93,3 +93,33 @@ def test_validate_without_the_joint_model_is_the_geometry_alone(hysteresis_data:
     _run("validate", str(geo), "--data", str(d / "held.csv"), "--json", str(d / "g.json"))
     got = json.loads((d / "g.json").read_text())["overall"]["rms_position_m"]
     assert got > 5 * 0.01e-3            # 5 x the simulated noise (0.01 mm)
+
+
+@pytest.mark.parametrize("labels", [None, ("front_left", "front_right", "back")])
+def test_select_auto_splits_artifact_placements_like_cross_validate(
+        tmp_path: Path, labels: tuple[str, ...] | None) -> None:
+    """Numeric and named placements: ``--select auto`` holds out whole placements, as
+    ``--cross-validate`` does, so its geometric candidate (prior x1, the default model)
+    has exactly the cross-validated RMS of ``--cross-validate``; the joint-model
+    candidates, which cannot wrap artifact constraints, are listed as failed."""
+    data = tmp_path / "ts.csv"
+    _run("simulate", "puma560", "-i", "two-socket", "-o", str(data), "--placements", "3",
+         "-n", "30")
+    if labels is not None:
+        text = data.read_text()
+        for k, name in enumerate(labels, start=1):
+            text = text.replace(f"\n{k},", f"\n{name},")
+        data.write_text(text)
+    _run("calibrate", "puma560", "--data", str(data), "--select", "auto", "--folds", "3",
+         "--json", str(tmp_path / "s.json"))
+    _run("calibrate", "puma560", "--data", str(data), "--cross-validate", "3",
+         "--json", str(tmp_path / "cv.json"))
+    sel = json.loads((tmp_path / "s.json").read_text())["selection"]
+    cv = json.loads((tmp_path / "cv.json").read_text())["metrics"]["cross_validation"]
+    assert cv["split"] == "placements"
+    first = sel["candidates"][0]
+    assert first["label"] == "geometric, prior x1"
+    assert first["rms_coincidence_m"] == pytest.approx(cv["rms_coincidence_m"], rel=1e-9)
+    assert sel["chosen"].startswith("geometric")
+    hyst = [c for c in sel["candidates"] if c["joint_model"]]
+    assert hyst and all(not c["eligible"] and "failed" in c["reason"] for c in hyst)
