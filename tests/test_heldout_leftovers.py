@@ -123,3 +123,37 @@ def test_select_auto_splits_artifact_placements_like_cross_validate(
     assert sel["chosen"].startswith("geometric")
     hyst = [c for c in sel["candidates"] if c["joint_model"]]
     assert hyst and all(not c["eligible"] and "failed" in c["reason"] for c in hyst)
+
+
+@pytest.mark.parametrize("k3", [5e-3, -5e-3])
+def test_a_negative_joint_stiffness_is_refused(k3: float) -> None:
+    """Positions of a PUMA whose joint 3 deflects by ``k3 tau`` (``k3 < 0``: a negative
+    stiffness, the joint moving against its load), 0.01 mm noise: the compliance fit
+    recovers k3 within its noise, and the verdict refuses exactly the negative one."""
+    from test_compliance import INSTRUMENT, MARKERS, PUMA_MASSES
+
+    from kincal.identify.checks import judge
+    from kincal.identify.solver import calibrate
+    from kincal.measure.instruments.position import PositionMeasurement, simulate_positions
+    from kincal.measure.joints.compliance import JointCompliance
+    from kincal.measure.simulate import random_configurations
+    from kincal.robots.files import load_serial_robot
+    from kincal.robots.gravity import gravity_torques
+
+    robot = load_serial_robot("puma560")
+    rng = np.random.default_rng(3)
+    q = random_configurations(robot, 60, rng)
+    k = np.array([0.0, 2e-3, k3, 0.0, 0.0, 0.0])
+    tau = gravity_torques(robot, q, PUMA_MASSES)
+    sim = simulate_positions(robot, q + k * tau, rng, 1e-5, INSTRUMENT, MARKERS)
+    inner = PositionMeasurement(q, sim.positions, 1e-5, "tracker", markers=3)
+    block = JointCompliance.gravity(inner, robot, PUMA_MASSES, joints=["q2", "q3"])
+    res = calibrate(robot, [block], free=["tracker.*"])
+    got, std = res.params["tracker.k[q3]"], res.std[list(res.names).index("tracker.k[q3]")]
+    assert abs(got - k3) < 5 * std < abs(k3) / 3            # well resolved
+    refusals = [r for r in judge(res, {}).refusals if r.kind == "compliance"]
+    if k3 < 0:
+        assert len(refusals) == 1 and "tracker.k[q3]" in refusals[0].sentence
+        assert "negative joint stiffness" in refusals[0].sentence
+    else:
+        assert not refusals

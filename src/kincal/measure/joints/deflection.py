@@ -169,11 +169,12 @@ class JointDeflection(BlockWrapper):
             sub = inner.subset_inner_placements(placements)
         else:
             raise KincalError(f"block {self.name!r} has no artifact placements to split")
-        base: object = inner
+        base: MeasurementModel = inner
         while isinstance(base, JointDeflection):
             base = base.inner
+        labels: Sequence[str] = getattr(base, "placement_labels", ())
         want = {str(p) for p in placements}
-        rows = np.array([str(p) in want for p in base.placement_labels])
+        rows = np.array([str(p) in want for p in labels], dtype=bool)
         return self._with(sub, self.regressor[rows])
 
     def effective_q(self, robot: Robot, extra: ArrayLike) -> Array:
