@@ -157,3 +157,16 @@ def test_a_negative_joint_stiffness_is_refused(k3: float) -> None:
         assert "negative joint stiffness" in refusals[0].sentence
     else:
         assert not refusals
+
+
+def test_the_iteration_count_names_its_passes(hysteresis_data: Path) -> None:
+    """The iterations add up over passes (the noise-scale re-solve is one): the console
+    says over how many, as the history (the convergence plot's data) counts them."""
+    d = hysteresis_data
+    out = _run("calibrate", "puma560", "--data", str(d / "train.csv"), "--joint-model",
+               "hysteresis", "--json", str(d / "it.json"))
+    doc = json.loads((d / "it.json").read_text())
+    starts = [h for h in doc["history"] if h["iteration"] == 0]
+    assert doc["passes"] == len(starts) >= 2
+    assert doc["iterations"] == sum(1 for h in doc["history"] if h["iteration"] > 0)
+    assert f"in {doc['iterations']} iterations over {doc['passes']} passes" in out

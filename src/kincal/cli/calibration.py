@@ -362,7 +362,7 @@ def _print_calibration(out: Console, flow: FlowResult, terms: Sequence[str],
     weak parameters, the staged selection's record, warnings and outliers."""
     res = flow.result
     conv = "[green]converged[/green]" if res.converged else "[red]did not converge[/red]"
-    out.print(f"{conv} in {res.iterations} iterations ({flow.seconds:.2f} s), "
+    out.print(f"{conv} in {res.iterations_text()} ({flow.seconds:.2f} s), "
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
     if res.prior:
         what = escape(prior) if prior else "default tolerances"
