@@ -17,6 +17,8 @@ section beside its ``calibration:`` envelope::
         tracker: {"h[j1]": -2.1e-4, "h[j2]": 1.3e-4, ...}
       masses:                       # compliance only: the link masses the loads came from
         - {joint: 1, mass: 8.4, com: [0.1, 0, 0.02], name: upper_arm}
+      loads_from: {a[2]: 1.2e-3, ...}   # compliance only: nominal - calibrated, the
+                                        # geometry the loads were computed with
 
 ``kincal validate`` (and any command that evaluates measurements with that robot)
 wraps every block in the same terms (:func:`wrap_carried`) and holds the coefficients
@@ -58,11 +60,15 @@ def _terms_of(block: Any) -> tuple[list[str], Any]:
     return terms[::-1], masses
 
 
-def joint_model_document(train: Sequence[Any], values: Mapping[str, Any]
+def joint_model_document(train: Sequence[Any], values: Mapping[str, Any],
+                         nominal: Any = None, calibrated: Any = None
                          ) -> dict[str, Any] | None:
     """The ``joint_model:`` section of the calibrated robot file (module docstring), from
     the training blocks and their estimated parameter vectors ``{block name: values}``;
-    None when the blocks carry no joint model."""
+    None when the blocks carry no joint model.  With compliance, ``nominal`` (the robot
+    the calibration started from, whose geometry the gravity loads were computed with)
+    is written as ``loads_from: {parameter: nominal - calibrated}`` (the parameters that
+    moved), so a reader computes the loads at the same geometry."""
     from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
 
     terms: list[str] = []
@@ -86,6 +92,11 @@ def joint_model_document(train: Sequence[Any], values: Mapping[str, Any]
         doc["masses"] = [{"joint": int(p.joint), "mass": float(p.mass),
                           "com": [float(c) for c in p.com], "name": str(p.name)}
                          for p in masses]
+        if nominal is not None and calibrated is not None:
+            cal = dict(zip(calibrated.param_names, calibrated.param_values, strict=True))
+            doc["loads_from"] = {str(n): float(v - cal[n]) for n, v in
+                                 zip(nominal.param_names, nominal.param_values, strict=True)
+                                 if n in cal and v != cal[n]}
     return doc
 
 
@@ -148,7 +159,13 @@ def wrap_carried(blocks: Sequence[Any], robot: Any,
     terms = carried_terms(robot)
     if not terms:
         return list(blocks)
-    return with_joint_model(blocks, robot, terms, _masses(robot) or masses)
+    loads = (_section(robot) or {}).get("loads_from")
+    at = robot
+    if isinstance(loads, Mapping) and "compliance" in terms:
+        now = dict(zip(robot.param_names, robot.param_values, strict=True))
+        at = robot.with_params({str(k): now[str(k)] + float(v) for k, v in loads.items()
+                                if str(k) in now})   # the calibration's loads: its geometry
+    return with_joint_model(blocks, at, terms, _masses(robot) or masses)
 
 
 def carried_values(block: Any, robot: Any) -> dict[str, float]:

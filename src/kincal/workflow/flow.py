@@ -704,7 +704,7 @@ def carrying_envelope(flow: FlowResult) -> tuple[Any, dict[str, Any] | None]:
     )
 
     robot = flow.result.robot
-    jm = joint_model_document(flow.train, flow.after)     # the coefficients, beside it
+    jm = joint_model_document(flow.train, flow.after, flow.nominal, robot)   # beside it
     if flow.accuracy is None:
         return with_joint_model_document(with_envelope(robot, None), jm), None
     paths: dict[str, int] = {}
