@@ -170,3 +170,28 @@ def test_the_iteration_count_names_its_passes(hysteresis_data: Path) -> None:
     assert doc["passes"] == len(starts) >= 2
     assert doc["iterations"] == sum(1 for h in doc["history"] if h["iteration"] > 0)
     assert f"in {doc['iterations']} iterations over {doc['passes']} passes" in out
+
+
+TIAGO = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tiago_mocap"
+TIAGO_SETUP = Path(__file__).resolve().parents[1] / "examples" / "setups" / "tiago_mocap.yaml"
+
+
+def test_the_real_tiago_compliance_model_gives_the_same_number_in_validate(
+        tmp_path: Path) -> None:
+    """Both terms on the real TIAGo (the loads need the URDF's masses): validate with the
+    written YAML gives calibrate's held-out RMS exactly; with the written URDF (origins
+    as URDF text) to the URDF's rounding."""
+    if not (TIAGO / "validation_2021-11-26.csv").is_file():
+        pytest.skip("the TIAGo data set is not in ../shared/data")
+    held = tmp_path / "held.csv"          # the held-out file, named as in the setup file
+    held.write_text("# kincal measurements: instrument=position; name=mocap; sigma=1mm\n"
+                    + (TIAGO / "validation_2021-11-26.csv").read_text())
+    cal, urdf, res = tmp_path / "t.yaml", tmp_path / "t.urdf", tmp_path / "t.json"
+    _run("calibrate", "--config", str(TIAGO_SETUP), "-o", str(cal), "--urdf", str(urdf),
+         "--json", str(res), "--report", str(tmp_path / "t.html"))
+    want = json.loads(res.read_text())["metrics"]["validation"]["rms_position_m"]
+    for robot, rel in ((cal, 1e-9), (urdf, 1e-5)):
+        _run("validate", str(robot), "--tip-link", "wrist_ft_tool_link", "--data", str(held),
+             "--units", "x?=m,y?=m,z?=m", "--result", str(res), "--json", str(tmp_path / "v.json"))
+        got = json.loads((tmp_path / "v.json").read_text())["overall"]["rms_position_m"]
+        assert got == pytest.approx(want, rel=rel), robot.name
