@@ -195,3 +195,30 @@ def test_the_real_tiago_compliance_model_gives_the_same_number_in_validate(
              "--units", "x?=m,y?=m,z?=m", "--result", str(res), "--json", str(tmp_path / "v.json"))
         got = json.loads((tmp_path / "v.json").read_text())["overall"]["rms_position_m"]
         assert got == pytest.approx(want, rel=rel), robot.name
+
+
+def test_iso9283_with_a_joint_model_prints_each_warning_once(hysteresis_data: Path,
+                                                              tmp_path: Path) -> None:
+    """``validate --iso9283`` with a robot file that carries a joint model: the figures
+    come (exit 0), and the outside-the-region warning is one line, not repeated as a
+    Python UserWarning on stderr (``> log 2>&1`` showed both)."""
+    import subprocess
+    import sys
+
+    d = hysteresis_data
+    lines = (d / "held.csv").read_text().splitlines()
+    n_head = sum(1 for ln in lines if ln.startswith("#")) + 1
+    cycles = tmp_path / "cycles.csv"          # 6 positions, 3 cycles each
+    cycles.write_text("\n".join(lines[:n_head] + [lines[n_head + i] for _ in range(3)
+                                                  for i in range(6)]) + "\n")
+    cal, res = d / "cal_iso.yaml", d / "res_iso.json"
+    _run("calibrate", "puma560", "--data", str(d / "train.csv"), "--joint-model",
+         "hysteresis", "-o", str(cal), "--json", str(res))
+    for extra in ([], ["--result", str(res)]):
+        run = subprocess.run([sys.executable, "-c", "from kincal.cli import main; main()",
+                              "validate", str(cal), "--data", str(cycles), "--iso9283", *extra],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        assert run.returncode == 0, run.stdout
+        assert "ISO 9283 on cycles.csv" in run.stdout
+        assert "UserWarning" not in run.stdout
+        assert run.stdout.count("lie outside the training region") == 1

@@ -37,7 +37,7 @@ import numpy as np
 from kincal.errors import KincalError
 
 __all__ = ["joint_model_document", "with_joint_model_document", "carried_terms",
-           "wrap_carried", "carried_values"]
+           "wrap_carried", "carried_values", "link_side"]
 
 
 def _terms_of(block: Any) -> tuple[list[str], Any]:
@@ -184,3 +184,29 @@ def carried_values(block: Any, robot: Any) -> dict[str, float]:
     names = set(block.parameters().names)
     return {f"{block.name}.{k}": float(v) for k, v in table.items()
             if f"{block.name}.{k}" in names}
+
+
+def link_side(block: Any, robot: Any, values: Any) -> tuple[Any, Any]:
+    """The measurement block inside ``block``'s joint model, read at the link-side joint
+    values ``q + sum_terms c (.) u`` (with the coefficients in ``values``, ``block``'s
+    parameter vector), and that block's own parameters (the prefix of ``values``).
+
+    For figures computed from a plain block (ISO 9283): the joint model moves the joints,
+    the block then measures as usual.  A block without a joint model is returned as is.
+    """
+    import copy
+
+    from kincal.measure.joints.deflection import JointDeflection
+
+    e = np.asarray(values, dtype=float).reshape(-1)
+    b = block
+    delta = np.zeros_like(np.asarray(block.q, dtype=float))
+    while isinstance(b, JointDeflection):
+        delta += b.effective_q(robot, e) - b.q
+        e = e[: e.size - len(b.joints)]
+        b = b.inner
+    if b is block:
+        return block, e
+    inner = copy.copy(b)               # a copy: the block read from the file is unchanged
+    inner.q = np.asarray(b.q, dtype=float) + delta
+    return inner, e
