@@ -362,7 +362,7 @@ def _print_calibration(out: Console, flow: FlowResult, terms: Sequence[str],
     weak parameters, the staged selection's record, warnings and outliers."""
     res = flow.result
     conv = "[green]converged[/green]" if res.converged else "[red]did not converge[/red]"
-    out.print(f"{conv} in {res.iterations} iterations ({flow.seconds:.2f} s), "
+    out.print(f"{conv} in {res.iterations_text()} ({flow.seconds:.2f} s), "
               f"{len(res.estimated)} parameters estimated, sigma0 = {res.sigma0:.3g}")
     if res.prior:
         what = escape(prior) if prior else "default tolerances"
@@ -454,6 +454,10 @@ def validate_cmd(
     masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
+    if not terms:                   # the joint model the calibrated robot file carries
+        from kincal.workflow.carried_joint_model import wrap_carried
+
+        blocks = wrap_carried(blocks, r)
     from kincal.measure.data_checks import refuse_joint_data
 
     refuse_joint_data(r, blocks)                  # exit 1, one line, nothing written
@@ -491,24 +495,36 @@ def _validation_report(path: str, robot: Any, files: Any, accuracy: Any,
 def _iso9283(out: Any, robot: Any, before: Any, blocks: Any, extras: Any) -> dict[str, Any]:
     """Print and return the ISO 9283 figures of every position block, before and after."""
     import math
+    import warnings
 
     from kincal.cli.calibration_common import scaled
     from kincal.cli.options import console_units
     from kincal.identify.iso9283 import block_figures, group_positions
     from kincal.identify.validation import validate
     from kincal.measure.instruments.position import PositionMeasurement
+    from kincal.workflow.carried_joint_model import carried_values, link_side
     from kincal.workflow.flow import block_values, reregister
+    from kincal.workflow.heldout import evaluate_file
 
     doc: dict[str, Any] = {}
     for b in blocks:
-        if not isinstance(b, PositionMeasurement):
+        if not isinstance(link_side(b, robot, b.initial_guess(robot))[0],
+                          PositionMeasurement):
             continue
         labels = group_positions(b.q)
 
         def figures(rob: Any, b: Any = b, labels: list[str] = labels) -> Any:
-            e = (block_values(validate(rob, [b], extras=dict(extras))["extras"][b.name], b)
-                 if extras else reregister(rob, b, None, None))
-            return block_figures(rob, b, e, labels)
+            if extras:
+                with warnings.catch_warnings():    # printed once, by validate's own lines
+                    warnings.simplefilter("ignore", UserWarning)
+                    val = validate(rob, [b], extras=dict(extras))
+                e = block_values(val["extras"][b.name], b)
+            elif b is not link_side(b, rob, b.initial_guess(rob))[0]:   # a joint model
+                known = carried_values(b, robot) if rob is robot else {}
+                e = evaluate_file(None, rob, b, "register", known_after=known).values["after"]
+            else:
+                e = reregister(rob, b, None, None)
+            return block_figures(rob, *link_side(b, rob, e), labels)
 
         after, dist_a = figures(robot)
         bef, dist_b = figures(before) if before is not None else (None, None)

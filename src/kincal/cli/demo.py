@@ -83,7 +83,7 @@ def demo(
     write_outputs(flow, str(folder / "calibrated.yaml"), None, str(folder / "result.json"),
                   str(folder / "report.html"), inputs, truth_vals)
     conv = "converged" if res.converged else "did NOT converge"
-    out.print(f"calibration {conv} in {res.iterations} iterations "
+    out.print(f"calibration {conv} in {res.iterations_text()} "
               f"({flow.seconds:.2f} s); {len(res.estimated)} parameters estimated.")
     print_errors(out, flow.comparisons)
     # Independent check against the truth: the measured point predicted by the calibrated

@@ -152,7 +152,7 @@ class Refusal:
 
     Attributes:
         kind: ``"data"`` (joint data), ``"nothing"`` (no parameter estimated),
-            ``"redundancy"`` or ``"residual"``.
+            ``"redundancy"``, ``"residual"`` or ``"compliance"`` (a negative stiffness).
         sentence: the words of the one-line refusal.
         short: a few words for tables.
         numbers: what was measured (``sigma0``, ``bound``, ``dof`` ...), for the JSON.
@@ -296,6 +296,7 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
         data = [line] if line else []
     out = [Refusal("data", f"joint data this robot cannot have produced: {d}",
                    "joint data") for d in data if d]
+    out += negative_compliance(result)
     p = len(result.estimated)
     if p == 0:
         out.append(Refusal("nothing", "no parameter was estimated (every candidate was "
@@ -328,6 +329,43 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
             f"{UNEXPLAINED_CAUSES}", f"sigma0 {sigma0:.3g} > {limit:.3g}",
             {"sigma0": sigma0, "bound": limit, "dof": dof}))
     return out
+
+
+#: A compliance estimate is refused when it is below zero by more than this many of its
+#: standard errors (noise alone puts a true compliance of 0 there with odds 1 in 740).
+NEGATIVE_COMPLIANCE_SIGMAS = 3.0
+
+
+def negative_compliance(result: Any) -> list[Refusal]:
+    """A refusal for the joint compliances estimated clearly below zero.
+
+    ``--joint-model compliance`` models the joint as a spring under its gravity load,
+    ``q_link = q + k tau`` with the compliance ``k = 1 / stiffness`` [rad/(N m) / m/N]:
+    ``k < 0`` is a negative stiffness, a joint that moves against its load, which no
+    gearbox does.  An estimate ``k + 3 std(k) < 0`` means the load model is wrong (link
+    masses, the direction of gravity, a spring balancer) or the term absorbs another
+    error; the calibration is then refused in one line."""
+    roles = list(result.problem.roles)
+    names = list(result.names)
+    worst: tuple[float, str, float, float] | None = None
+    for n in result.estimated:
+        i = names.index(n)
+        if roles[i] != "compliance":
+            continue
+        k, std = float(result.theta[i]), float(result.std[i])
+        if not k < -NEGATIVE_COMPLIANCE_SIGMAS * std:
+            continue
+        z = -k / std if std > 0 else math.inf
+        if worst is None or z > worst[0]:
+            worst = (z, n, k, std)
+    if worst is None:
+        return []
+    _, n, k, std = worst
+    return [Refusal("compliance", f"negative joint stiffness: {n} = {k:.3g} +- {std:.2g} "
+                    f"(a compliance below zero by {worst[0]:.3g} standard errors: the joint "
+                    "would move against its gravity load); check the link masses and the "
+                    "direction of gravity, or leave out --joint-model compliance",
+                    "negative stiffness", {"compliance": k, "std": std})]
 
 
 def distinct_equations(blocks: Sequence[Any], residuals: Any = None) -> tuple[int, int]:

@@ -153,6 +153,19 @@ class CalibrationResult:
         """Physical errors of every training block at the solution (``position_m`` ...)."""
         return self.problem.errors(self.theta)
 
+    @property
+    def passes(self) -> int:
+        """Solves the :attr:`iterations` add up over (stages, a stage solved again with a
+        smaller base set, the re-solves that settle the noise scale): each starts at
+        iteration 0 in :attr:`history`.  The solver's ``max_iter`` limits each pass, not
+        the total."""
+        return max(1, sum(1 for h in self.history if h.iteration == 0))
+
+    def iterations_text(self) -> str:
+        """``"12 iterations"``, or ``"119 iterations over 3 passes"``."""
+        p = self.passes
+        return f"{self.iterations} iterations" + (f" over {p} passes" if p > 1 else "")
+
     def rms(self) -> dict[str, float]:
         """RMS of each physical error kind over all training blocks, e.g. ``rms_position_m``."""
         acc: dict[str, list[Array]] = {}
@@ -196,6 +209,7 @@ class CalibrationResult:
             "estimated_count": len(self.estimated),
             "converged": bool(self.converged),
             "iterations": int(self.iterations),
+            "passes": self.passes,
             "message": self.message,
             "method": self.method,
             "loss": self.loss,
@@ -265,7 +279,7 @@ class CalibrationResult:
         errors = ", ".join(format_error(k[4:], v, "RMS") for k, v in r.items())
         state = "converged" if self.converged else "NOT converged"
         estimator = "MAP (tolerance priors)" if self.prior else "least squares"
-        caption = (f"{state} after {self.iterations} iterations ({self.message}); "
+        caption = (f"{state} after {self.iterations_text()} ({self.message}); "
                    f"{estimator}; {len(self.estimated)} of {len(self.names)} parameters "
                    f"estimated; sigma0 = {self.sigma0:.4g}; training {errors}; "
                    f"{len(self.names) - len(self.estimated)} held (result.summary(True) "

@@ -310,9 +310,19 @@ def _envelope_predictions(robot: Robot, blocks: Sequence[MeasurementModel]
 
 
 # --------------------------------------------------------------------------- folds
+def _innermost(block: Any) -> Any:
+    """The measurement block inside any joint-model wrappers."""
+    from kincal.measure.joints.deflection import JointDeflection
+
+    while isinstance(block, JointDeflection):
+        block = block.inner
+    return block
+
+
 def _units(block: Any) -> tuple[list[Any], str]:
-    if hasattr(block, "subset_placements"):
-        return list(block.placements), "placements"
+    inner = _innermost(block)       # a joint model around artifact data: its placements
+    if hasattr(inner, "subset_placements"):
+        return list(inner.placements), "placements"
     if hasattr(block, "subset"):
         return list(range(block.q.shape[0])), "rows"
     return [], "rows"
@@ -321,6 +331,8 @@ def _units(block: Any) -> tuple[list[Any], str]:
 def _subset(block: Any, units: Sequence[Any]) -> Any:
     if hasattr(block, "subset_placements"):
         return block.subset_placements(list(units))
+    if hasattr(_innermost(block), "subset_placements"):
+        return block.subset_inner_placements([str(u) for u in units])
     return block.subset(np.asarray(units, dtype=np.intp))
 
 

@@ -176,6 +176,8 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
     if data.get("calibration") is not None:             # read by kincal.identify.envelope
         meta["calibration"] = dict(r.mapping(data["calibration"], "calibration"))
         meta["calibration_source"] = r.source
+    if data.get("joint_model") is not None:     # read by kincal.workflow.carried_joint_model
+        meta["joint_model"] = dict(r.mapping(data["joint_model"], "joint_model"))
     return meta
 
 
@@ -449,9 +451,13 @@ def with_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Robot:
         raise RobotFileError(f"invalid YAML (the calibration envelope of {path.name})",
                              source=str(side)) from None
     r = FieldReader(str(side))
-    section = r.mapping(r.mapping(data, "(top level)").get("calibration"), "calibration")
-    return dataclasses.replace(robot, meta={**dict(robot.meta), "calibration": dict(section),
-                                            "calibration_source": str(side)})
+    top = r.mapping(data, "(top level)")
+    meta = {**dict(robot.meta), "calibration_source": str(side)}
+    if top.get("calibration") is not None or top.get("joint_model") is None:
+        meta["calibration"] = dict(r.mapping(top.get("calibration"), "calibration"))
+    if top.get("joint_model") is not None:    # read by kincal.workflow.carried_joint_model
+        meta["joint_model"] = dict(r.mapping(top["joint_model"], "joint_model"))
+    return dataclasses.replace(robot, meta=meta)
 
 
 def write_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Path | None:
@@ -460,14 +466,19 @@ def write_envelope_sidecar(robot: Robot, path: str | os.PathLike[str]) -> Path |
     atomically; None (nothing written) when the robot carries no envelope.  ROS tools
     and URDF readers never see the file; kincal reads it with the file it describes."""
     section = robot.meta.get("calibration")
-    if not isinstance(section, Mapping) or str(path) == "-":
+    joints = robot.meta.get("joint_model")        # the calibrated joint model travels too
+    if not (isinstance(section, Mapping) or isinstance(joints, Mapping)) or str(path) == "-":
         return None
     side = envelope_sidecar(path)
-    text = yaml.safe_dump({
+    doc: dict[str, Any] = {
         "describes": Path(path).name,
         "note": "the calibration envelope of the file it describes: kincal reads it with "
-                "that file; keep the two together",
-        "calibration": dict(section)}, sort_keys=False, default_flow_style=None, width=100)
+                "that file; keep the two together"}
+    if isinstance(section, Mapping):
+        doc["calibration"] = dict(section)
+    if isinstance(joints, Mapping):
+        doc["joint_model"] = dict(joints)
+    text = yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
     atomic_write_text(side, text)
     return side
 
@@ -513,6 +524,8 @@ def robot_to_dict(robot: Robot, as_ets: bool = False) -> dict[str, Any]:
         doc["controller"] = dict(robot.meta["controller"])
     if isinstance(robot.meta.get("calibration"), Mapping):
         doc["calibration"] = dict(robot.meta["calibration"])
+    if isinstance(robot.meta.get("joint_model"), Mapping):
+        doc["joint_model"] = dict(robot.meta["joint_model"])
     ju = joint_units_of(robot)
     if ju is not None:
         doc["joint_units"] = ju

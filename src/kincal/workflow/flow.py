@@ -567,6 +567,7 @@ def validate_blocks(robot: Any, blocks: Sequence[Any], before: Any = None,
     re-registered to each robot on the file.  ``accuracy``: the calibration's
     :class:`~kincal.identify.accuracy.AccuracyModel`, for the predicted accuracy.
     """
+    from kincal.workflow.carried_joint_model import carried_values
     from kincal.workflow.heldout import evaluate_file, known_by_name
 
     if protocol is None or protocol == "auto":
@@ -575,6 +576,7 @@ def validate_blocks(robot: Any, blocks: Sequence[Any], before: Any = None,
     for b in blocks:
         after = known_by_name(b, extras)
         proto = protocol if after or protocol != "training" else "register"
+        after = {**carried_values(b, robot), **after}    # the file's joint model, if any
         got = evaluate_file(before, robot, b, proto, known_before=known_by_name(
             b, before_extras), known_after=after, accuracy=accuracy)
         if protocol == "training" and not before_extras and before is not None and \
@@ -696,10 +698,15 @@ def carrying_envelope(flow: FlowResult) -> tuple[Any, dict[str, Any] | None]:
     and that envelope's document; without an accuracy model the robot carries none (not
     even the one its nominal file may have had)."""
     from kincal.identify.envelope import make_envelope, with_envelope
+    from kincal.workflow.carried_joint_model import (
+        joint_model_document,
+        with_joint_model_document,
+    )
 
     robot = flow.result.robot
+    jm = joint_model_document(flow.train, flow.after, flow.nominal, robot)   # beside it
     if flow.accuracy is None:
-        return with_envelope(robot, None), None
+        return with_joint_model_document(with_envelope(robot, None), jm), None
     paths: dict[str, int] = {}
     for b in flow.train:
         prov = getattr(b, "provenance", None)
@@ -707,7 +714,7 @@ def carrying_envelope(flow: FlowResult) -> tuple[Any, dict[str, Any] | None]:
             path = str(prov.path)
             paths[path] = paths.get(path, 0) + len(np.atleast_1d(getattr(b, "q", [])))
     env = make_envelope(flow.accuracy, robot, list(paths), list(paths.values()))
-    return with_envelope(robot, env), env.to_dict()
+    return with_joint_model_document(with_envelope(robot, env), jm), env.to_dict()
 
 
 def render_outputs(flow: FlowResult, output: str | None = None, urdf: str | None = None,

@@ -67,6 +67,8 @@ class JointCompliance(JointDeflection):
                  joints: Sequence[str] | None = None) -> None:
         q = np.asarray(block.q, dtype=float)
         super().__init__(block, robot, torques(q) if callable(torques) else torques, joints)
+        #: the link masses of :meth:`gravity` loads (empty for loads given directly)
+        self.masses: list[PointMass] = []
 
     @classmethod
     def gravity(cls, block: MeasurementModel, robot: Robot, masses: Sequence[PointMass],
@@ -77,7 +79,9 @@ class JointCompliance(JointDeflection):
         ``masses`` e.g. from :func:`kincal.robots.urdf.load_urdf_inertials`; ``g``
         [m/s^2] in the robot's reference frame.
         """
-        return cls(block, robot, gravity_torques(robot, block.q, masses, g), joints)
+        out = cls(block, robot, gravity_torques(robot, block.q, masses, g), joints)
+        out.masses = list(masses)            # written with the calibrated robot
+        return out
 
     @property
     def torques(self) -> Array:

@@ -158,6 +158,25 @@ class JointDeflection(BlockWrapper):
         rows = np.asarray(rows)
         return self._with(self.inner.subset(rows), self.regressor[rows])
 
+    def subset_inner_placements(self, placements: Sequence[str]) -> JointDeflection:
+        """The same model on the rows of artifact ``placements`` of the (possibly nested)
+        inner block, which must hold placements (``subset_placements``); each row keeps
+        its regressor value."""
+        inner = self.inner
+        if hasattr(inner, "subset_placements"):
+            sub = inner.subset_placements(placements)
+        elif isinstance(inner, JointDeflection):
+            sub = inner.subset_inner_placements(placements)
+        else:
+            raise KincalError(f"block {self.name!r} has no artifact placements to split")
+        base: MeasurementModel = inner
+        while isinstance(base, JointDeflection):
+            base = base.inner
+        labels: Sequence[str] = getattr(base, "placement_labels", ())
+        want = {str(p) for p in placements}
+        rows = np.array([str(p) in want for p in labels], dtype=bool)
+        return self._with(sub, self.regressor[rows])
+
     def effective_q(self, robot: Robot, extra: ArrayLike) -> Array:
         """Link-side joint values ``q + c (.) u`` (N, n) [rad / m] at ``extra``."""
         c = np.asarray(extra, dtype=float).reshape(-1)[-len(self.joints):]

@@ -15,7 +15,8 @@ describe how it does not (:mod:`kincal.measure.joints.deflection`):
 each with its own rows' directions and loads); the coefficients are block parameters
 (``{block}.h[<joint>]``, ``{block}.k[<joint>]``), selected and estimated like the
 instrument frame, listed in the parameter table and the result JSON.  The calibrated
-robot file holds the geometry only.
+robot file carries the terms and coefficients beside the geometry
+(:mod:`kincal.workflow.carried_joint_model`).
 """
 
 from __future__ import annotations
