@@ -284,7 +284,9 @@ def import_bag(
                                                  "and the dropped ones as JSON.")] = None,
 ) -> None:
     """Static postures of a recorded session (ROS bag) as a kincal measurement file: the
-    joint states and an instrument's stream averaged over each standstill."""
+    joint states and an instrument's stream averaged over each standstill.  Without
+    --point/--pose/--tf: the standstill postures with their time windows (t0_s, t1_s), to be
+    joined with the instrument's own log by time."""
     import numpy as np
 
     from kincal.io import atomic_write_text, check_outputs, write_json
@@ -292,6 +294,7 @@ def import_bag(
         StillOptions,
         find_postures,
         measurement_text,
+        postures_text,
         read_bag_streams,
     )
     from kincal.units import parse_quantity
@@ -311,6 +314,19 @@ def import_bag(
         raise KincalError(f"{bag}: no static posture found ({len(dropped)} standstills "
                           "dropped" + (f": {dropped[0]}" if dropped else "") + "); check "
                           "--still-speed and --still-time")
+    if s.kind == "joints":
+        atomic_write_text(output, postures_text(s, postures))
+        out.print(f"{escape(Path(bag).name)}: {len(s.joint_t)} joint states, no instrument "
+                  f"topic; {len(postures)} standstill postures with their time windows")
+        for line in dropped:
+            out.print(f"[yellow]dropped[/yellow] {escape(line)}")
+        out.print(f"postures -> {escape(output)} (t0_s, t1_s, joints {', '.join(s.joint_names)}"
+                  "): join them with the instrument's log by time (docs/tutorials/ros-bags.md)")
+        if json_out:
+            write_json(json_out, {"bag": bag, "output": output, "joint_names": s.joint_names,
+                                  "postures": [{"t0_s": p.t0, "t1_s": p.t1, "q": p.q}
+                                               for p in postures], "dropped": dropped})
+        return
     atomic_write_text(output, measurement_text(s, postures, name))
     sig = np.array([p.sigma for p in postures]) * 1e3
     out.print(f"{escape(Path(bag).name)}: {len(s.joint_t)} joint states, {len(s.meas_t)} "

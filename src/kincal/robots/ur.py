@@ -49,8 +49,8 @@ from kincal.spatial import inverse, matrix_to_rpy, rotz, xyzrpy_to_matrix
 
 Array = NDArray[np.float64]
 
-__all__ = ["KINEMATICS_LINKS", "UR_MODELS", "joint_frames", "kinematics_yaml", "read_calibration_conf",
-           "read_kinematics_yaml"]
+__all__ = ["KINEMATICS_LINKS", "UR_MODELS", "hash_kept", "joint_frames", "kinematics_yaml",
+           "read_calibration_conf", "read_kinematics_yaml"]
 
 #: The kinematics YAML's keys, one per joint, base to tip.
 KINEMATICS_LINKS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
@@ -248,7 +248,7 @@ def hash_kept(text: str) -> bool:
     """Whether a kinematics YAML ``text`` keeps a factory hash (``calib_<checksum>``) rather
     than kincal's ``calib_kincal_<name>``."""
     m = re.search(r"^\s*hash:\s*(\S+)", text, re.MULTILINE)
-    return bool(m) and not m.group(1).startswith("calib_kincal_")
+    return m is not None and not m.group(1).startswith("calib_kincal_")
 
 
 def _num(v: float) -> str:
