@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -73,7 +74,8 @@ def _worst(robot: Robot, nom: Robot) -> tuple[str, float, float, str]:
     return best
 
 
-def _check_plausible(file: str, robot: Robot, nom: Robot, reread: object) -> None:
+def _check_plausible(file: str, robot: Robot, nom: Robot,
+                     reread: Callable[[Robot], Robot]) -> None:
     """Refuse (exit 1) a file whose numbers are more than PLAUSIBLE tolerances from the
     nominal: another model, or a frame turned.  ``reread(nominal)`` reads the file again on
     another nominal, to name the built-in UR that fits best."""
@@ -93,7 +95,7 @@ def _check_plausible(file: str, robot: Robot, nom: Robot, reread: object) -> Non
             continue
         try:
             other = load_serial_robot(m)
-            _, d2, tol2, _ = _worst(reread(other), other)  # type: ignore[operator]
+            _, d2, tol2, _ = _worst(reread(other), other)
         except KincalError:
             continue
         fits.append((abs(d2) / tol2, m))
