@@ -107,7 +107,7 @@ def _stamp(msg: object, fallback_ns: int) -> float:
 _TYPES = {"joints": ("sensor_msgs/msg/JointState",),
           "point": ("geometry_msgs/msg/PointStamped",),
           "pose": ("geometry_msgs/msg/PoseStamped",),
-          "tf": ("tf2_msgs/msg/TFMessage",)}
+          "tf": ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")}
 
 
 def _check_type(topic: str, msgtype: str, what: str, option: str, path: str) -> None:
