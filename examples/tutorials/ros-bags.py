@@ -84,6 +84,11 @@ sh("kincal import bag session -o data.csv --point /tracker/point")
 sh("head -n 4 data.csv")
 # --8<-- [end:import]
 
+# --8<-- [start:joints]
+sh("kincal import bag session -o postures.csv")
+sh("head -n 3 postures.csv | cut -c 1-100")
+# --8<-- [end:joints]
+
 # --8<-- [start:calibrate]
 # the first 29 postures calibrate, the last 10 (never seen by the fit) validate
 sh("(head -n 3 data.csv; sed -n '4,32p' data.csv) > train.csv")

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -31,8 +32,83 @@ import_app = typer.Typer(help="Other tools' files in: UR calibration files, ROS 
 app.add_typer(import_app, name="import")
 
 NominalOpt = Annotated[str, typer.Option("--nominal", help="The built-in UR the file corrects "
-                                         "(ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e) or a "
-                                         "robot file.")]
+                                         "(ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e, ur20, "
+                                         "ur30) or a robot file.")]
+#: What the UR driver logs when the kinematics YAML's hash is not the robot's checksum.
+DRIVER_NOTE = ("hash {hash}: the UR driver compares it with the robot's calibration checksum "
+               "and logs an ERROR 'The calibration parameters of the connected robot don't "
+               "match the ones from the given kinematics config file' at every start: expected "
+               "for a calibration other than the factory's (docs/tutorials/ur-calibration.md)")
+
+
+def _yaml_params(robot: Robot, nom: Robot) -> dict[str, float]:
+    """The kinematics-YAML numbers of ``robot`` (frames nearest ``nom``'s): x, y, z [m],
+    roll, pitch, yaw [rad] per joint, named ``<link>.<key>``."""
+    import yaml
+
+    from kincal.robots.ur import kinematics_yaml
+
+    kin = yaml.safe_load(kinematics_yaml(robot, nom))["kinematics"]
+    return {f"{link}.{k}": float(v) for link, e in kin.items() if isinstance(e, dict)
+            for k, v in e.items()}
+
+
+def _worst(robot: Robot, nom: Robot) -> tuple[str, float, float, str]:
+    """The parameter farthest from nominal in tolerances: (name, change, tolerance, unit).
+
+    Both robots are written as kinematics YAMLs with frames nearest the nominal's, so a
+    factory fit that slid frames along parallel axes compares by what it changed.  The
+    tolerances are ``calibrate``'s defaults (1 mm, 0.1 deg; kincal.identify.tolerances)."""
+    import math
+
+    from kincal.identify.tolerances import DEFAULT_TOLERANCES
+
+    a, b = _yaml_params(robot, nom), _yaml_params(nom, nom)
+    best = ("", 0.0, 1.0, "m")
+    for k, v in a.items():
+        length = k.endswith((".x", ".y", ".z"))
+        tol = DEFAULT_TOLERANCES["length"]["m"] if length else DEFAULT_TOLERANCES["angle"]["rad"]
+        d = v - b[k] if length else math.remainder(v - b[k], 2 * math.pi)
+        if abs(d) / tol > abs(best[1]) / best[2]:
+            best = (k, d, tol, "m" if length else "rad")
+    return best
+
+
+def _check_plausible(file: str, robot: Robot, nom: Robot,
+                     reread: Callable[[Robot], Robot]) -> None:
+    """Refuse (exit 1) a file whose numbers are more than PLAUSIBLE tolerances from the
+    nominal: another model, or a frame turned.  ``reread(nominal)`` reads the file again on
+    another nominal, to name the built-in UR that fits best."""
+    import math
+
+    from kincal.errors import CheckFailedError
+    from kincal.identify.tolerances import PLAUSIBLE
+    from kincal.robots.files import load_serial_robot
+    from kincal.robots.ur import UR_MODELS
+
+    name, d, tol, unit = _worst(robot, nom)
+    if abs(d) <= PLAUSIBLE * tol:
+        return
+    fits: list[tuple[float, str]] = []
+    for m in UR_MODELS:
+        if m == nom.name:
+            continue
+        try:
+            other = load_serial_robot(m)
+            _, d2, tol2, _ = _worst(reread(other), other)
+        except KincalError:
+            continue
+        fits.append((abs(d2) / tol2, m))
+    shown = f"{d * 1e3:+.3f} mm" if unit == "m" else f"{math.degrees(d):+.3f} deg"
+    tol_s = f"{tol * 1e3:g} mm" if unit == "m" else f"{math.degrees(tol):g} deg"
+    ratio, model = min(fits) if fits else (math.inf, "")
+    cause = (f"the file is of a {model} (its numbers are within {ratio:.2g} tolerances of "
+             f"it): use --nominal {model}" if ratio <= PLAUSIBLE else
+             "no built-in UR fits it: a frame turned (e.g. by pi), another base convention or "
+             "another model; check the file")
+    raise CheckFailedError(f"{name} is {shown} from nominal {nom.name} ({abs(d) / tol:.3g}x its "
+                           f"tolerance {tol_s}, more than {PLAUSIBLE:g}x): {cause}; --force "
+                           "imports it anyway", source=file)
 
 
 def _round_trip_report(out: Console, robot: Robot, nominal: Robot, text: str) -> float:
@@ -58,6 +134,9 @@ def import_ur(
     output: Annotated[str, typer.Option("-o", "--output", help="kincal robot file to write.")],
     kinematics: Annotated[str | None, typer.Option("--kinematics", help="Also write the robot "
                                                    "as a ROS kinematics YAML here.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Import even when a number is more "
+                                        "than 10 tolerances from the nominal (another model? a "
+                                        "frame turned?).")] = False,
     json_out: JsonOpt = None,
 ) -> None:
     """Read a UR controller's calibration (calibration.conf) or a ROS kinematics YAML as a
@@ -75,7 +154,12 @@ def import_ur(
     if not Path(file).is_file():
         raise KincalError("no such file", source=file)
     is_yaml = Path(file).suffix.lower() in (".yaml", ".yml")
-    robot = read_kinematics_yaml(file, nom) if is_yaml else read_calibration_conf(file, nom)
+    def reread(n: Robot) -> Robot:
+        return read_kinematics_yaml(file, n) if is_yaml else read_calibration_conf(file, n)
+
+    robot = reread(nom)
+    if not force:
+        _check_plausible(file, robot, nom, reread)
     if is_yaml:                         # its calibration envelope, written next to it
         from kincal.robots.files import with_envelope_sidecar
         from kincal.workflow.robots import check_envelope
@@ -88,10 +172,13 @@ def import_ur(
         _round_trip_report(out, robot, nom, kin_text)
     atomic_write_text(output, robot_yaml_text(robot))
     if kin_text is not None and kinematics:
+        from kincal.robots.ur import hash_kept
+
         atomic_write_text(kinematics, kin_text)
         from kincal.robots.files import write_envelope_sidecar
 
         write_envelope_sidecar(robot, kinematics)
+        _hash_note(out, kin_text, hash_kept(kin_text))
     out.print(f"{escape(Path(file).name)}: {robot.name} differs from nominal {nom.name} by "
               f"{np.sqrt(np.mean(diff ** 2)) * 1e3:.4f} mm RMS, {diff.max() * 1e3:.4f} mm max at "
               "the flange (500 random postures)")
@@ -128,6 +215,9 @@ def ur_kinematics(
     _round_trip_report(out, r, nom, text)
     atomic_write_text(output, text)
     out.print(f"kinematics YAML -> {escape(output)}")
+    from kincal.robots.ur import hash_kept
+
+    _hash_note(out, text, hash_kept(text))
     from kincal.robots.files import write_envelope_sidecar
 
     side = write_envelope_sidecar(r, output)         # the calibration envelope travels
@@ -137,6 +227,19 @@ def ur_kinematics(
         from kincal.io import write_json
 
         write_json(json_out, {"robot": r.name, "nominal": nom.name, "output": output})
+
+
+def _hash_note(out: Console, text: str, kept: bool) -> None:
+    """Say what the UR driver will make of the YAML's ``hash``."""
+    import re
+
+    m = re.search(r"^\s*hash:\s*(\S+)", text, re.MULTILINE)
+    h = m.group(1) if m else "?"
+    if kept:
+        out.print(f"hash {escape(h)} kept from the input (unchanged calibration: the UR driver "
+                  "finds it equal to the robot's checksum)")
+    else:
+        out.print(escape(DRIVER_NOTE.format(hash=h)))
 
 
 def _speed(text: str, option: str) -> float:
@@ -183,7 +286,9 @@ def import_bag(
                                                  "and the dropped ones as JSON.")] = None,
 ) -> None:
     """Static postures of a recorded session (ROS bag) as a kincal measurement file: the
-    joint states and an instrument's stream averaged over each standstill."""
+    joint states and an instrument's stream averaged over each standstill.  Without
+    --point/--pose/--tf: the standstill postures with their time windows (t0_s, t1_s), to be
+    joined with the instrument's own log by time."""
     import numpy as np
 
     from kincal.io import atomic_write_text, check_outputs, write_json
@@ -191,6 +296,7 @@ def import_bag(
         StillOptions,
         find_postures,
         measurement_text,
+        postures_text,
         read_bag_streams,
     )
     from kincal.units import parse_quantity
@@ -210,6 +316,19 @@ def import_bag(
         raise KincalError(f"{bag}: no static posture found ({len(dropped)} standstills "
                           "dropped" + (f": {dropped[0]}" if dropped else "") + "); check "
                           "--still-speed and --still-time")
+    if s.kind == "joints":
+        atomic_write_text(output, postures_text(s, postures))
+        out.print(f"{escape(Path(bag).name)}: {len(s.joint_t)} joint states, no instrument "
+                  f"topic; {len(postures)} standstill postures with their time windows")
+        for line in dropped:
+            out.print(f"[yellow]dropped[/yellow] {escape(line)}")
+        out.print(f"postures -> {escape(output)} (t0_s, t1_s, joints {', '.join(s.joint_names)}"
+                  "): join them with the instrument's log by time (docs/tutorials/ros-bags.md)")
+        if json_out:
+            write_json(json_out, {"bag": bag, "output": output, "joint_names": s.joint_names,
+                                  "postures": [{"t0_s": p.t0, "t1_s": p.t1, "q": p.q}
+                                               for p in postures], "dropped": dropped})
+        return
     atomic_write_text(output, measurement_text(s, postures, name))
     sig = np.array([p.sigma for p in postures]) * 1e3
     out.print(f"{escape(Path(bag).name)}: {len(s.joint_t)} joint states, {len(s.meas_t)} "

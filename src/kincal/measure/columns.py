@@ -40,7 +40,8 @@ _UR = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3"
 #: Built-in robot -> {ROS joint name: the robot's joint}.
 ROS_JOINT_NAMES: dict[str, dict[str, str]] = {
     **{ur: {f"{j}_joint": j for j in _UR}
-       for ur in ("ur3", "ur5", "ur10", "ur3e", "ur5e", "ur10e", "ur16e")},
+       for ur in ("ur3", "ur5", "ur10", "ur3e", "ur5e", "ur10e", "ur16e", "ur20",
+                  "ur30")},
     "panda": {f"panda_joint{i}": f"q{i}" for i in range(1, 8)},
     "kr6": {f"joint_a{i}": f"A{i}" for i in range(1, 7)},
     "irb120": {f"joint_{i}": f"rax_{i}" for i in range(1, 7)},

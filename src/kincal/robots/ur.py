@@ -49,11 +49,13 @@ from kincal.spatial import inverse, matrix_to_rpy, rotz, xyzrpy_to_matrix
 
 Array = NDArray[np.float64]
 
-__all__ = ["KINEMATICS_LINKS", "joint_frames", "kinematics_yaml", "read_calibration_conf",
-           "read_kinematics_yaml"]
+__all__ = ["KINEMATICS_LINKS", "UR_MODELS", "hash_kept", "joint_frames", "kinematics_yaml",
+           "read_calibration_conf", "read_kinematics_yaml"]
 
 #: The kinematics YAML's keys, one per joint, base to tip.
 KINEMATICS_LINKS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
+#: The built-in UR models (``kincal robots``), smallest first within each series.
+UR_MODELS = ("ur3", "ur5", "ur10", "ur3e", "ur5e", "ur10e", "ur16e", "ur20", "ur30")
 _KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
 
@@ -61,7 +63,8 @@ _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
 def _check_ur(nominal: Robot, source: str) -> None:
     if nominal.n != 6 or nominal.meta.get("convention") != "standard_dh":
         raise RobotFileError(f"the nominal robot {nominal.name!r} must be a 6-joint standard-DH "
-                             "robot (a built-in UR: ur3, ur5, ur10, ur3e, ur5e, ur10e, ur16e)",
+                             "robot (a built-in UR: "
+                             f"{', '.join(UR_MODELS)})",
                              source=source)
 
 
@@ -146,6 +149,8 @@ def read_kinematics_yaml(path: str | os.PathLike[str], nominal: Robot | None = N
         b.transform("Rz", None, 0.0, joint=j)
     b.frame("tool")
     meta = {"source": f"ROS kinematics YAML {Path(source).name}"}
+    if isinstance(kin.get("hash"), str):            # the robot's calibration checksum
+        meta["ur_hash"] = kin["hash"]
     if nominal is not None and "controller" in nominal.meta:
         meta["controller"] = nominal.meta["controller"]
     return b.build(meta=meta)
@@ -209,7 +214,11 @@ def _nearest(F: Array, N: Array) -> Array:
 def kinematics_yaml(robot: Robot, nominal: Robot, hash_text: str | None = None) -> str:
     """The ROS kinematics YAML of ``robot``, frames placed nearest ``nominal``'s (module
     docstring).  The joint readings are unchanged: each joint's zero stays where the
-    robot has it (its encoder offset is folded into the next origin's yaw)."""
+    robot has it (its encoder offset is folded into the next origin's yaw).
+
+    ``hash``: ``hash_text``, else the one read with the robot (``meta["ur_hash"]``, a
+    round trip of an unchanged file), else ``calib_kincal_<name>``.  The UR driver
+    compares it with the robot's own calibration checksum (:func:`hash_kept`)."""
     _check_ur(nominal, nominal.name)
     F = joint_frames(robot)
     N = joint_frames(nominal, after_slide=True)
@@ -229,8 +238,17 @@ def kinematics_yaml(robot: Robot, nominal: Robot, hash_text: str | None = None) 
         doc_lines.append(f"  {link}:")
         doc_lines += [f"    {k}: {_num(vals[k])}" for k in _KEYS]
         prev = Gk
+    kept = robot.meta.get("ur_hash")
+    hash_text = hash_text or (kept if isinstance(kept, str) else None)
     doc_lines.append(f"  hash: {hash_text or 'calib_kincal_' + robot.name}")
     return "\n".join(doc_lines) + "\n"
+
+
+def hash_kept(text: str) -> bool:
+    """Whether a kinematics YAML ``text`` keeps a factory hash (``calib_<checksum>``) rather
+    than kincal's ``calib_kincal_<name>``."""
+    m = re.search(r"^\s*hash:\s*(\S+)", text, re.MULTILINE)
+    return m is not None and not m.group(1).startswith("calib_kincal_")
 
 
 def _num(v: float) -> str:
