@@ -29,7 +29,7 @@ from kincal.cli.calibration_common import (
 )
 from kincal.cli.common import BaseLink, TipLink
 from kincal.cli.options import SiOpt, use_si
-from kincal.errors import KincalError, MeasurementFileError
+from kincal.errors import CheckFailedError, KincalError, MeasurementFileError
 from kincal.io import check_outputs
 
 if TYPE_CHECKING:
@@ -150,6 +150,13 @@ def compensate_cmd(
         raise KincalError("--fallback nominal needs --nominal (the controller's model) and "
                           "the predicted accuracy (--result, or a calibrated robot file)")
     T, seeds, table = read_targets(targets, cal, units, ignore)
+    if seeds is not None:               # joint seeds the robot cannot take: refused
+        from kincal.measure.data_checks import joint_data_line, joint_data_problems
+
+        bad = joint_data_line(joint_data_problems(
+            cal, seeds, targets, list(table.lines), [table.units.get(j) for j in cal.joint_names]))
+        if bad:
+            raise CheckFailedError(f"joint seeds this robot cannot take: {bad}")
     length_unit = length_unit or table.units.get("x", "m")
     angle_unit = angle_unit or table.units.get("rx", "rad" if length_unit == "m" else "deg")
     run = compensate_targets(cal, T, nominal=nom, seeds=seeds, accuracy=accuracy,
