@@ -387,6 +387,7 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
                        | (lim[:, 1] - q_cal[good] < LIMIT_MARGIN), axis=1)
         for k in np.flatnonzero(close).tolist():
             warnings[int(good[k])].append("joint limit")
+    _joint_targets_beyond(nominal, t, ok, reason)
     for i in np.flatnonzero(~ok).tolist():
         warnings[i].append("unreachable" if "reach" in reason[i] else "not filtered")
     joints_out = t.joints.copy()
@@ -405,6 +406,20 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
             warnings[int(good[k])].append("outside the calibrated region")
     return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
                         reason, warnings, signs)
+
+
+def _joint_targets_beyond(nominal: Robot, t: _Targets, ok: NDArray[np.bool_],
+                          reason: list[str]) -> None:
+    """A joint target beyond the robot's limits (taught or offline) is not filtered: the
+    robot cannot take it, so the program (or the robot file) is wrong; its reason names
+    the joint, its value and the limits (:func:`kincal.measure.data_checks.limit_problems`)."""
+    from kincal.measure.data_checks import limit_problems
+
+    for i in np.flatnonzero(~t.pose).tolist():
+        found = limit_problems(nominal, t.joints[i][None], "target")
+        if found:
+            ok[i] = False
+            reason[i] = "; ".join(p.words for p in found)
 
 
 def tcp_accuracy(accuracy: AccuracyModel, calibrated: Robot, q: Array, tcp: Array
