@@ -27,8 +27,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from kincal.identify.checks import ABSURD_STD, Implausible, Refusal, Verdict
-from kincal.measure.data_checks import LIMIT_SHARE, LIMIT_SLACK
 from kincal.identify.tolerances import DEFAULT_TOLERANCES, PLAUSIBLE
+from kincal.measure.data_checks import LIMIT_SHARE, LIMIT_SLACK
 from kincal.parallel import residuals as res
 from kincal.parallel.calibration import FiveBarCalibration
 
