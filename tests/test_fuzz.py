@@ -492,3 +492,28 @@ def test_joints_beyond_the_limits_elsewhere(good, tmp_path):
     assert not j.exists()
     assert contract(["fk", "puma560", "--q", "10,20,30,40,50,60"], [], []) == 1
     assert contract(["fk", "puma560", "--q", "10,20,30,40,50,60", "--deg"], [], []) == 0
+
+
+@pytest.mark.parametrize("args_of", [
+    lambda d: ["ik", "puma560", "--position", "0.4,0.1,0.3m", "--q0", "0,5,0,0,0,0"],
+    lambda d: ["trajectory", "puma560", "--start", "0,0,0,0,0,0", "--end", "0,5,0,0,0,0",
+               "--duration", "1s", "--out-dir", d / "t"],
+    lambda d: ["trajectory", "puma560", "--start", "0,300deg,0,0,0,0", "--end",
+               "0,0,0,0,0,0", "--duration", "1s", "--out-dir", d / "t"],
+    lambda d: ["clik", "puma560", "--start", "0,5,0,0,0,0", "--end-position", "400,0,300mm",
+               "--method", "dls", "--out-dir", d / "t"],
+], ids=["ik --q0", "trajectory --end", "trajectory --start", "clik --start"])
+def test_joint_options_beyond_the_limits(tmp_path, args_of):
+    """Joint values beyond the limits given as an option: exit 1, one line, nothing
+    written (q2 = 5 rad = 286 deg where the PUMA's limit is 225 deg)."""
+    assert contract(args_of(tmp_path), [tmp_path / "t"], []) == 1
+    assert not (tmp_path / "t").exists()
+
+
+def test_compensate_seeds_beyond_the_limits(tmp_path):
+    f = tmp_path / "targets.csv"
+    f.write_text("x_mm,y_mm,z_mm,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg\n"
+                 "400,100,300,0,300,0,0,0,0\n")
+    out = tmp_path / "c.csv"
+    assert contract(["compensate", "puma560", "--targets", f, "-o", out], [out], [f]) == 1
+    assert not out.exists()

@@ -29,7 +29,7 @@ from kincal.cli.calibration_common import (
 )
 from kincal.cli.common import BaseLink, TipLink
 from kincal.cli.options import SiOpt, use_si
-from kincal.errors import KincalError, MeasurementFileError
+from kincal.errors import CheckFailedError, KincalError, MeasurementFileError
 from kincal.io import check_outputs
 
 if TYPE_CHECKING:
@@ -46,7 +46,9 @@ def _target_fields() -> tuple[Any, ...]:
 def read_targets(path: str, robot: Any, units: str | None, ignore: Sequence[str] | None
                  ) -> tuple[np.ndarray, np.ndarray | None, Any]:
     """Targets (N, 4, 4) poses or (N, 3) positions [m], optional joint seeds (N, n)
-    [rad / m], and the parsed table (for line numbers in messages)."""
+    [rad / m], and the parsed table (for line numbers in messages).  Joint seeds beyond
+    the robot's limits (or in the other angle unit) raise ``CheckFailedError`` (exit 1)
+    naming the file and line."""
     import numpy as np
 
     from kincal.measure.files import (
@@ -74,6 +76,13 @@ def read_targets(path: str, robot: Any, units: str | None, ignore: Sequence[str]
         raise t.error("orientation targets need all of rx, ry, rz (roll-pitch-yaw)")
     targets = homogeneous(rpy_to_matrix(np.stack([t.values[c] for c in ("rx", "ry", "rz")],
                                                  axis=1)), p) if rot else p
+    if has_joints:                      # joint seeds the robot cannot take: refused
+        from kincal.measure.data_checks import joint_data_line, joint_data_problems
+
+        bad = joint_data_line(joint_data_problems(
+            robot, t.q, path, list(t.lines), [t.units.get(j) for j in robot.joint_names]))
+        if bad:
+            raise CheckFailedError(f"joint seeds this robot cannot take: {bad}")
     return targets, (t.q if has_joints else None), t
 
 

@@ -40,6 +40,18 @@ if TYPE_CHECKING:
 POSE = ["length"] * 3 + ["angle"] * 3
 
 
+def _refuse_beyond_limits(robot: Any, q: Any, option: str, deg: bool) -> None:
+    """Exit 1 with one line, before anything is computed or written, when joint values
+    given by ``option`` lie beyond the robot's limits (a motion from or to a configuration
+    the robot cannot take is no answer)."""
+    from kincal.errors import CheckFailedError
+    from kincal.measure.data_checks import command_line_joints
+
+    line = command_line_joints(robot, q, option, deg)
+    if line:
+        raise CheckFailedError(line)
+
+
 def _pose_from_option(text: str, deg: bool, option: str = "--pose") -> np.ndarray:
     from kincal.spatial import xyzrpy_to_matrix
 
@@ -114,6 +126,8 @@ def ik(robot: RobotArg,
     if mask is not None and mask not in ("pose", "position", "orientation"):
         m_spec = [bool(float(v)) for v in parse_vector(mask, "--mask", 6)]
     guess = None if q0 is None else joint_vector(r, q0, deg, "--q0")
+    if guess is not None and not no_limits:
+        _refuse_beyond_limits(r, guess, "--q0", deg)
     sol = solve_ik(r, target[None], q0=guess, mask=m_spec, tol_position=tol_p,
                    tol_orientation=tol_o, restarts=restarts,
                    rng=np.random.default_rng(seed), respect_limits=not no_limits)
@@ -247,6 +261,11 @@ def trajectory(robot: RobotArg,
     r = robot_arg(robot)
     q_start = joint_vector(r, start, deg, "--start")
     q_end = None if end is None else joint_vector(r, end, deg, "--end")
+    _refuse_beyond_limits(r, q_start, "--start", deg)
+    if q_end is not None:
+        _refuse_beyond_limits(r, q_end, "--end", deg)
+    for v in via or []:
+        _refuse_beyond_limits(r, joint_vector(r, v, deg, "--via"), "--via", deg)
     if space == "joint":
         if q_end is None:
             raise KincalError("a joint-space trajectory needs --end")
@@ -381,6 +400,7 @@ def clik_command(
     if is_fivebar(r):
         raise KincalError("`kincal clik` works on serial robots")
     q0 = joint_vector(r, start, deg, "--start")
+    _refuse_beyond_limits(r, q0, "--start", deg)
     p_end = point_vector(end_position, "--end-position", ["length"] * 3)
     T0 = r.fk(q0)
     T1 = T0.copy()

@@ -30,6 +30,7 @@ where each target also gets the predicted position std of its TCP.  Units: m, ra
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -158,6 +159,18 @@ def _closed_form(robot: Robot) -> bool:
     return True
 
 
+def _unreachable_words(who: str, why: str, miss: float = math.nan) -> str:
+    """``unreachable by WHO: WHY`` said once (the IK's own reason may already start with
+    ``unreachable:``), with how far the best solution stayed from the target [mm] when the
+    reason does not say it."""
+    why = why.strip()
+    if why.lower().startswith("unreachable"):
+        why = why[len("unreachable"):].lstrip(" :;,-")
+    far = (f"; the closest solution misses it by {miss * 1e3:.3g} mm"
+           if math.isfinite(miss) and miss > 0 and not re.search(r"\d\s*m+\b", why) else "")
+    return f"unreachable by {who}: {why or 'no joint solution found'}{far}"
+
+
 def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
                       confs: Sequence[Configuration | None], seeds: Array
                       ) -> tuple[Array, NDArray[np.bool_], list[str]]:
@@ -167,7 +180,9 @@ def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
     ok = np.zeros(N, bool)
     reason = [""] * N
     asked = np.array([c is not None for c in confs], bool)
-    if _closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc") and asked.any():
+    if not (_closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc")):
+        asked[:] = False               # no closed form: every target by the numerical IK
+    if asked.any():
         idx = [int(i) for i in np.flatnonzero(asked)]
         sol = ik_spherical_wrist(nominal, F[idx])
         conf = Configurator.of(nominal, cmap)
@@ -187,7 +202,8 @@ def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
         q[rest], ok[rest] = num.q, num.success
         for k, i in enumerate(rest.tolist()):
             if not num.success[k]:
-                reason[i] = f"the nominal controller cannot reach it ({num.reason[k]})"
+                reason[i] = _unreachable_words("the nominal robot", num.reason[k],
+                                               float(num.position_error[k]))
     return q, ok, reason
 
 
@@ -265,7 +281,7 @@ def _calibrated_joints(calibrated: Robot, nominal: Robot, flange: Array, q_nom: 
         for k, i in enumerate(solve[lost].tolist()):
             if not comp.success[k]:
                 ok[i] = False
-                reason[i] = f"unreachable by the calibrated robot ({comp.reason[k]})"
+                reason[i] = _unreachable_words("the calibrated robot", comp.reason[k])
     lim = calibrated.joint_limits
     outside = np.any((q_cal[solve] < lim[:, 0] - 1e-9) | (q_cal[solve] > lim[:, 1] + 1e-9),
                      axis=1)
@@ -371,6 +387,7 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
                        | (lim[:, 1] - q_cal[good] < LIMIT_MARGIN), axis=1)
         for k in np.flatnonzero(close).tolist():
             warnings[int(good[k])].append("joint limit")
+    _joint_targets_beyond(nominal, t, ok, reason)
     for i in np.flatnonzero(~ok).tolist():
         warnings[i].append("unreachable" if "reach" in reason[i] else "not filtered")
     joints_out = t.joints.copy()
@@ -389,6 +406,20 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
             warnings[int(good[k])].append("outside the calibrated region")
     return FilterResult(changed, ok, flange_out, joints_out, q_nom, shift_p, shift_r, std,
                         reason, warnings, signs)
+
+
+def _joint_targets_beyond(nominal: Robot, t: _Targets, ok: NDArray[np.bool_],
+                          reason: list[str]) -> None:
+    """A joint target beyond the robot's limits (taught or offline) is not filtered: the
+    robot cannot take it, so the program (or the robot file) is wrong; its reason names
+    the joint, its value and the limits (:func:`kincal.measure.data_checks.limit_problems`)."""
+    from kincal.measure.data_checks import limit_problems
+
+    for i in np.flatnonzero(~t.pose).tolist():
+        found = limit_problems(nominal, t.joints[i][None], "target")
+        if found:
+            ok[i] = False
+            reason[i] = "; ".join(p.words for p in found)
 
 
 def tcp_accuracy(accuracy: AccuracyModel, calibrated: Robot, q: Array, tcp: Array

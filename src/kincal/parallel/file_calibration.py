@@ -29,7 +29,7 @@ from kincal.parallel import residuals as res
 from kincal.parallel.calibration import ROBOT_FREE, FiveBarCalibration, calibrate
 from kincal.parallel.fivebar import FiveBar
 from kincal.parallel.report import fivebar_comparison
-from kincal.parallel.trust import judge_fivebar
+from kincal.parallel.trust import judge_fivebar, reading_refusals
 from kincal.report.metrics import ErrorComparison
 
 __all__ = ["FIVEBAR_METHODS", "FiveBarFileCalibration", "calibrate_fivebar_file",
@@ -164,7 +164,8 @@ def calibrate_fivebar_file(
     comparisons += [fivebar_comparison(result, d.q, d.x, f"validation ({name})",
                                        label="validation") for name, d in held]
     return FiveBarFileCalibration(result, str(data), train.q, train.x, tuple(comparisons),
-                                  judge_fivebar(result, tolerances))
+                                  judge_fivebar(result, tolerances, refusals=reading_refusals(
+                                      result, train.q, str(data), list(train.lines))))
 
 
 def write_fivebar_outputs(result: FiveBarFileCalibration, output: str | Path | None = None,

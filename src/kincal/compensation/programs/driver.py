@@ -312,7 +312,7 @@ def filter_program(path: str | Sequence[str], calibrated: Robot, nominal: Robot,
         ok = bool(result.ok[i])
         status = "filtered" if result.changed[i] else ("not filtered" if not ok else "unchanged")
         reason = result.reason[i]
-        if t.kind == "joints" and not offline_joints:
+        if t.kind == "joints" and not offline_joints and ok:
             status = "kept"
             reason = ("a joint target: taught axis values need no filtering "
                       "(--joint-targets offline corrects offline-programmed ones)")
