@@ -71,7 +71,16 @@ def test_validate_uses_the_calibrated_joint_model(capsys, files):
     code, _, err = run(capsys, *args, "--joint-model", "hysteresis")
     assert code == 0, err
     with_model = json.loads((files / "val.json").read_text())["overall"]["rms_position_m"]
-    code, _, err = run(capsys, *args)
+    code, _, err = run(capsys, *args)              # the joint model the robot file carries
+    assert code == 0, err
+    carried = json.loads((files / "val.json").read_text())["overall"]["rms_position_m"]
+    assert carried == pytest.approx(with_model, rel=1e-9)
+    import yaml
+
+    doc = yaml.safe_load((files / "cal.yaml").read_text())
+    assert doc.pop("joint_model", None) is not None
+    (files / "geometry.yaml").write_text(yaml.safe_dump(doc))
+    code, _, err = run(capsys, "validate", files / "geometry.yaml", *args[2:])
     assert code == 0, err
     without = json.loads((files / "val.json").read_text())["overall"]["rms_position_m"]
     assert with_model < 1.3 * np.sqrt(3) * NOISE < without / 5, (with_model, without)

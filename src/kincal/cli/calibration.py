@@ -66,8 +66,6 @@ from kincal.cli.setupfile import (
 from kincal.defaults import max_iter_for
 from kincal.errors import CheckFailedError, KincalError
 from kincal.io import check_outputs
-from kincal.robots.controller import calibration_zero_shifts
-from kincal.workflow.session import joint_masses
 
 if TYPE_CHECKING:                 # types only: the workflow loads lazily (start-up time)
     from rich.console import Console
@@ -320,6 +318,8 @@ def calibrate_cmd(
         loss=loss, stages=stages, validation_frames=validation_frames, free=free, fix=fix,
         prior=prior, terms=terms, folds=folds if auto else None,
         condition_growth=condition_growth, cycles=cycles, tolerance=tolerance)
+    from kincal.robots.controller import calibration_zero_shifts  # (kincal --help stays light)
+
     shifts = calibration_zero_shifts(r, flow.result.robot)      # None: no controller declared
     extra: dict[str, Any] = {"seconds": flow.seconds}
     if shifts is not None:
@@ -451,6 +451,8 @@ def validate_cmd(
     if terms and not result:
         raise KincalError("--joint-model needs --result: the joint model's coefficients "
                           "come from the calibration")
+    from kincal.workflow.session import joint_masses
+
     masses = joint_masses(robot, base_link, tip_link) if "compliance" in terms else None
     check_options_used(data, units, ignore)
     blocks = with_joint_model(read_blocks(data, r, units, ignore, out), r, terms, masses)
