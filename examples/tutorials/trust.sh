@@ -27,6 +27,23 @@ kincal simulate narrow.yaml -o narrow.csv -n 40 --noise 0.01mm --seed 8
 kincal simulate full.yaml -o everywhere.csv -n 40 --noise 0.01mm --seed 8
 # --8<-- [end:robot]
 
+# --8<-- [start:refusals]
+# the same 40 poses in degrees under the _rad headers; one q2 reading set to 300 deg; one row
+awk -F, 'BEGIN{OFS=","} /^#/ || /^q1_/ {print; next}
+    {for (i = 1; i <= 6; i++) $i = $i * 180 / 3.141592653589793; print}' everywhere.csv \
+    > deg_as_rad.csv
+awk -F, 'BEGIN{OFS=","} /^#/ || /^q1_/ {print; next}
+    {if (++n == 4) $2 = 300 * 3.141592653589793 / 180; print}' everywhere.csv > beyond.csv
+awk '/^#/ || /^q1_/ || ++n == 1' everywhere.csv > one.csv
+for f in deg_as_rad beyond one; do
+    kincal calibrate puma560 --data $f.csv -o cal_$f.yaml > /dev/null 2> $f.err \
+        || echo "$f.csv: exit status $?"
+    fold -s -w 100 $f.err          # (one line each, folded for the page)
+done
+kincal fk puma560 --q 10,20,30,40,50,60 > /dev/null 2> fk.err || echo "fk: exit status $?"
+fold -s -w 100 fk.err
+# --8<-- [end:refusals]
+
 # --8<-- [start:least-squares]
 kincal calibrate puma560 --data narrow.csv --prior none -o ls.yaml || echo "exit status $?"
 ls ls.yaml 2>&1 || true
