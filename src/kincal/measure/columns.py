@@ -25,7 +25,7 @@ one error line listing what there is.
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -72,17 +72,26 @@ class ColumnMap:
     notes: list[str] = field(default_factory=list)
 
 
-def parse_map(text: str, what: str = "joint_names") -> dict[str, str]:
-    """``"a=b, c=d"`` -> ``{"a": "b", "c": "d"}``; one error line for a bad entry."""
-    out: dict[str, str] = {}
+def key_value_pairs(text: str, what: str, form: str, example: str
+                    ) -> Iterator[tuple[str, str, str]]:
+    """The ``KEY=VALUE`` entries of comma-separated ``text`` as ``(key, value, entry)``,
+    blank entries skipped; an entry without ``=`` is one error line naming ``what`` and
+    the expected ``form`` (``example`` shows one)."""
     for part in text.split(","):
         part = part.strip()
         if not part:
             continue
         if "=" not in part:
-            raise MeasurementFileError(f"{what}: {part!r} is not FILE_COLUMN=NAME "
-                                       "(e.g. shoulder_pan_joint=shoulder_pan)")
+            raise MeasurementFileError(f"{what}: {part!r} is not {form} (e.g. {example})")
         k, v = (s.strip() for s in part.split("=", 1))
+        yield k, v, part
+
+
+def parse_map(text: str, what: str = "joint_names") -> dict[str, str]:
+    """``"a=b, c=d"`` -> ``{"a": "b", "c": "d"}``; one error line for a bad entry."""
+    out: dict[str, str] = {}
+    for k, v, part in key_value_pairs(text, what, "FILE_COLUMN=NAME",
+                                      "shoulder_pan_joint=shoulder_pan"):
         if not k or not v:
             raise MeasurementFileError(f"{what}: {part!r} has an empty name")
         if k in out:

@@ -62,7 +62,7 @@ from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
 from kincal.io import atomic_write_text, read_text
-from kincal.measure.columns import map_columns, missing_joints_message
+from kincal.measure.columns import key_value_pairs, map_columns, missing_joints_message
 from kincal.measure.dialect import Dialect, normalise, sniff
 from kincal.robots.hold import held_joints
 from kincal.units import DIMENSIONS, MAX_SI, UNITS
@@ -163,14 +163,8 @@ def parse_units_option(text: str | None, option: str = "--units") -> dict[str, s
     out: dict[str, str] = {}
     if not text:
         return out
-    for part in text.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        if "=" not in part:
-            raise MeasurementFileError(f"option {option}: {part!r} is not COLUMN=UNIT "
-                                       "(e.g. x1=m,arm_1_joint=rad)")
-        k, v = (s.strip() for s in part.split("=", 1))
+    for k, v, _ in key_value_pairs(text, f"option {option}", "COLUMN=UNIT",
+                                   "x1=m,arm_1_joint=rad"):
         if v not in UNITS:
             raise MeasurementFileError(f"option {option}: unknown unit {v!r} for {k!r} "
                                        f"(known: {', '.join(UNITS)})")
