@@ -24,6 +24,21 @@ from kincal.cli.importers import import_app
 from kincal.errors import KincalError
 
 
+def _quality(fit: Any) -> dict[str, Any]:
+    """The quality part of a hand-eye JSON, the same for every mount: expected error
+    (covariance and unmodelled floor, m / rad) and reprojection RMS (px, and m at the
+    board)."""
+    return {"expected_error": {"position_m": fit.expected_position,
+                               "rotation_rad": fit.expected_rotation,
+                               "covariance_position_m": fit.std_position,
+                               "covariance_rotation_rad": fit.std_rotation,
+                               "floor_position_m": fit.floor_position,
+                               "floor_rotation_rad": fit.floor_rotation},
+            "reprojection_rms_px": {"training": fit.train_rms_px,
+                                    "held_out": fit.held_rms_px},
+            "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image}
+
+
 @import_app.command("images")
 def import_images(
     folder: Annotated[str, typer.Argument(help="Folder of board images, or of pose folders "
@@ -110,15 +125,7 @@ def _fit_json(fit: Any, data: str) -> dict[str, Any]:
             "camera_in_tool_frame": {"matrix": fit.X.tolist(),
                                      "frame_m_rad": frame_from_matrix(fit.X).tolist()},
             "closed_form_start": fit.start.X.tolist(), "board_in_base": fit.board.tolist(),
-            "expected_error": {"position_m": fit.expected_position,
-                               "rotation_rad": fit.expected_rotation,
-                               "covariance_position_m": fit.std_position,
-                               "covariance_rotation_rad": fit.std_rotation,
-                               "floor_position_m": fit.floor_position,
-                               "floor_rotation_rad": fit.floor_rotation},
-            "reprojection_rms_px": {"training": fit.train_rms_px,
-                                    "held_out": fit.held_rms_px},
-            "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image,
+            **_quality(fit),
             "flange_rotation_deg": np.asarray(fit.rotation_deg).tolist(),
             "sigma0": fit.result.sigma0, "estimated": fit.result.estimated}
 
@@ -415,13 +422,5 @@ def _lens_json(fit: Any, images: str, mount: str) -> dict[str, Any]:
             "intrinsics": dict(zip(LENS, fit.lens.tolist(), strict=True)),
             "intrinsics_std": dict(zip(LENS, fit.lens_std.tolist(), strict=True)),
             "robot_parameters": {n: {"value": v, "std": s} for n, (v, s) in fit.robot.items()},
-            "expected_error": {"position_m": fit.expected_position,
-                               "rotation_rad": fit.expected_rotation,
-                               "covariance_position_m": fit.std_position,
-                               "covariance_rotation_rad": fit.std_rotation,
-                               "floor_position_m": fit.floor_position,
-                               "floor_rotation_rad": fit.floor_rotation},
-            "reprojection_rms_px": {"training": fit.train_rms_px,
-                                    "held_out": fit.held_rms_px},
-            "held_out_3d_rms_m": fit.held_rms_3d, "held_out_per_image_px": fit.held_per_image,
+            **_quality(fit),
             "flange_rotation_deg": fit.rotation_deg.tolist(), "sigma0": fit.sigma0}
