@@ -27,3 +27,11 @@ kincal calibrate arm.urdf --tip-link tool0 --data arm.csv -o arm_cal.yaml \
 tail -n 2 calibrate.txt
 diff arm.urdf arm_calibrated.urdf || true
 # --8<-- [end:urdf]
+
+# --8<-- [start:refuse]
+kincal ur-kinematics ur3e --nominal ur3e -o ur3e.yaml > /dev/null
+kincal import ur ur3e.yaml --nominal ur3 -o ur3_cal.yaml || echo "exit status $?"
+# the upper arm's frame turned by pi about x
+sed '/upper_arm:/,/roll:/ s/roll: 1.57085[0-9]*/roll: -1.5707414736/' ur5e_kinematics.yaml > turned.yaml
+kincal import ur turned.yaml --nominal ur5e -o turned_cal.yaml || echo "exit status $?"
+# --8<-- [end:refuse]
