@@ -451,12 +451,12 @@ def prior_cmd(
     prior = fleet_prior(records)
     write_fleet_prior(prior, output)
     t = Table(title=f"Fleet prior from {len(prior.serials)} robot(s)")
-    for c in ("parameter", "nominal", "fleet mean", "between robots", "prior (1σ)"):
-        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for c in ("parameter", "unit", "nominal", "fleet mean", "between robots", "prior (1σ)"):
+        t.add_column(c, justify="left" if c in ("parameter", "unit") else "right")
     for p in prior.parameters:
         f, u = display_scale(p.unit)
-        t.add_row(escape(p.name), f"{p.nominal * f:.4f} {u}", f"{p.mean * f:.4f} {u}",
-                  f"{p.spread * f:.4f} {u}", f"{p.std * f:.4f} {u}")
+        t.add_row(escape(p.name), u, f"{p.nominal * f:.4f}", f"{p.mean * f:.4f}",
+                  f"{p.spread * f:.4f}", f"{p.std * f:.4f}")
     out.print(t)
     out.print(f"fleet prior of {len(prior.parameters)} parameter(s) -> {escape(output)} "
               f"(use it as the robot: kincal calibrate {escape(output)} -d DATA ..., or "
