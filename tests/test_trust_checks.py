@@ -208,3 +208,28 @@ def test_the_weak_parameter_table_follows_si(narrow_file, capsys, tmp_path):
     text = " ".join(stdout.split())
     assert "(moves 0.0167" in text and "3.49 rad)" in text        # q5's 0.957 of 200 deg
     assert "0.957" not in text and " deg" not in text
+
+
+@pytest.mark.parametrize("stated", [1.0, 0.05, 0.01])
+def test_noise_stated_far_too_small_is_warned_not_refused(stated):
+    """The same data (0.02 mm noise) with the noise stated right, 10x and 50x too small:
+    sigma0 follows the ratio, and the warning comes exactly when sigma0 is more than 10
+    times what the noise alone explains; the calibration stays trusted (the residual is
+    within what the tolerances allow) and its estimate does not depend on the statement."""
+    from kincal.identify.checks import UNDERSTATED_NOISE
+
+    robot = load_serial_robot("puma560")
+    rng = np.random.default_rng(5)
+    truth = perturb_robot(robot, rng, length_std=1e-4, angle_std=1e-4, offset_std=1e-4)
+    q = random_configurations(robot, 100, rng)
+    block = simulate_positions(truth, q, rng, noise_std=2e-5, sigma=2e-5 * stated)
+    res = calibrate(robot, [block])
+    p = res.problem
+    v = judge(res, resolve_tolerances(p.names, p.units, p.roles).sigma)
+    assert v.trusted, v.line()
+    assert res.sigma0 == pytest.approx(1.0 / stated, rel=0.25)
+    warned = [w for w in v.warnings() if "times the stated noise" in w]
+    assert bool(warned) == (stated < 1 / UNDERSTATED_NOISE / 1.3), (res.sigma0, warned)
+    same = calibrate(robot, [block.__class__(block.q, block.positions, 2e-5, block.name)])
+    assert np.allclose(res.theta, same.theta, atol=1e-12)    # the statement moves nothing
+    assert np.allclose(res.std, same.std, rtol=1e-6)         # std scaled by sigma0

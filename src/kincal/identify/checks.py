@@ -51,6 +51,17 @@ command line prints (exit status 1, no calibrated robot written unless ``--force
   tolerances (``v_tol = 0``, e.g. the folds of a cross-validation) there is no stated
   floor and no residual check.
 
+**Stated noise far too small** (a warning, not a refusal): a residual within the bound
+but more than :data:`UNDERSTATED_NOISE` (10) times what the noise alone explains,
+``sigma0 > 10 sqrt(chi2_d^-1(1 - RESIDUAL_TAIL) / d)``, says that the stated noise is an
+order of magnitude too small (a sigma column of the instrument's resolution, a default
+10 um where no sigma was given) or that errors the model lacks dominate the data.  The
+estimate stands (the standard errors and the predicted accuracy are scaled by the
+residual, not the stated noise), but a user who stated the noise should hear that the
+data do not agree (sigma0 measured: Motoman 6.70, Panda two-socket 2.48, TIAGo with its
+joint model 0.74: no warning; TIAGo without a sigma column 178, a 7-joint arm simulated
+with 1 mm noise stated as 0.02 mm 54: warned).
+
 An encoder offset is held to the same tolerances one step earlier: a robot's encoder
 zeros are set to a fraction of a degree, so an offset that moved more than its tolerance
 (but not beyond the bound) is a loud warning (:meth:`Verdict.warnings`): the zero was
@@ -74,13 +85,16 @@ from kincal.identify.tolerances import PLAUSIBLE
 
 __all__ = ["Verdict", "Implausible", "Refusal", "judge", "ABSURD_STD", "show_quantity",
            "OFFSET_ADVICE", "RESIDUAL_TAIL", "MODEL_FLOOR", "residual_bound",
-           "distinct_equations", "require_free", "UNEXPLAINED_CAUSES"]
+           "distinct_equations", "require_free", "UNEXPLAINED_CAUSES", "UNDERSTATED_NOISE"]
 
 #: Tail probability of the chi-square test of the residual (module docstring).
 RESIDUAL_TAIL = 1e-6
 
 #: Share of the tolerance-level error a good model may leave in the residual.
 MODEL_FLOOR = 0.5
+
+#: A residual this many times what the stated noise explains is warned about.
+UNDERSTATED_NOISE = 10.0
 
 #: What a residual beyond the bound usually means.
 UNEXPLAINED_CAUSES = ("joint values in another unit, swapped or reordered columns, another "
@@ -179,6 +193,8 @@ class Verdict:
         moved: encoder offsets beyond their tolerance but within the bound, worst first
             (trusted, with a warning).
         refusals: data the model cannot explain (:class:`Refusal`), first to report.
+        noise: ``(sigma0, noise-only bound)`` when the residual is more than
+            :data:`UNDERSTATED_NOISE` times what the stated noise explains (a warning).
     """
 
     converged: bool
@@ -187,6 +203,7 @@ class Verdict:
     bound: float = PLAUSIBLE
     moved: list[Implausible] = field(default_factory=list)
     refusals: list[Refusal] = field(default_factory=list)
+    noise: tuple[float, float] | None = None
 
     @property
     def trusted(self) -> bool:
@@ -210,9 +227,17 @@ class Verdict:
         return out
 
     def warnings(self) -> list[str]:
-        """One sentence per encoder offset that moved beyond its tolerance (module
-        docstring)."""
-        return [f"{p.words(self.bound)}: {OFFSET_ADVICE}" for p in self.moved]
+        """One sentence per encoder offset that moved beyond its tolerance, and one when
+        the residual is far beyond the stated noise (module docstring)."""
+        out = [f"{p.words(self.bound)}: {OFFSET_ADVICE}" for p in self.moved]
+        if self.noise is not None:
+            sigma0, alone = self.noise
+            out.append(f"the residuals are {sigma0:.3g} times the stated noise (the noise "
+                       f"alone explains up to {alone:.3g}): the stated noise (sigma column, "
+                       "sigma or point_std option) is too small, or errors the model lacks "
+                       "dominate the data; the standard errors and predicted accuracy are "
+                       "scaled by the residuals, not by the stated noise")
+        return out
 
     def short(self) -> str:
         """A few words for tables: ``"did not converge"``, ``"d[3] 42x its tolerance"``."""
@@ -280,8 +305,27 @@ def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE
                                                          "change", True)))
     bad.sort(key=lambda x: -x[0])
     moved.sort(key=lambda x: -x[0])
+    refusals = _refusals(result, tolerances, data)
     return Verdict(bool(result.converged), str(result.message), [b for _, b in bad], bound,
-                   [m for _, m in moved], _refusals(result, tolerances, data))
+                   [m for _, m in moved], refusals, _understated_noise(result, refusals))
+
+
+def _understated_noise(result: Any, refusals: Sequence[Refusal]
+                       ) -> tuple[float, float] | None:
+    """``(sigma0, noise-only bound)`` when the residual exceeds the noise-only chi-square
+    bound ``sqrt(chi2_d^-1(1 - RESIDUAL_TAIL) / d)`` by :data:`UNDERSTATED_NOISE`, with
+    no refusal already said about the residual; else None."""
+    if refusals or not result.estimated:
+        return None
+    equations, _ = distinct_equations(result.problem.blocks, result.residuals)
+    p_eff = result.effective_parameters
+    p = len(result.estimated)
+    dof = equations - (p if p_eff is None else min(float(p_eff), p))
+    sigma0 = float(result.sigma0)
+    if dof < 1 or not math.isfinite(sigma0):
+        return None
+    alone = math.sqrt(float(chi2.isf(RESIDUAL_TAIL, dof)) / dof)
+    return (sigma0, alone) if sigma0 > UNDERSTATED_NOISE * alone else None
 
 
 def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] | None
