@@ -35,10 +35,10 @@ SCRIPTS = sorted(p.relative_to(ROOT).as_posix() for p in TUTORIALS.iterdir()
 
 def _page_directives() -> list[tuple[str, str, str | None]]:
     found = []
-    for page in sorted(DOCS.rglob("*.md")):
+    for page in pages.site_pages():
         text = page.read_text(encoding="utf-8")
         for m in pages._RUN.finditer(text):
-            found.append((page.relative_to(DOCS).as_posix(), m.group(1), m.group(2)))
+            found.append((page.relative_to(ROOT).as_posix(), m.group(1), m.group(2)))
     return found
 
 
@@ -63,7 +63,7 @@ def test_tutorial_script_runs(script: str) -> None:
         assert normalised(recorded.output) == normalised(run.output), (
             f"{script}: the recorded output differs from a fresh run on the data; record it "
             f"again: python docs/hooks/kincal_pages.py record {script}")
-    for page in sorted(DOCS.rglob("*.md")):
+    for page in pages.site_pages():
         text = page.read_text(encoding="utf-8")
         if script not in pages.scripts_of(text):
             continue
@@ -76,7 +76,7 @@ def test_tutorial_script_runs(script: str) -> None:
 def test_every_page_region_is_generated() -> None:
     """No include or run comment without its generated region (GitHub shows regions only),
     and every code region is the script's lines as they are."""
-    for page in sorted(DOCS.rglob("*.md")):
+    for page in pages.site_pages():
         text = page.read_text(encoding="utf-8")
         assert pages.upgraded(text) == text, (
             f"{page.relative_to(ROOT)}: an include or run comment without its region; run: "

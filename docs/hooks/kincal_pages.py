@@ -379,6 +379,11 @@ def cli_reference() -> str:
 
 # -- the hook ------------------------------------------------------------------------------
 
+def site_pages() -> list[Path]:
+    """Every page that may hold generated regions: the site's and the README."""
+    return sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
+
+
 def scripts_of(markdown: str) -> list[str]:
     """The example scripts a page runs (for their output or the files they write)."""
     return list(dict.fromkeys([*(m.group(1) for m in _RUN.finditer(markdown)),
@@ -485,6 +490,6 @@ if __name__ == "__main__":
             print(f"recorded -> {record(rel).relative_to(ROOT)}")
     else:
         chosen = ([Path(a).resolve() for a in sys.argv[2:]] if len(sys.argv) > 2
-                  else sorted((ROOT / "docs").rglob("*.md")))
+                  else site_pages())
         for page in update(chosen):
             print(f"updated {page.relative_to(ROOT)}")
