@@ -135,7 +135,7 @@ def board_shapes(board: Board) -> Shapes:
         ids = np.asarray(cb.getIds(), dtype=np.int64).reshape(-1)
         corners = np.asarray(cb.getObjPoints(), dtype=float).reshape(-1, 4, 3)
         white = set()
-        for m, cells, q in zip(ids, _dictionary_cells(board, ids), corners, strict=True):
+        for cells, q in zip(_dictionary_cells(board, ids), corners, strict=True):
             centre = q[:, :2].mean(axis=0)
             white.add((int(centre[1] // s), int(centre[0] // s)))
             rects += _marker_cells(cells, float(q[0, 0]), float(q[0, 1]), board.marker)

@@ -136,8 +136,8 @@ class Board:
             return np.column_stack([x, y, np.zeros(len(k))]).astype(float)
         if self.kind in CIRCLE_GRIDS:
             row, col = k // self.columns, k % self.columns
-            x = (2 * col + row % 2) if self.kind == "asymmetric_circles" else col
-            return np.column_stack([x * self.square, row * self.square,
+            step = (2 * col + row % 2) if self.kind == "asymmetric_circles" else col
+            return np.column_stack([step * self.square, row * self.square,
                                     np.zeros(len(k))]).astype(float)
         per_row = self.columns - 1
         return np.column_stack([((k % per_row) + 1) * self.square,
