@@ -250,3 +250,18 @@ def test_circle_board_file_errors(tmp_path: Path) -> None:
         f.write_text(text)
         with pytest.raises(KincalError, match=re.escape(match)):
             read_board(f)
+
+
+def test_without_opencv_boards_without_markers_still_print(tmp_path: Path, capsys,
+                                                           monkeypatch) -> None:
+    """A chessboard and circle grids are plain NumPy; markers need OpenCV's dictionaries:
+    without OpenCV one line says what to install, and nothing is written."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "cv2", None)           # import cv2 -> ImportError
+    code, out, err = run(capsys, "board", "circles", "-o", tmp_path / "c.png", "--dpi", 30)
+    assert code == 0 and (tmp_path / "c.yaml").is_file(), err
+    code, out, err = run(capsys, "board", "charuco", "-o", tmp_path / "m.pdf")
+    assert code == 2 and err.strip().count("\n") == 0 and "kincal[camera]" in err
+    assert "drawing ArUco markers" in err
+    assert not (tmp_path / "m.pdf").exists() and not (tmp_path / "m.yaml").exists()

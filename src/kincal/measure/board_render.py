@@ -95,7 +95,7 @@ def _dictionary_cells(board: Board, ids: NDArray[np.int64]) -> list[NDArray[np.u
     """OpenCV's cell images of markers ``ids`` of the board's dictionary."""
     from kincal.measure.camera_images import aruco_dictionary, require_opencv
 
-    cv2 = require_opencv()
+    cv2 = require_opencv("drawing ArUco markers")
     d = aruco_dictionary(cv2, board.dictionary)
     available = len(d.bytesList)
     if len(ids) and int(ids.max()) >= available:
@@ -125,7 +125,7 @@ def board_shapes(board: Board) -> Shapes:
     elif board.kind == "charuco":
         from kincal.measure.camera_images import aruco_dictionary, require_opencv
 
-        cv2 = require_opencv()
+        cv2 = require_opencv("drawing ArUco markers")
         need = board.columns * board.rows // 2
         d = aruco_dictionary(cv2, board.dictionary)
         if need > len(d.bytesList):

@@ -47,7 +47,8 @@ apart.  A symmetric grid, like a chessboard, has no absolute origin (its 180-deg
 is a valid detection); an asymmetric one with an odd number of rows has.  The circle's
 centre is found as the centre of its blob, which under perspective is not exactly the
 image of the circle's centre: the bias grows with the circle's size in the image and the
-board's tilt (0.1-0.2 px for circles of 20-30 px in an image tilted by 30 deg).
+board's tilt (on rendered images, 0.05 px at most for circles 20-35 px across seen tilted
+by 30 deg).
 
 Corner ``k`` is an inner corner of the square grid, numbered row by row as OpenCV numbers
 ChArUco corners (and chessboard corners); its position in the board frame (z = 0 on the

@@ -62,13 +62,12 @@ __all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrin
            "read_flange_poses", "board_sharpness", "tilt_deg", "drop_oblique"]
 
 
-def require_opencv() -> Any:
-    """``cv2``, or one line telling how to install it (exit 2)."""
+def require_opencv(what: str = "reading board images") -> Any:
+    """``cv2``, or one line telling how to install it for ``what`` (exit 2)."""
     try:
         import cv2
     except ImportError:
-        raise KincalError("reading board images needs OpenCV: pip install "
-                          "'kincal[camera]'") from None
+        raise KincalError(f"{what} needs OpenCV: pip install 'kincal[camera]'") from None
     return cv2
 
 
