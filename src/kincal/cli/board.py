@@ -58,7 +58,12 @@ def _board_of(kind: str, given: dict[str, Any]) -> Any:
         if key in v:
             data[key] = parse_quantity(str(v.pop(key)), "length", f"--{key}", positive=True)
     data.update(v)
-    return board_from_mapping(data, "kincal board")
+    try:
+        return board_from_mapping(data, "")
+    except KincalError as exc:                  # the board file's key -> the option
+        key, _, why = str(exc).partition(": ")
+        opt = "--columns, --rows" if key == _COUNT_KEY[name] else f"--{key}"
+        raise KincalError(f"option {opt}: {why}") from None
 
 
 def _paper(width: float, height: float) -> str:
@@ -149,6 +154,9 @@ def board_command(
     console.print(f"board -> {escape(output)}, board file -> {escape(str(board_file))}")
     console.print("print at 100 % (no 'fit to page'), then check "
                   + ("the spacing" if circles else "a square") + " with a ruler")
+    if b.kind == "asymmetric_circles" and b.rows % 2 == 0:
+        console.print(f"[yellow]note[/yellow]: {b.rows} rows (even): the grid reads the same "
+                      "turned by 180 deg; an odd number of rows gives it one reading")
     if json_out:
         write_json(json_out, {"board": str(out), "board_file": str(board_file),
                               "description": what, "page_mm": [page.width * 1e3,

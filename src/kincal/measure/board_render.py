@@ -165,9 +165,10 @@ def render_pixels(shapes: Shapes, page: Page, dpi: float) -> NDArray[np.uint8]:
     pitch = 0.0254 / dpi
     w = int(math.ceil(page.width / pitch - 1e-9))
     h = int(math.ceil(page.height / pitch - 1e-9))
-    if w * h > 200e6:
-        raise KincalError(f"{w} x {h} pixels is too large an image; lower --dpi")
-    black = np.zeros((h, w))
+    if w * h > 40e6:
+        raise KincalError(f"{w} x {h} pixels is too large an image (40 million at most): "
+                          "lower --dpi, or write the PDF, which has no pixels")
+    black = np.zeros((h, w), dtype=np.float32)
     for x0, y0, x1, y1 in shapes.rects:
         j0, fx = _overlap(x0 + page.ox, x1 + page.ox, w, pitch)
         i0, fy = _overlap(y0 + page.oy, y1 + page.oy, h, pitch)
