@@ -265,3 +265,29 @@ def test_without_opencv_boards_without_markers_still_print(tmp_path: Path, capsy
     assert code == 2 and err.strip().count("\n") == 0 and "kincal[camera]" in err
     assert "drawing ArUco markers" in err
     assert not (tmp_path / "m.pdf").exists() and not (tmp_path / "m.yaml").exists()
+
+
+def test_pdf_squares_are_where_the_board_file_says(tmp_path: Path, capsys) -> None:
+    """The PDF's filled squares (its content stream, in points from the bottom-left
+    corner): 35 black squares of 25 mm on a 7 x 10 chessboard, the first one's top-left
+    corner 10 mm (the margin) from the page's top-left corner."""
+    import zlib
+
+    code, out, err = run(capsys, "board", "chessboard", "-o", tmp_path / "c.pdf")
+    assert code == 0, err
+    raw = (tmp_path / "c.pdf").read_bytes()
+    text = b"".join(zlib.decompress(m.group(1)) for m in
+                    re.finditer(rb"/FlateDecode.*?stream\r?\n(.*?)\r?\nendstream", raw, re.S))
+    num = rb"([-\d.]+) ([-\d.]+)"
+    quads = [np.array(q, dtype=float).reshape(4, 2) for q in re.findall(
+        num + rb" m\s+" + num + rb" l\s+" + num + rb" l\s+" + num + rb" l\s+h", text)]
+    pt = 72 / 25.4                                                   # points per mm
+    height = 270 * pt                                                # 250 mm + 2 margins
+    black = [q for q in quads if np.ptp(q[:, 0]) < 100 * pt]         # not the white page
+    assert len(black) == 35
+    for q in black:
+        assert np.ptp(q[:, 0]) == pytest.approx(25 * pt, abs=1e-4)
+        assert np.ptp(q[:, 1]) == pytest.approx(25 * pt, abs=1e-4)
+    first = min(black, key=lambda q: (-q[:, 1].max(), q[:, 0].min()))
+    assert first[:, 0].min() == pytest.approx(10 * pt, abs=1e-4)
+    assert height - first[:, 1].max() == pytest.approx(10 * pt, abs=1e-4)
