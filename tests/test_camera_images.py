@@ -91,7 +91,7 @@ def test_board_file_forms_and_errors(tmp_path: Path) -> None:
     assert read_board(f) == Board("charuco", 5, 7, 0.034, 0.028, "DICT_6X6_250")
     for text, match in [("type: charuco\nsquares: [5, 7]\nsquare: 34 furlong\nmarker: 2 mm\n",
                          "square: '34 furlong' is not a length"),
-                        ("type: circles\nsquares: [5, 7]\n", "type: 'circles'"),
+                        ("type: ellipses\nsquares: [5, 7]\n", "type: 'ellipses'"),
                         ("type: chessboard\nsquares: [5]\nsquare: 3 cm\n", "squares: two"),
                         ("type: charuco\nsquares: [5, 7]\nsquare: 3 cm\nmarker: 4 cm\n",
                          "smaller than the square")]:

@@ -64,7 +64,7 @@ PRINTS_QUANTITIES = {"show", "fk", "jacobian", "ik", "trajectory", "simulate", "
 
 #: Positional arguments that are not the robot: the command and what they are.
 OTHER_ARGUMENTS = {"compensate": "CALIBRATED", "filter": "PROGRAM", "import ur": "FILE",
-                   "import bag": "BAG", "import images": "FOLDER",
+                   "import bag": "BAG", "import images": "FOLDER", "board": "KIND",
                    "fleet calibrate": "MANIFEST", "fleet history": "SERIAL"}
 
 UNIT_SUFFIX = re.compile(r"[a-z]-(m|mm|cm|um|rad|deg|mrad|urad|arcsec|arcmin|s|ms|px)$")

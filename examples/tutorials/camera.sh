@@ -1,12 +1,17 @@
 #!/usr/bin/env bash
-# Calibrate with a camera (docs/tutorials/camera.md): the real Franka eye-in-hand set, a
-# ChArUco board on the table and a RealSense camera on the hand. Needs the data in
-# ../shared/data and OpenCV (pip install 'kincal[camera]'); exits with status 77
-# (skipped) without the data.
+# Calibrate with a camera (docs/tutorials/camera.md): print a board, then the real Franka
+# eye-in-hand set, a ChArUco board on the table and a RealSense camera on the hand. Needs
+# the data in ../shared/data and OpenCV (pip install 'kincal[camera]'); exits with status
+# 77 (skipped) without the data.
 set -euo pipefail
 # Every command runs as printed from the root of a clone with the data sets in ../shared/data.
 [ -d ../shared/data/camera/franka_eye_in_hand ] \
     || { echo "skipped: no ../shared/data/camera/franka_eye_in_hand" >&2; exit 77; }
+
+# --8<-- [start:board]
+kincal board charuco --columns 5 --rows 7 --square 34mm --marker 28mm -o board.pdf
+cat board.yaml
+# --8<-- [end:board]
 
 # --8<-- [start:import]
 SET=../shared/data/camera/franka_eye_in_hand

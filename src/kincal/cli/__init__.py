@@ -23,7 +23,7 @@ from kincal.errors import KincalError
 #: and kinematics commands a new user tries first, then the calibration flow.
 COMMAND_MODULES = ("kinematics", "motion", "simulate", "calibration", "setupfile",
                    "compensate", "demo", "plan", "export", "fivebar", "filter", "importers",
-                   "camera", "fleet")
+                   "camera", "board", "fleet")
 for _module in COMMAND_MODULES:
     importlib.import_module(f"kincal.cli.{_module}")
 

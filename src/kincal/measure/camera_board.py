@@ -2,7 +2,7 @@
 
 A board is described by a small YAML file (lengths with their unit)::
 
-    type: charuco            # charuco | chessboard
+    type: charuco            # charuco | chessboard (circle and marker grids below)
     squares: [5, 7]          # squares along x (columns) and y (rows)
     square: 34 mm            # side of one square
     marker: 28 mm            # charuco only: side of the ArUco marker in a white square
@@ -24,6 +24,31 @@ has marker ``m`` (OpenCV's GridBoard numbering, ids from 0) at column ``m mod c`
 bottom-left, as OpenCV orders them) has the id ``4 m + j`` and sits at
 ``((m mod c) p + L [j in {1, 2}], floor(m / c) p + L [j in {2, 3}], 0)``, ``L`` the marker
 side, ``p = L + separation`` the pitch.
+
+A grid of printed circles, symmetric (``type: circles``) or asymmetric
+(``type: asymmetric_circles``), dark circles on white::
+
+    type: asymmetric_circles # or circles
+    circles: [4, 11]         # OpenCV's pattern size: circles in a row, number of rows
+    spacing: 20 mm           # see below
+    diameter: 12 mm          # printed circle diameter (for `kincal board`; < the spacing)
+
+has circle ``k`` (OpenCV's ``findCirclesGrid`` order, row by row from 0, ``c`` circles in
+a row) with its centre at::
+
+    circles:             X_k = (k mod c) s,                          Y_k = floor(k / c) s
+    asymmetric_circles:  X_k = (2 (k mod c) + floor(k / c) mod 2) s,  Y_k = floor(k / c) s
+
+``s`` the spacing: on a symmetric grid the distance between neighbouring circles; on an
+asymmetric grid (OpenCV's layout, every other row shifted by half a row pitch) the
+distance between two rows and *half* the distance between two circles of one row, as in
+OpenCV's calibration sample (its ``squareSize``); the nearest circles are ``s sqrt(2)``
+apart.  A symmetric grid, like a chessboard, has no absolute origin (its 180-degree turn
+is a valid detection); an asymmetric one with an odd number of rows has.  The circle's
+centre is found as the centre of its blob, which under perspective is not exactly the
+image of the circle's centre: the bias grows with the circle's size in the image and the
+board's tilt (on rendered images, 0.05 px at most for circles 20-35 px across seen tilted
+by 30 deg).
 
 Corner ``k`` is an inner corner of the square grid, numbered row by row as OpenCV numbers
 ChArUco corners (and chessboard corners); its position in the board frame (z = 0 on the
@@ -56,7 +81,10 @@ from kincal.spatial import exp_so3
 
 Array = NDArray[np.float64]
 
-BOARD_TYPES = ("charuco", "chessboard", "aruco_grid", "apriltag_grid")
+BOARD_TYPES = ("charuco", "chessboard", "aruco_grid", "apriltag_grid", "circles",
+               "asymmetric_circles")
+#: Board kinds whose features are circle centres (OpenCV's ``findCirclesGrid``).
+CIRCLE_GRIDS = ("circles", "asymmetric_circles")
 
 _LENGTH_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "in": 0.0254}
 _DICT_NUMBERS = {10: "DICT_6X6_250", 0: "DICT_4X4_50", 1: "DICT_4X4_100", 2: "DICT_4X4_250",
@@ -69,11 +97,13 @@ class Board:
     """A planar calibration board.
 
     Attributes:
-        kind: ``"charuco"``, ``"chessboard"`` or ``"aruco_grid"`` (ArUco or AprilTag
-            markers).
-        columns, rows: number of squares (markers on a grid) along x and y.
-        square: side of a square [m]; on a marker grid the pitch, marker + separation.
-        marker: side of a ChArUco or grid marker [m] (0 for a chessboard).
+        kind: ``"charuco"``, ``"chessboard"``, ``"aruco_grid"`` (ArUco or AprilTag
+            markers), ``"circles"`` or ``"asymmetric_circles"``.
+        columns, rows: number of squares (markers, circles on a grid) along x and y.
+        square: side of a square [m]; on a marker grid the pitch, marker + separation;
+            on a circle grid the spacing ``s`` (module docstring).
+        marker: side of a ChArUco or grid marker [m] (0 for a chessboard); on a circle
+            grid the circle's diameter [m] (0: not stated).
         dictionary: OpenCV ArUco dictionary name (ChArUco), e.g. ``"DICT_6X6_250"``.
     """
 
@@ -87,9 +117,12 @@ class Board:
     @property
     def num_corners(self) -> int:
         """Inner corners of the square grid: ``(columns - 1) (rows - 1)``; on a marker
-        grid the four corners of every marker, ``4 columns rows``."""
+        grid the four corners of every marker, ``4 columns rows``; on a circle grid the
+        circles, ``columns rows``."""
         if self.kind == "aruco_grid":
             return 4 * self.columns * self.rows
+        if self.kind in CIRCLE_GRIDS:
+            return self.columns * self.rows
         return (self.columns - 1) * (self.rows - 1)
 
     def corner_points(self, ids: ArrayLike) -> Array:
@@ -102,9 +135,57 @@ class Board:
             x = (m % self.columns) * self.square + np.where((c == 1) | (c == 2), self.marker, 0)
             y = (m // self.columns) * self.square + np.where(c >= 2, self.marker, 0)
             return np.column_stack([x, y, np.zeros(len(k))]).astype(float)
+        if self.kind in CIRCLE_GRIDS:
+            row, col = k // self.columns, k % self.columns
+            step = (2 * col + row % 2) if self.kind == "asymmetric_circles" else col
+            return np.column_stack([step * self.square, row * self.square,
+                                    np.zeros(len(k))]).astype(float)
         per_row = self.columns - 1
         return np.column_stack([((k % per_row) + 1) * self.square,
                                 ((k // per_row) + 1) * self.square, np.zeros(len(k))])
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """The printed pattern's box ``(x0, y0, x1, y1)`` in the board frame [m]: the
+        squares of a ChArUco board or a chessboard ``(0, 0, c s, r s)``; the markers of a
+        grid ``(0, 0, c p - g, r p - g)`` (``p`` the pitch, ``g = p - L`` the gap); the
+        circles of a grid, their outer edges (centres of the first and last circle -/+
+        the radius)."""
+        if self.kind == "aruco_grid":
+            gap = self.square - self.marker
+            return (0.0, 0.0, self.columns * self.square - gap, self.rows * self.square - gap)
+        if self.kind in CIRCLE_GRIDS:
+            r = self.marker / 2
+            c = self.corner_points(np.arange(self.num_corners))
+            return (-r, -r, float(c[:, 0].max()) + r, float(c[:, 1].max()) + r)
+        return (0.0, 0.0, self.columns * self.square, self.rows * self.square)
+
+    def description(self) -> dict[str, Any]:
+        """The board file's content (module docstring; lengths as ``'30 mm'``):
+        :func:`read_board` of it gives this board back."""
+        def mm(v: float) -> str:
+            return f"{v * 1e3:.10g} mm"
+        if self.kind == "aruco_grid":
+            april = self.dictionary.upper().startswith("DICT_APRILTAG")
+            return {"type": "apriltag_grid" if april else "aruco_grid",
+                    "markers": [self.columns, self.rows], "marker": mm(self.marker),
+                    "separation": mm(self.square - self.marker),
+                    "dictionary": self.dictionary}
+        if self.kind in CIRCLE_GRIDS:
+            out: dict[str, Any] = {"type": self.kind, "circles": [self.columns, self.rows],
+                                   "spacing": mm(self.square)}
+            return out | ({"diameter": mm(self.marker)} if self.marker > 0 else {})
+        out = {"type": self.kind, "squares": [self.columns, self.rows],
+               "square": mm(self.square)}
+        if self.kind == "charuco":
+            out |= {"marker": mm(self.marker), "dictionary": self.dictionary}
+        return out
+
+
+def board_yaml(board: Board) -> str:
+    """``board``'s description file (YAML, :meth:`Board.description`), headed by a
+    comment saying what reads it."""
+    return ("# kincal board file: kincal import images --board THIS_FILE\n"
+            + yaml.safe_dump(board.description(), sort_keys=False, default_flow_style=None))
 
 
 def _length(value: Any, key: str, source: str) -> float:
@@ -152,6 +233,28 @@ def _grid_board(data: dict[str, Any], kind: str, src: str) -> Board:
     return Board("aruco_grid", int(markers[0]), int(markers[1]), marker + gap, marker, name)
 
 
+def _circle_board(data: dict[str, Any], kind: str, src: str) -> Board:
+    """``circles: [per_row, rows]``, ``spacing`` and the optional ``diameter``."""
+    circles = data.get("circles")
+    least = 2 if kind == "circles" else 1
+    if (not isinstance(circles, list) or len(circles) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= least
+                       for v in circles) or circles[0] * circles[1] < 4
+            or (kind == "asymmetric_circles" and circles[1] < 3)):
+        raise KincalError("circles: two whole numbers (circles in a row, rows), e.g. [4, 11]"
+                          " (4 circles at least; an asymmetric grid has 3 rows at least)",
+                          source=src)
+    if "spacing" not in data:
+        raise KincalError("spacing: missing (a length, e.g. '20 mm')", source=src)
+    spacing = _length(data["spacing"], "spacing", src)
+    diameter = _length(data["diameter"], "diameter", src) if "diameter" in data else 0.0
+    nearest = spacing * (np.sqrt(2.0) if kind == "asymmetric_circles" else 1.0)
+    if diameter >= nearest:
+        raise KincalError(f"diameter: the circles would touch (the nearest centres are "
+                          f"{nearest * 1e3:.4g} mm apart)", source=src)
+    return Board(kind, int(circles[0]), int(circles[1]), spacing, diameter)
+
+
 def read_board(path: str | Path) -> Board:
     """Read a board description (module docstring); a bad file raises one line naming it."""
     src = str(path)
@@ -161,15 +264,23 @@ def read_board(path: str | Path) -> Board:
         raise KincalError("no such board file", source=src) from None
     except yaml.YAMLError as exc:
         raise KincalError(f"not valid YAML ({' '.join(str(exc).split())})", source=src) from None
+    return board_from_mapping(data, src)
+
+
+def board_from_mapping(data: Any, src: str) -> Board:
+    """The board a description's mapping states (module docstring; lengths in metres or
+    with their unit); a bad one raises one line prefixed by ``src``."""
     if not isinstance(data, dict):
         raise KincalError("a board file is a mapping (type, squares, square, ...)", source=src)
     kind = str(data.get("type", "charuco" if "marker_length" in data or "marker" in data
                         else "")).lower()
     if kind not in BOARD_TYPES:
-        raise KincalError(f"type: {kind or '(missing)'!r}; use one of {', '.join(BOARD_TYPES)}"
-                          " (circle grids are not supported yet)", source=src)
+        raise KincalError(f"type: {kind or '(missing)'!r}; use one of {', '.join(BOARD_TYPES)}",
+                          source=src)
     if kind in ("aruco_grid", "apriltag_grid"):
         return _grid_board(data, kind, src)
+    if kind in CIRCLE_GRIDS:
+        return _circle_board(data, kind, src)
     squares = data.get("squares", data.get("board_size"))
     if (not isinstance(squares, list) or len(squares) != 2
             or not all(isinstance(v, int) and v >= 2 for v in squares)):

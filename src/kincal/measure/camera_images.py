@@ -6,8 +6,10 @@ image is read): ChArUco corners by ``cv2.aruco.CharucoDetector``, chessboard cor
 ``cv2.findChessboardCorners``, both refined by ``cv2.cornerSubPix`` (window kept off the
 ChArUco markers, see :func:`_refine`); the corners of ArUco / AprilTag grid markers by
 ``cv2.aruco.ArucoDetector``, refined as the intersections of the markers' edge lines
-(:func:`_edge_refine`). An image is dropped, with its reason, when it cannot be read, the
-board is not found, fewer than ``min_corners`` corners are seen, the board is blurred
+(:func:`_edge_refine`); the centres of symmetric and asymmetric circle grids by
+``cv2.findCirclesGrid`` (:func:`_detect_circles`). An image is dropped, with its reason,
+when it cannot be read, the board is not found, fewer than ``min_corners`` corners are
+seen, the board is blurred
 (:func:`board_sharpness` under ``min_sharpness``, default 0.15 px^-3) or, once the
 intrinsics are known, seen too obliquely (:func:`drop_oblique`: more than 60 deg between
 its normal and the viewing ray by default).
@@ -46,7 +48,7 @@ import yaml
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError, MeasurementFileError
-from kincal.measure.camera_board import Board
+from kincal.measure.camera_board import CIRCLE_GRIDS, Board
 from kincal.measure.instruments.camera import INTRINSICS, HandCameraMeasurement
 from kincal.measure.instruments.csvio import block_tags, write_block_table
 from kincal.units import UNITS
@@ -60,13 +62,12 @@ __all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrin
            "read_flange_poses", "board_sharpness", "tilt_deg", "drop_oblique"]
 
 
-def require_opencv() -> Any:
-    """``cv2``, or one line telling how to install it (exit 2)."""
+def require_opencv(what: str = "reading board images") -> Any:
+    """``cv2``, or one line telling how to install it for ``what`` (exit 2)."""
     try:
         import cv2
     except ImportError:
-        raise KincalError("reading board images needs OpenCV: pip install "
-                          "'kincal[camera]'") from None
+        raise KincalError(f"{what} needs OpenCV: pip install 'kincal[camera]'") from None
     return cv2
 
 
@@ -309,10 +310,39 @@ def _detect_grid(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], 
     return k[order], uv[keep].reshape(-1, 2)[order]
 
 
+def _detect_circles(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
+    """The circle centres of a circle grid by ``cv2.findCirclesGrid`` (flag
+    ``CALIB_CB_SYMMETRIC_GRID`` or ``CALIB_CB_ASYMMETRIC_GRID``; then, if not found, with
+    ``CALIB_CB_CLUSTERING`` as well, which copes better with perspective), ids in its
+    order (:mod:`~kincal.measure.camera_board`).  The blob detector finds dark blobs of
+    any size from 3 px across to a fiftieth of the image area (OpenCV's default stops at
+    5000 px^2, about 80 px across: a board held close to the camera); a centre is the
+    blob's centroid (no corner refinement: there is no corner)."""
+    params = cv2.SimpleBlobDetector_Params()
+    params.filterByColor, params.blobColor = True, 0
+    params.minArea = 7.0
+    params.maxArea = max(float(gray.shape[0] * gray.shape[1]) / 50.0, 100.0)
+    params.minDistBetweenBlobs = 2.0
+    detector = cv2.SimpleBlobDetector_create(params)
+    flag = (cv2.CALIB_CB_ASYMMETRIC_GRID if board.kind == "asymmetric_circles"
+            else cv2.CALIB_CB_SYMMETRIC_GRID)
+    size = (board.columns, board.rows)
+    for flags in (flag, flag + cv2.CALIB_CB_CLUSTERING):
+        found, centres = cv2.findCirclesGrid(gray, size, flags=flags, blobDetector=detector)
+        if found and centres is not None:
+            uv = np.asarray(centres, dtype=float).reshape(-1, 2)
+            return np.arange(len(uv), dtype=np.int64), uv
+    return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+
+
 def detect_board(cv2: Any, gray: Any, board: Board) -> tuple[NDArray[np.int64], Array]:
-    """Corner ids and sub-pixel pixels [px] of ``board`` in a grey image (empty if none)."""
+    """Corner ids and sub-pixel pixels [px] of ``board`` in a grey image (empty if none):
+    the corners of a ChArUco board, a chessboard or a marker grid, the circle centres of
+    a circle grid."""
     if board.kind == "aruco_grid":
         return _detect_grid(cv2, gray, board)
+    if board.kind in CIRCLE_GRIDS:
+        return _detect_circles(cv2, gray, board)
     if board.kind == "charuco":
         d = aruco_dictionary(cv2, board.dictionary)
         cb = cv2.aruco.CharucoBoard((board.columns, board.rows), board.square, board.marker, d)
@@ -466,6 +496,20 @@ def undistort(uv: Array, intr: Intrinsics) -> Array:
     return np.asarray(out, dtype=float).reshape(-1, 2)
 
 
+def _board_note(board: Board) -> str:
+    """The measurement file's comment line naming the board."""
+    size = f"board: {board.kind} {board.columns}x{board.rows}"
+    if board.kind in CIRCLE_GRIDS:
+        return (f"{size} circles, spacing {board.square * 1e3:g} mm; circle centres from "
+                "OpenCV (blob centroids)")
+    if board.kind == "aruco_grid":
+        size += (f" markers of {board.marker * 1e3:g} mm, pitch {board.square * 1e3:g} mm "
+                 f"({board.dictionary})")
+    else:
+        size += f" squares of {board.square * 1e3:g} mm"
+    return size + "; corners from OpenCV, sub-pixel"
+
+
 def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
                              intr: Intrinsics, sigma_px: float = 0.5, robot: Any = None,
                              name: str = "camera") -> HandCameraMeasurement:
@@ -491,11 +535,7 @@ def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
     cols.append(("corner", np.concatenate([d.ids for d in images.detections]), "text"))
     dist = " ".join(f"{v:.6g}" for v in intr.dist)
     write_block_table(path, block_tags("camera", block, mount="hand"), q, cols, None, robot,
-                      [(f"board: {board.kind} {board.columns}x{board.rows} markers of "
-                        f"{board.marker * 1e3:g} mm, pitch {board.square * 1e3:g} mm "
-                        f"({board.dictionary})" if board.kind == "aruco_grid" else
-                        f"board: {board.kind} {board.columns}x{board.rows} squares of "
-                        f"{board.square * 1e3:g} mm") + "; corners from OpenCV, sub-pixel",
+                      [_board_note(board),
                        f"intrinsics {intr.source}; distortion (k1 k2 p1 p2 k3) {dist} "
                        "removed: u = fx x/z + cx, v = fy y/z + cy",
                        f"{len(images.detections)} images, {len(q)} corners; dropped: "
