@@ -137,7 +137,9 @@ def _R(name, axes_deg) -> np.ndarray:
 
 
 KUKA = [n for n in NAMES if n.startswith("kr")]
-ABB = [n for n in NAMES if FIXTURE[n]["repo"].startswith("ros-industrial/abb")]
+ABB = [n for n in NAMES if FIXTURE[n]["repo"].startswith("ros-industrial/abb")
+       and FIXTURE[n]["coupling"] == "identity"]
+YUMI = [n for n in NAMES if FIXTURE[n]["coupling"] == "abb_axis7"]
 FANUC = [n for n in NAMES if FIXTURE[n]["coupling"] == "fanuc_j2_j3"]
 
 
@@ -225,6 +227,40 @@ def test_xarm6_zero_position():
     np.testing.assert_allclose(T[:3, :3], _rpy(math.pi, 0, 0), atol=1e-12)
 
 
+# ABB YuMi: the synchronization position of each arm (RAPID jointtarget [[0, -130, 30, 0, 40, 0],
+# [eax_a, 9E9, ...]] with eax_a = -135 right, +135 left) and the tool0 pose the controller
+# reports there (robtarget in wobj0, as read through Robot Web Services from a YuMi controller
+# and written in users' public YuMi programs: [[-9.578368507, -+182.609892723, 198.627808149],
+# [0.066010726, -+0.842420918, -0.111214912, -+0.523068661], [0, 0, 0, 4], [-+135, ...]]).
+YUMI_SYNC = {"yumi_r": (-135.0, -1.0), "yumi_l": (135.0, 1.0)}
+
+
+@pytest.mark.parametrize("name", YUMI)
+def test_yumi_axis7_is_eax_a_and_sync_position_is_the_controllers(name):
+    robot = load_serial_robot(name)
+    cmap = controller_map(robot)
+    assert cmap.vendor == "abb" and cmap.axes[-1] == "eax_a" and robot.n == 7
+    eax_a, side = YUMI_SYNC[name]
+    axes = np.array([0, -130, 30, 0, 40, 0, eax_a])
+    q = cmap.to_model(axes)
+    # The chain's third joint is axis 7 (the URDF's yumi_joint_7 between joints 2 and 3).
+    np.testing.assert_allclose(np.degrees(q), [0, -130, eax_a, 30, 0, 40, 0], atol=1e-12)
+    T = robot.fk(q)
+    np.testing.assert_allclose(T, urdf_fk(FIXTURE[name], np.radians(
+        [[0, -130, eax_a, 30, 0, 40, 0]]))[0], atol=1e-12)
+    p = np.array([-9.578368507, side * 182.609892723, 198.627808149]) * 1e-3
+    w, x, y, z = 0.066010726, side * 0.842420918, -0.111214912, side * 0.523068661
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    # The URDF is not ABB's calibrated geometry (its shoulder mount has 4-decimal angles):
+    # it agrees with the controller to 1.6 mm (right) / 1.4 mm (left) and 0.16 deg there.
+    # Without its 7 mm flange or its half turn about z the miss would be 7 mm / 180 deg.
+    assert np.linalg.norm(T[:3, 3] - p) < 2e-3
+    angle = math.degrees(math.acos(np.clip((np.trace(R.T @ T[:3, :3]) - 1) / 2, -1, 1)))
+    assert angle < 0.2
+
+
 # --------------------------------------------------------------------------- URDF leaf rule
 def _urdf(tmp_path, joints: list[tuple[str, str, str, str]]) -> Path:
     """A URDF of (name, type, parent, child) joints, each 0.1 m along x, turning about z."""
@@ -291,7 +327,8 @@ def test_cli_robots_search_term(tmp_path):
     res = CliRunner().invoke(app, ["robots", "--search", "collaborative", "--vendor", "abb",
                                    "--json", str(out)])
     assert res.exit_code == 0, res.output
-    assert [r["name"] for r in json.loads(out.read_text())["robots"]] == ["gofa5"]
+    assert [r["name"] for r in json.loads(out.read_text())["robots"]] == ["gofa5", "yumi_l",
+                                                                        "yumi_r"]
 
 
 def test_cli_robots_unknown_vendor_is_one_line_exit_2(capsys):
