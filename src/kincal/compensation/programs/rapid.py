@@ -8,8 +8,8 @@ What is read (RAPID reference manual syntax):
   [[rax_1, ..., rax_6], [eax ...]]`` in deg; a numeric ``eax_a`` (not ``9E9``) is read as
   well: a 7-axis arm (YuMi IRB 14000 / 14050) carries its axis 7 there, in a jointtarget
   and, as the arm angle the controller keeps, in a robtarget; ``tooldata [robhold,
-  [[x, y, z], [q]], load]`` (``robhold`` TRUE: the robot holds the tool); ``wobjdata [robhold, ufprog, ufmec,
-  [[x, y, z], [q]] (user frame), [[x, y, z], [q]] (object frame)]``;
+  [[x, y, z], [q]], load]`` (``robhold`` TRUE: the robot holds the tool); ``wobjdata
+  [robhold, ufprog, ufmec, [[x, y, z], [q]] (user frame), [[x, y, z], [q]] (object frame)]``;
 * motion instructions ``MoveJ``, ``MoveL``, ``MoveC`` (a circle point and an end point),
   ``MoveAbsJ``, the ``...DO``/``...Sync`` and ``Trigg`` variants, with a named or an inline
   target, the tool argument and ``\\WObj:=``; ``tool0`` and ``wobj0`` are the flange and
