@@ -59,6 +59,9 @@ if TYPE_CHECKING:
 #: Singularity margins: wrist centre within 20 mm of axis 1, elbow within 2 deg of
 #: stretched or folded (|Y| / r3 = sine of that angle), wrist within 2 deg of aligned.
 SINGULARITY_MARGINS = (0.020, math.sin(math.radians(2.0)), math.sin(math.radians(2.0)))
+#: Robots without configuration rules: a correction that turns a joint by more than this
+#: [rad] (calibration corrections move joints by tenths of a degree) is near a singularity.
+SINGULAR_SWING = math.radians(5.0)
 #: A joint within this distance of a limit [rad] is flagged.
 LIMIT_MARGIN = math.radians(2.0)
 
@@ -354,8 +357,11 @@ def _calibrated_joints(calibrated: Robot, nominal: Robot, flange: Array, q_nom: 
     if fixed is not None and solve.size:
         pinned = np.any(~np.isnan(fixed[solve]), axis=1)
         for i in solve[pinned].tolist():
-            qi, conv = refine(calibrated, flange[i][None], q_nom[i][None],
-                              free=np.isnan(fixed[i]))
+            free = np.isnan(fixed[i])
+            qi, conv = refine(calibrated, flange[i][None], q_nom[i][None], free=free)
+            if not conv[0]:     # near a singularity: let it go further, step 3 judges it
+                qi, conv = refine(calibrated, flange[i][None], q_nom[i][None], free=free,
+                                  max_iter=100, max_move=np.inf)
             q_cal[i] = qi[0]
             if not conv[0]:
                 ok[i] = False
@@ -429,13 +435,16 @@ def _configuration_checks(conf_obj: Configurator, nominal: Robot, t: _Targets, q
 
 def _continuation_checks(nominal: Robot, t: _Targets, q_nom: Array, q_cal: Array,
                          good: NDArray[np.intp], work: NDArray[np.intp], ok: NDArray[np.bool_],
-                         reason: list[str], flange_out: Array) -> NDArray[np.intp]:
+                         reason: list[str], flange_out: Array, warnings: list[list[str]]
+                         ) -> NDArray[np.intp]:
     """Step 3 for a robot without configuration rules (no closed form, e.g. a 7-axis arm):
     the calibrated joints must be the continuous continuation of the nominal ones
     (:func:`~kincal.compensation.configuration.continuation_problems`, on the free joints
     of targets that prescribe some); a target whose corrected joints left the branch is
-    not filtered ("configuration changed"), its flange pose restored.  Returns the targets
-    still good."""
+    not filtered ("configuration changed"), its flange pose restored.  One that continues
+    it but turns a joint by more than :data:`SINGULAR_SWING` for a calibration-sized
+    correction is near a singularity (two axes nearly aligned trade a large turn).
+    Returns the targets still good."""
     free = np.isnan(t.fixed[good])
     problems = [""] * len(good)
     for mask in np.unique(free, axis=0):
@@ -449,7 +458,11 @@ def _continuation_checks(nominal: Robot, t: _Targets, q_nom: Array, q_cal: Array
             ok[i] = False
             reason[i] = words
     flange_out[work[~ok[work]]] = t.flange[work[~ok[work]]]
-    return good[ok[good]]
+    good = good[ok[good]]
+    swing = np.max(np.abs(q_cal[good] - q_nom[good]), axis=1) if good.size else np.zeros(0)
+    for k in np.flatnonzero(swing > SINGULAR_SWING).tolist():
+        warnings[int(good[k])].append("near a singularity")
+    return good
 
 
 def _tcp_shifts(t: _Targets, flange_out: Array, offline_joints: bool) -> tuple[Array, Array]:
@@ -505,7 +518,7 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
                                      reason, warnings, signs, flange_out)
     elif good.size:
         good = _continuation_checks(nominal, t, q_nom, q_cal, good, work, ok, reason,
-                                    flange_out)
+                                    flange_out, warnings)
     lim = calibrated.joint_limits
     if good.size:
         close = np.any((q_cal[good] - lim[:, 0] < LIMIT_MARGIN)
