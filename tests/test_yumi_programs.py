@@ -205,3 +205,13 @@ def test_offline_jointtarget_gets_all_seven_axes(calibrated, tmp_path, capsys):
     assert new[6] != old[6] and np.max(np.abs(new - old)) < 0.2
     np.testing.assert_allclose(fk(model(new) + np.radians(ZERO_SHIFT_DEG)), fk(model(old)),
                                atol=4e-6)
+
+
+def test_jointtarget_without_axis_7_is_listed_not_filtered(calibrated, tmp_path, capsys):
+    src = tmp_path / "YumiRight.mod"
+    src.write_text(PROGRAM.replace("[-110.0000,9E+09", "[9E+09,9E+09"), encoding="utf-8")
+    out = tmp_path / "out" / "YumiRight.mod"
+    code, stdout, err = run(capsys, "filter", src, "--robot", calibrated, "--nominal", "yumi_r",
+                            "-o", out, "--joint-targets", "offline")
+    assert code == 1 and "Traceback" not in err
+    assert "jAbove" in err and "without axis 7" in err and err.count("\n") == 1

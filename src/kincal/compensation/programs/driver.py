@@ -276,7 +276,7 @@ def _prescribed_joints(t: ProgramTarget, cmap: ControllerMap, n: int) -> Array |
     """(n,) model joints a pose target prescribes through a controller axis it also
     carries (NaN: free), or None: RAPID's ``eax_a`` of a 7-axis ABB arm (the arm angle,
     axis 7), mapped by the joint map to the model joint it alone drives."""
-    given = [k for k, name in enumerate(cmap.axes) if name in t.slots]
+    given = [k for k, name in enumerate(cmap.axes) if name == "eax_a" and name in t.slots]
     if not given:
         return None
     fixed = np.full(n, np.nan)
@@ -314,6 +314,10 @@ def filter_program(path: str | Sequence[str], calibrated: Robot, nominal: Robot,
     extra_axes = tuple(a for a in cmap.axes[len(ops.joint_keys):] if d == "rapid")
     if extra_axes == ("eax_a",):          # a 7-axis ABB arm: axis 7 is eax_a
         ops = replace(ops, joint_keys=ops.joint_keys + extra_axes)
+        for t in prog.targets:
+            if t.kind == "joints" and t.slots and "eax_a" not in t.slots and not t.note:
+                t.note = ("a jointtarget of a 7-axis arm without axis 7 (its eax_a is 9E9 "
+                          "or missing)")
     if cmap.vendor and cmap.vendor != _VENDOR[d]:
         raise KincalError(f"robot {nominal.name!r} has a {cmap.vendor} controller, but the "
                           f"program is {d}")
