@@ -17,6 +17,12 @@ Joint targets (axis values taught on the real robot) stay as they are; as
 offline-programmed ones (computed with the nominal model) they become
 ``q' = f_cal^-1(f_nom(q))`` on the same branch.
 
+On a robot without configuration rules (no closed form: 7-axis arms, wrist offsets)
+the calibrated joints must be the continuous continuation of the nominal ones
+(:func:`~kincal.compensation.configuration.continuation_problems`), else the target is
+"configuration changed" and left unchanged.  A target may prescribe joints (a 7-axis
+ABB arm's axis 7, RAPID's ``eax_a``): both solutions keep them.
+
 Warnings per target: unreachable (left unchanged), branch change (the calibrated
 solution has another configuration than asked: the controller would not reproduce
 it), near a singularity (shoulder, elbow or wrist margin below
