@@ -90,3 +90,27 @@ def test_yumi_correction_across_the_wrist_singularity_is_refused():
     assert q[2] == far[2]
     np.testing.assert_allclose(cal.fk(q), req[1].flange, atol=1e-10)
     np.testing.assert_allclose(q, far - np.array([0, 0, 0, 0, 0, d, 0]), atol=1e-9)
+
+
+def test_iiwa_correction_through_the_stretched_elbow_is_refused():
+    # The iiwa's elbow (A4) at 0.11 deg from stretched; the calibration moves A4's zero by
+    # 0.57 deg, so the exact corrected joints have A4 on the other side of the stretched
+    # arm, where the 6 x 7 Jacobian (nearly: the URDF's 0.44 mm offsets) loses rank.  The
+    # numerical IK (no closed form) follows it; the filter refuses the target.
+    robot = load_serial_robot("lbr_iiwa7")
+    q = np.array([0.2, 0.5, 0.1, 0.002, 0.3, -0.6, 0.1])
+    cal = robot.with_params({"A4.offset": robot.params()["A4.offset"] - 0.01})
+    req = TargetRequest("pose", flange=robot.fk(q), seed=q)
+    res = filter_targets(cal, robot, [req])
+    np.testing.assert_allclose(cal.fk(res.joints[0]), req.flange, atol=1e-9)
+    # Independently: the smallest singular value (numpy's SVD) along the joint path dips
+    # to nearly zero between the two ends.
+    path = q + np.linspace(0, 1, 201)[:, None] * (res.joints[0] - q)
+    s6 = np.linalg.svd(robot.jacobian(path), compute_uv=False)[:, 5]
+    assert s6.min() < 0.05 * min(s6[0], s6[-1])
+    assert not res.ok[0] and not res.changed[0]
+    assert res.reason[0].startswith("configuration changed: the corrected joints lie across")
+    # 3 deg from stretched the same correction keeps the side and is made.
+    q[3] = np.radians(3.0)
+    res = filter_targets(cal, robot, [TargetRequest("pose", flange=robot.fk(q), seed=q)])
+    assert res.ok[0] and res.changed[0] and res.joints[0][3] > 0
