@@ -197,3 +197,77 @@ class Configurator:
         for k, (lo, hi) in conf.intervals.items():
             ok &= (ax[:, k] >= lo - 1e-9) & (ax[:, k] <= hi + 1e-9)
         return ok
+
+
+#: The straight joint path from the nominal to the corrected joints is checked at this many
+#: points (ends included).
+CONTINUATION_SAMPLES = 17
+#: Along that path the flange may leave the nominal target by at most this factor times the
+#: correction plus :data:`CONTINUATION_SLACK` (position [m], rotation [rad]): a continuation
+#: moves it nearly straight (second-order terms ~ |dq|^2 x arm length, nanometres for the
+#: sub-degree corrections of a calibration).
+CONTINUATION_FACTOR = 1.5
+CONTINUATION_SLACK = (1e-4, 1e-3)
+
+
+def jacobian_signature(J: Array) -> Array:
+    """The orientation of a full-rank Jacobian ``J`` (N, 6, m), m = 6 or 7: (N, 1) ``det J``
+    for m = 6; for m = 7 the (N, 7) vector of signed maximal minors ``c_k = (-1)^k det J_k``
+    (``J_k``: column k removed), which spans the null space of J (``J c = 0``, Cramer).  Both
+    vanish exactly where J loses rank and change sign (``c`` turns into ``-c``) where the arm
+    passes through such a singularity; elsewhere they vary continuously."""
+    N, _, m = J.shape
+    if m == 6:
+        return np.asarray(np.linalg.det(J), float)[:, None]
+    if m != 7:
+        raise KincalError(f"jacobian_signature: 6 or 7 free joints, not {m}")
+    cols = [np.linalg.det(np.delete(J, k, axis=2)) * (-1.0) ** k for k in range(m)]
+    return np.stack(cols, axis=1)
+
+
+def continuation_problems(robot: Robot, q_from: Array, q_to: Array,
+                          free: NDArray[np.bool_] | None = None,
+                          samples: int = CONTINUATION_SAMPLES) -> list[str]:
+    """Whether the joints ``q_to`` (N, n) [rad] are the continuous continuation of ``q_from``
+    on any serial chain (no closed form needed): ``""`` where they are, else the reason.
+
+    Along the straight joint path ``q(s) = q_from + s (q_to - q_from)``, s in [0, 1]:
+
+    1. the flange ``T(s) = f(q(s))`` stays near the target: ``|p(s) - p(0)| <= 1.5 |p(1) -
+       p(0)| + 0.1 mm`` and ``angle(R(s) R(0)^T) <= 1.5 angle(R(1) R(0)^T) + 1e-3 rad`` (a
+       solution on another branch reaches the same pose through a far-away path);
+    2. no singularity is crossed: the Jacobian's signature (:func:`jacobian_signature` of
+       the ``free`` columns, default all) keeps its sign from sample to sample; where a
+       chain has another number of free joints only test 1 is made.
+    """
+    q_from = np.atleast_2d(np.asarray(q_from, float))
+    q_to = np.atleast_2d(np.asarray(q_to, float))
+    N, n = q_from.shape
+    s = np.linspace(0.0, 1.0, samples)
+    path = q_from[:, None, :] + s[None, :, None] * (q_to - q_from)[:, None, :]
+    flat = path.reshape(N * samples, n)
+    T = robot.fk(flat).reshape(N, samples, 4, 4)
+    dp = np.linalg.norm(T[:, :, :3, 3] - T[:, :1, :3, 3], axis=2)
+    rel = np.einsum("nsij,nkj->nsik", T[:, :, :3, :3], T[:, 0, :3, :3])
+    dr = np.arccos(np.clip((np.trace(rel, axis1=2, axis2=3) - 1.0) / 2.0, -1.0, 1.0))
+    far_p = dp.max(axis=1) > CONTINUATION_FACTOR * dp[:, -1] + CONTINUATION_SLACK[0]
+    far_r = dr.max(axis=1) > CONTINUATION_FACTOR * dr[:, -1] + CONTINUATION_SLACK[1]
+    cols = np.ones(n, bool) if free is None else np.asarray(free, bool)
+    flip = np.zeros(N, bool)
+    if int(cols.sum()) in (6, 7):
+        J = robot.jacobian(flat)[:, :, cols]
+        sig = jacobian_signature(J).reshape(N, samples, -1)
+        flip = np.any(np.sum(sig[:, 1:] * sig[:, :-1], axis=2) < 0.0, axis=1)
+    out = [""] * N
+    for i in range(N):
+        if flip[i]:
+            out[i] = ("configuration changed: the corrected joints lie across a singularity "
+                      "of the arm (the Jacobian's minors change sign between the nominal and "
+                      "the corrected joints)")
+        elif far_p[i] or far_r[i]:
+            out[i] = (f"configuration changed: the corrected joints are on another branch "
+                      f"(on the way from the nominal joints the flange leaves the target by "
+                      f"{dp[i].max() * 1e3:.3g} mm / {math.degrees(dr[i].max()):.3g} deg "
+                      f"for a {dp[i, -1] * 1e3:.3g} mm / {math.degrees(dr[i, -1]):.3g} deg "
+                      "correction)")
+    return out

@@ -17,6 +17,12 @@ Joint targets (axis values taught on the real robot) stay as they are; as
 offline-programmed ones (computed with the nominal model) they become
 ``q' = f_cal^-1(f_nom(q))`` on the same branch.
 
+On a robot without configuration rules (no closed form: 7-axis arms, wrist offsets)
+the calibrated joints must be the continuous continuation of the nominal ones
+(:func:`~kincal.compensation.configuration.continuation_problems`), else the target is
+"configuration changed" and left unchanged.  A target may prescribe joints (a 7-axis
+ABB arm's axis 7, RAPID's ``eax_a``): both solutions keep them.
+
 Warnings per target: unreachable (left unchanged), branch change (the calibrated
 solution has another configuration than asked: the controller would not reproduce
 it), near a singularity (shoulder, elbow or wrist margin below
@@ -39,7 +45,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.compensation.compensate import _check_compatible, compensate
-from kincal.compensation.configuration import Configuration, Configurator
+from kincal.compensation.configuration import (
+    Configuration,
+    Configurator,
+    continuation_problems,
+)
 from kincal.motion.ik import solve_ik
 from kincal.motion.ik_closed_form import NotThisFamily
 from kincal.motion.ik_wrist import check_wrist_family, ik_spherical_wrist
@@ -55,6 +65,9 @@ if TYPE_CHECKING:
 #: Singularity margins: wrist centre within 20 mm of axis 1, elbow within 2 deg of
 #: stretched or folded (|Y| / r3 = sine of that angle), wrist within 2 deg of aligned.
 SINGULARITY_MARGINS = (0.020, math.sin(math.radians(2.0)), math.sin(math.radians(2.0)))
+#: Robots without configuration rules: a correction that turns a joint by more than this
+#: [rad] (calibration corrections move joints by tenths of a degree) is near a singularity.
+SINGULAR_SWING = math.radians(5.0)
 #: A joint within this distance of a limit [rad] is flagged.
 LIMIT_MARGIN = math.radians(2.0)
 
@@ -72,6 +85,9 @@ class TargetRequest:
         seed: (n,) model joints the controller would start from (the previous joint
             target), or None.
         tool: (4, 4) the tool frame (flange to TCP), to measure shifts at the TCP.
+        fixed: (n,) model joint values [rad] the target prescribes (NaN: free), e.g. a
+            7-axis ABB arm's axis 7 from the robtarget's eax_a: the nominal and the
+            calibrated solution keep them, the other joints are solved.
     """
 
     kind: str
@@ -80,6 +96,7 @@ class TargetRequest:
     config: Configuration | None = None
     seed: Array | None = None
     tool: Array = field(default_factory=lambda: np.eye(4))
+    fixed: Array | None = None
 
 
 @dataclass
@@ -116,16 +133,22 @@ class FilterResult:
     signs: Array
 
 
-def refine(robot: Robot, F: Array, q0: Array, tol: float = 1e-11, max_iter: int = 20
+def refine(robot: Robot, F: Array, q0: Array, tol: float = 1e-11, max_iter: int = 20,
+           free: NDArray[np.bool_] | None = None, max_move: float = 0.5
            ) -> tuple[Array, NDArray[np.bool_]]:
     """Newton's method for ``f(q) = F`` from a nearby ``q0`` (N, n), batched.
 
     ``q <- q + J(q)^-1 e(q)`` with ``e = [p_F - p(q); log(R_F R(q)^T)]`` and ``J`` the
     geometric Jacobian (base frame): quadratic convergence from the nominal solution,
     which is millimetres away.  Returns ``(q, converged)``: converged when ``|e_p| <= tol``
-    [m] and ``|e_o| <= tol`` [rad]; a singular or diverging row is not converged.
+    [m] and ``|e_o| <= tol`` [rad]; a singular or diverging row, or one that moved more
+    than ``max_move`` [rad] from ``q0``, is not converged.  ``free`` (n,) selects the
+    joints that move (six of them; the others keep their ``q0`` values, e.g. a 7-axis
+    ABB arm's axis 7 given by the program).
     """
     from kincal.spatial import pose_error
+
+    cols = np.ones(robot.n, bool) if free is None else np.asarray(free, bool)
 
     q = np.array(q0, dtype=float)
     done = np.zeros(len(q), bool)
@@ -141,13 +164,15 @@ def refine(robot: Robot, F: Array, q0: Array, tol: float = 1e-11, max_iter: int 
         move = todo[~small]
         if move.size == 0:
             break
-        J = robot.jacobian(q[move])
+        J = robot.jacobian(q[move])[:, :, cols]
         try:
             dq = np.linalg.solve(J, e[~small][:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:
             break
-        q[move] += np.clip(dq, -0.2, 0.2)
-    ok = done & np.all(np.isfinite(q), axis=1) & (np.max(np.abs(q - q0), axis=1) < 0.5)
+        step = np.zeros((move.size, robot.n))
+        step[:, cols] = np.clip(dq, -0.2, 0.2)
+        q[move] += step
+    ok = done & np.all(np.isfinite(q), axis=1) & (np.max(np.abs(q - q0), axis=1) < max_move)
     return q, ok
 
 
@@ -171,15 +196,73 @@ def _unreachable_words(who: str, why: str, miss: float = math.nan) -> str:
     return f"unreachable by {who}: {why or 'no joint solution found'}{far}"
 
 
+def _in_intervals(cmap: ControllerMap, q: Array, conf: Configuration | None) -> bool:
+    """Whether the model joints q (n,) [rad] have the axis intervals of ``conf`` (ABB's
+    quadrants of axes 1, 4, 6, ...): the part of a configuration any chain has."""
+    if conf is None or not conf.intervals:
+        return True
+    ax = cmap.to_axes(q[None])[0] * cmap.scale
+    return all(lo - 1e-9 <= ax[k] <= hi + 1e-9 for k, (lo, hi) in conf.intervals.items())
+
+
+def _fixed_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
+                     confs: Sequence[Configuration | None], seeds: Array, fixed: Array
+                     ) -> tuple[Array, NDArray[np.bool_], list[str]]:
+    """The nominal joints of targets that prescribe some joints (``fixed`` (N, n), NaN
+    free; six free joints): Newton on the free joints from the seed, then from the middle
+    of the limits, the first solution inside the limits and the configuration's axis
+    intervals."""
+    N, n = fixed.shape
+    q = np.zeros((N, n))
+    ok = np.zeros(N, bool)
+    reason = [""] * N
+    lim = nominal.joint_limits
+    starts = [seeds, np.broadcast_to(lim.mean(axis=1), (N, n))]
+    for i in range(N):
+        free = np.isnan(fixed[i])
+        if int(free.sum()) != 6:
+            reason[i] = (f"unreachable: {n - int(free.sum())} prescribed joints leave "
+                         f"{int(free.sum())} free, the pose needs 6")
+            continue
+        for start in starts:
+            q0 = np.where(free, start[i], fixed[i])
+            qi, conv = refine(nominal, F[i][None], q0[None], max_iter=100, free=free,
+                              max_move=np.inf)
+            inside = bool(np.all((qi[0] >= lim[:, 0] - 1e-9) & (qi[0] <= lim[:, 1] + 1e-9)))
+            if conv[0] and inside and _in_intervals(cmap, qi[0], confs[i]):
+                q[i], ok[i] = qi[0], True
+                break
+        if not ok[i]:
+            conf = confs[i]
+            reason[i] = ("unreachable: no joint solution with the prescribed "
+                         + ", ".join(nm for nm, f in zip(nominal.joint_names, free, strict=True)
+                                     if not f)
+                         + (f" and configuration {conf.text}" if conf is not None else "")
+                         + " inside the joint limits found from the previous joints")
+    return q, ok, reason
+
+
 def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
-                      confs: Sequence[Configuration | None], seeds: Array
+                      confs: Sequence[Configuration | None], seeds: Array,
+                      fixed: Array | None = None
                       ) -> tuple[Array, NDArray[np.bool_], list[str]]:
-    """The nominal controller's joints for flange poses F (N, 4, 4): ``(q, ok, reason)``."""
+    """The nominal controller's joints for flange poses F (N, 4, 4): ``(q, ok, reason)``;
+    ``fixed`` (N, n): joints a target prescribes (NaN: free), :func:`_fixed_solutions`."""
     N = len(F)
     q = np.zeros((N, nominal.n))
     ok = np.zeros(N, bool)
     reason = [""] * N
-    asked = np.array([c is not None for c in confs], bool)
+    pinned = (np.zeros(N, bool) if fixed is None
+              else np.any(~np.isnan(fixed), axis=1))
+    if pinned.any():
+        assert fixed is not None
+        pin = [int(i) for i in np.flatnonzero(pinned)]
+        qp, okp, rp = _fixed_solutions(nominal, cmap, F[pin], [confs[i] for i in pin],
+                                       seeds[pin], fixed[pin])
+        q[pin], ok[pin] = qp, okp
+        for k, i in enumerate(pin):
+            reason[i] = rp[k]
+    asked = np.array([c is not None for c in confs], bool) & ~pinned
     if not (_closed_form(nominal) and cmap.vendor in ("kuka", "abb", "fanuc")):
         asked[:] = False               # no closed form: every target by the numerical IK
     if asked.any():
@@ -195,7 +278,7 @@ def nominal_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
                 reason[i] = (f"unreachable: no joint solution with configuration "
                              f"{asked_conf.text} inside the joint limits" if anyr else
                              "unreachable: outside the robot's workspace")
-    rest = np.flatnonzero(~asked)
+    rest = np.flatnonzero(~asked & ~pinned)
     if rest.size:
         num = solve_ik(nominal, F[rest], q0=seeds[rest], mask="pose", tol_position=1e-10,
                        tol_orientation=1e-10)
@@ -219,6 +302,7 @@ class _Targets:
     seeds: Array
     confs: list[Configuration | None]
     tools: Array
+    fixed: Array
 
 
 def _as_arrays(nominal: Robot, requests: Sequence[TargetRequest], offline_joints: bool
@@ -242,7 +326,11 @@ def _as_arrays(nominal: Robot, requests: Sequence[TargetRequest], offline_joints
                       for r in requests]).reshape(N, n)
     confs: list[Configuration | None] = [r.config if r.kind == "pose" else None for r in requests]
     tools = np.array([r.tool for r in requests]).reshape(N, 4, 4)
-    return _Targets(flange_in, joints_in, pose, seeds, confs, tools)
+    fixed = np.full((N, n), np.nan)
+    for i, r in enumerate(requests):
+        if r.kind == "pose" and r.fixed is not None:
+            fixed[i] = r.fixed
+    return _Targets(flange_in, joints_in, pose, seeds, confs, tools, fixed)
 
 
 def _nominal_joints(nominal: Robot, cmap: ControllerMap, t: _Targets, work: NDArray[np.intp],
@@ -255,7 +343,8 @@ def _nominal_joints(nominal: Robot, cmap: ControllerMap, t: _Targets, work: NDAr
         seeds_w = t.seeds[work].copy()
         jt_mask = ~t.pose[work]
         seeds_w[jt_mask] = t.joints[work][jt_mask]
-        qn, okn, rn = nominal_solutions(nominal, cmap, t.flange[work], w_confs, seeds_w)
+        qn, okn, rn = nominal_solutions(nominal, cmap, t.flange[work], w_confs, seeds_w,
+                                        t.fixed[work])
         q_nom[work], ok[work] = qn, okn
         for k, i in enumerate(work.tolist()):
             reason[i] = rn[k]
@@ -263,12 +352,29 @@ def _nominal_joints(nominal: Robot, cmap: ControllerMap, t: _Targets, work: NDAr
 
 
 def _calibrated_joints(calibrated: Robot, nominal: Robot, flange: Array, q_nom: Array,
-                       solve: NDArray[np.intp], ok: NDArray[np.bool_], reason: list[str]
-                       ) -> Array:
+                       solve: NDArray[np.intp], ok: NDArray[np.bool_], reason: list[str],
+                       fixed: Array | None = None) -> Array:
     """Step 2: ``q = f_cal^-1(F)`` for the targets ``solve``, Newton from the nominal
     joints, the general IK where Newton does not converge; marks a target the calibrated
-    robot cannot reach, or reaches only beyond a joint limit, in ``ok`` / ``reason``."""
+    robot cannot reach, or reaches only beyond a joint limit, in ``ok`` / ``reason``.
+    Targets with prescribed joints (``fixed`` rows not all NaN) keep them: Newton on the
+    free joints only."""
     q_cal = q_nom.copy()
+    if fixed is not None and solve.size:
+        pinned = np.any(~np.isnan(fixed[solve]), axis=1)
+        for i in solve[pinned].tolist():
+            free = np.isnan(fixed[i])
+            qi, conv = refine(calibrated, flange[i][None], q_nom[i][None], free=free)
+            if not conv[0]:     # near a singularity: let it go further, step 3 judges it
+                qi, conv = refine(calibrated, flange[i][None], q_nom[i][None], free=free,
+                                  max_iter=100, max_move=np.inf)
+            q_cal[i] = qi[0]
+            if not conv[0]:
+                ok[i] = False
+                reason[i] = ("unreachable by the calibrated robot: no solution near the "
+                             "nominal joints with the prescribed axes")
+        _beyond_limits(calibrated, q_cal, solve[pinned], ok, reason)
+        solve = solve[~pinned]
     if not solve.size:
         return q_cal
     q_new, conv = refine(calibrated, flange[solve], q_nom[solve])
@@ -282,13 +388,19 @@ def _calibrated_joints(calibrated: Robot, nominal: Robot, flange: Array, q_nom: 
             if not comp.success[k]:
                 ok[i] = False
                 reason[i] = _unreachable_words("the calibrated robot", comp.reason[k])
+    _beyond_limits(calibrated, q_cal, solve, ok, reason)
+    return q_cal
+
+
+def _beyond_limits(calibrated: Robot, q_cal: Array, solve: NDArray[np.intp],
+                   ok: NDArray[np.bool_], reason: list[str]) -> None:
+    """A calibrated solution beyond a joint limit is not filtered."""
     lim = calibrated.joint_limits
     outside = np.any((q_cal[solve] < lim[:, 0] - 1e-9) | (q_cal[solve] > lim[:, 1] + 1e-9),
                      axis=1)
     for i in solve[outside & ok[solve]].tolist():
         ok[i] = False
         reason[i] = "joint limits: the calibrated robot would need a joint beyond its limit"
-    return q_cal
 
 
 def _configuration_checks(conf_obj: Configurator, nominal: Robot, t: _Targets, q_nom: Array,
@@ -323,6 +435,38 @@ def _configuration_checks(conf_obj: Configurator, nominal: Robot, t: _Targets, q
     near = (m[:, 0] < SINGULARITY_MARGINS[0]) | (m[:, 1] / r3 < SINGULARITY_MARGINS[1]) \
         | (m[:, 2] < SINGULARITY_MARGINS[2])
     for k in np.flatnonzero(near).tolist():
+        warnings[int(good[k])].append("near a singularity")
+    return good
+
+
+def _continuation_checks(nominal: Robot, t: _Targets, q_nom: Array, q_cal: Array,
+                         good: NDArray[np.intp], work: NDArray[np.intp], ok: NDArray[np.bool_],
+                         reason: list[str], flange_out: Array, warnings: list[list[str]]
+                         ) -> NDArray[np.intp]:
+    """Step 3 for a robot without configuration rules (no closed form, e.g. a 7-axis arm):
+    the calibrated joints must be the continuous continuation of the nominal ones
+    (:func:`~kincal.compensation.configuration.continuation_problems`, on the free joints
+    of targets that prescribe some); a target whose corrected joints left the branch is
+    not filtered ("configuration changed"), its flange pose restored.  One that continues
+    it but turns a joint by more than :data:`SINGULAR_SWING` for a calibration-sized
+    correction is near a singularity (two axes nearly aligned trade a large turn).
+    Returns the targets still good."""
+    free = np.isnan(t.fixed[good])
+    problems = [""] * len(good)
+    for mask in np.unique(free, axis=0):
+        rows = np.flatnonzero(np.all(free == mask, axis=1))
+        found = continuation_problems(nominal, q_nom[good[rows]], q_cal[good[rows]], mask)
+        for k, words in zip(rows.tolist(), found, strict=True):
+            problems[k] = words
+    for k, words in enumerate(problems):
+        if words:
+            i = int(good[k])
+            ok[i] = False
+            reason[i] = words
+    flange_out[work[~ok[work]]] = t.flange[work[~ok[work]]]
+    good = good[ok[good]]
+    swing = np.max(np.abs(q_cal[good] - q_nom[good]), axis=1) if good.size else np.zeros(0)
+    for k in np.flatnonzero(swing > SINGULAR_SWING).tolist():
         warnings[int(good[k])].append("near a singularity")
     return good
 
@@ -366,7 +510,8 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
     ok = np.ones(N, bool)
     reason = [""] * N
     q_nom = _nominal_joints(nominal, cmap, t, work, ok, reason)
-    q_cal = _calibrated_joints(calibrated, nominal, t.flange, q_nom, work[ok[work]], ok, reason)
+    q_cal = _calibrated_joints(calibrated, nominal, t.flange, q_nom, work[ok[work]], ok, reason,
+                               t.fixed)
     flange_out = t.flange.copy()
     good = work[ok[work]]
     flange_out[good] = nominal.fk(q_cal[good])
@@ -378,9 +523,8 @@ def filter_targets(calibrated: Robot, nominal: Robot, requests: Sequence[TargetR
         good = _configuration_checks(conf_obj, nominal, t, q_nom, q_cal, good, work, ok,
                                      reason, warnings, signs, flange_out)
     elif good.size:
-        jump = np.max(np.abs(q_cal[good] - q_nom[good]), axis=1)
-        for k in np.flatnonzero(jump > 0.5).tolist():
-            warnings[int(good[k])].append("branch change")
+        good = _continuation_checks(nominal, t, q_nom, q_cal, good, work, ok, reason,
+                                    flange_out, warnings)
     lim = calibrated.joint_limits
     if good.size:
         close = np.any((q_cal[good] - lim[:, 0] < LIMIT_MARGIN)

@@ -32,7 +32,8 @@ AXES = {"kuka": ["A1", "A2", "A3", "A4", "A5", "A6"],
         "kuka_lbr": ["A1", "A2", "A3", "A4", "A5", "A6", "A7"],
         "xarm6": ["J1", "J2", "J3", "J4", "J5", "J6"],
         "xarm7": ["J1", "J2", "J3", "J4", "J5", "J6", "J7"],
-        "kinova": [f"joint_{i}" for i in range(1, 8)]}
+        "kinova": [f"joint_{i}" for i in range(1, 8)],
+        "yumi": ["rax_1", "rax_2", "eax_a", "rax_3", "rax_4", "rax_5", "rax_6"]}
 
 INFO = {
     "kr10r1100sixx": ("kuka", "KUKA", "KUKA KR 10 R1100 sixx (KR AGILUS), 6R industrial arm"),
@@ -57,6 +58,8 @@ INFO = {
     "xarm6": ("xarm6", "UFACTORY", "UFACTORY xArm 6, 6R collaborative arm"),
     "xarm7": ("xarm7", "UFACTORY", "UFACTORY xArm 7, 7R collaborative arm"),
     "gen3": ("kinova", "Kinova", "Kinova Gen3 (7 DoF), 7R collaborative arm"),
+    "yumi_r": ("yumi", "ABB", "ABB YuMi IRB 14000, right arm (ROB_R), 7R collaborative arm"),
+    "yumi_l": ("yumi", "ABB", "ABB YuMi IRB 14000, left arm (ROB_L), 7R collaborative arm"),
 }
 
 NOTES = {
@@ -98,6 +101,16 @@ NOTES = {
                "Kortex API reports joint angles in 0 ... 360 deg: for the limited joints 2, 4 "
                "and 6 subtract 360 from values above 180. The end frame is Kinova's "
                "EndEffector_Link (the tool flange, z out of it)."),
+    "yumi": ("Joint variables are ABB's (deg): rax_1 ... rax_6 and axis 7, which RAPID carries "
+             "in the external axis eax_a of a jointtarget and of a robtarget (the arm angle). "
+             "In the chain axis 7 sits between axes 2 and 3 (model joints rax_1, rax_2, eax_a, "
+             "rax_3 ... rax_6); the controller map lists the axes in RAPID's order. Frame 0 is "
+             "the YuMi's world (body) frame on the mounting surface, in which both arms' "
+             "robtargets are written (wobj0); the end frame is tool0, the flange the gripper "
+             "is bolted to. At the synchronization position (axes 0, -130, 30, 0, 40, 0, "
+             "axis 7 -135 right / +135 left) the URDF's numbers put tool0 within 2 mm and "
+             "0.2 deg of the pose the controller reports (the URDF's shoulder mount is "
+             "given to 4 decimals and is not ABB's calibrated geometry)."),
 }
 
 
@@ -163,6 +176,9 @@ def build(name: str, spec: dict) -> str:
         src += " and the base_link -> base offset (FANUC's world frame at J2)"
     elif key == "yaskawa":
         src += " and the base_link -> base offset"
+    if key == "yumi":
+        src += (" and the gripper mount on link_7 in yumi_description/urdf/yumi.urdf.xacro "
+                "(tool0: 7 mm along z, turned 180 deg about z)")
     src += ". Lengths are the URDF's, in m."
     if key == "fanuc":
         src += (" J2/J3 coupling: ROS-Industrial's fanuc driver with J23_factor = 1 (joint_3 = "
@@ -170,7 +186,7 @@ def build(name: str, spec: dict) -> str:
     if spec["limit_unit"] == "rad":
         src += (" The URDF gives the limits in rad to a few decimals; they are written here in "
                 "deg, as the whole degree they round.")
-    if spec.get("rpy"):
+    if spec.get("rpy") and key != "yumi":
         src += (" The URDF writes the joint origins' quarter turns as 1.5708 rad; they are "
                 "exact multiples of pi/2 here (the axes are perpendicular by design).")
     if key == "abb" and t0["rpy"] == [0, 0, 0]:
@@ -191,6 +207,11 @@ def build(name: str, spec: dict) -> str:
                              "joints": {"joint_1": {"J1": 1}, "joint_2": {"J2": 1},
                                         "joint_3": {"J2": 1, "J3": 1}, "joint_4": {"J4": 1},
                                         "joint_5": {"J5": 1}, "joint_6": {"J6": 1}}}
+    elif key == "yumi":
+        out["controller"] = {"vendor": "abb",
+                             "axes": ["rax_1", "rax_2", "rax_3", "rax_4", "rax_5", "rax_6",
+                                      "eax_a"], "unit": "deg",
+                             "joints": {n: {n: 1} for n in names}}
     elif key in ("kuka_lbr", "xarm6", "xarm7", "kinova"):
         out["controller"] = {"axes": names, "unit": "deg"}
     elif key == "yaskawa":

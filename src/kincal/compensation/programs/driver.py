@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -198,7 +198,9 @@ def _previous_joints(t: ProgramTarget, ops: DialectOps, prog: Any, frames: Frame
     if "after" in prev.extra and seed is not None:
         return nearest_branch(nominal, F, seed)
     start = np.zeros(nominal.n) if seed is None else seed
-    q, ok, _ = nominal_solutions(nominal, cmap, F[None], [prev.config], start[None])
+    fixed = _prescribed_joints(prev, cmap, nominal.n)
+    q, ok, _ = nominal_solutions(nominal, cmap, F[None], [prev.config], start[None],
+                                 None if fixed is None else fixed[None])
     return q[0] if ok[0] else fallback
 
 
@@ -255,15 +257,35 @@ def _requests(prog: Any, ops: DialectOps, frames: Frames, nominal: Robot, cmap: 
             continue
         F = user @ ops.pose_of(t) @ inverse(tool)
         seed = last_joints
+        fixed = _prescribed_joints(t, cmap, nominal.n)
+        if fixed is not None and seed is not None:
+            seed = np.where(np.isnan(fixed), seed, fixed)
         if "seed_axes" in t.extra:          # URScript get_inverse_kin(pose, qnear=q)
             seed = last_joints = cmap.to_model(t.extra["seed_axes"])
         if "after" in t.extra:          # monitoring off: the branch nearest the previous target
             before = _previous_joints(t, ops, prog, frames, nominal, cmap, last_joints)
             seed = None if before is None else nearest_branch(nominal, F, before)
         rows[id(t)] = len(requests)
-        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=seed, tool=tool))
+        requests.append(TargetRequest("pose", flange=F, config=t.config, seed=seed, tool=tool,
+                                      fixed=fixed))
         tools.append((user, tool))
     return rows, requests, tools, refused
+
+
+def _prescribed_joints(t: ProgramTarget, cmap: ControllerMap, n: int) -> Array | None:
+    """(n,) model joints a pose target prescribes through a controller axis it also
+    carries (NaN: free), or None: RAPID's ``eax_a`` of a 7-axis ABB arm (the arm angle,
+    axis 7), mapped by the joint map to the model joint it alone drives."""
+    given = [k for k, name in enumerate(cmap.axes) if name == "eax_a" and name in t.slots]
+    if not given:
+        return None
+    fixed = np.full(n, np.nan)
+    for k in given:
+        for j in np.flatnonzero(cmap.matrix[:, k]).tolist():
+            if np.count_nonzero(cmap.matrix[j]) == 1:
+                fixed[j] = (cmap.matrix[j, k] * t.slots[cmap.axes[k]].value * cmap.scale
+                            + cmap.offset[j])
+    return fixed
 
 
 def _unfiltered_report(t: ProgramTarget, refused: dict[int, str]) -> TargetReport:
@@ -289,6 +311,13 @@ def filter_program(path: str | Sequence[str], calibrated: Robot, nominal: Robot,
     prog = ops.read(path)
     frames = frames or Frames({}, {})
     cmap = controller_map(nominal, _VENDOR[d])
+    extra_axes = tuple(a for a in cmap.axes[len(ops.joint_keys):] if d == "rapid")
+    if extra_axes == ("eax_a",):          # a 7-axis ABB arm: axis 7 is eax_a
+        ops = replace(ops, joint_keys=ops.joint_keys + extra_axes)
+        for t in prog.targets:
+            if t.kind == "joints" and t.slots and "eax_a" not in t.slots and not t.note:
+                t.note = ("a jointtarget of a 7-axis arm without axis 7 (its eax_a is 9E9 "
+                          "or missing)")
     if cmap.vendor and cmap.vendor != _VENDOR[d]:
         raise KincalError(f"robot {nominal.name!r} has a {cmap.vendor} controller, but the "
                           f"program is {d}")

@@ -5,9 +5,11 @@ What is read (RAPID reference manual syntax):
 * data declarations ``[LOCAL|TASK] CONST|PERS|VAR robtarget|jointtarget|tooldata|wobjdata
   name := [...];``: ``robtarget [[x, y, z], [q1, q2, q3, q4], [cf1, cf4, cf6, cfx],
   [eax_a, ..., eax_f]]`` in mm with a unit quaternion (``q1`` = w); ``jointtarget
-  [[rax_1, ..., rax_6], [eax ...]]`` in deg; ``tooldata [robhold, [[x, y, z], [q]], load]``
-  (``robhold`` TRUE: the robot holds the tool); ``wobjdata [robhold, ufprog, ufmec,
-  [[x, y, z], [q]] (user frame), [[x, y, z], [q]] (object frame)]``;
+  [[rax_1, ..., rax_6], [eax ...]]`` in deg; a numeric ``eax_a`` (not ``9E9``) is read as
+  well: a 7-axis arm (YuMi IRB 14000 / 14050) carries its axis 7 there, in a jointtarget
+  and, as the arm angle the controller keeps, in a robtarget; ``tooldata [robhold,
+  [[x, y, z], [q]], load]`` (``robhold`` TRUE: the robot holds the tool); ``wobjdata
+  [robhold, ufprog, ufmec, [[x, y, z], [q]] (user frame), [[x, y, z], [q]] (object frame)]``;
 * motion instructions ``MoveJ``, ``MoveL``, ``MoveC`` (a circle point and an end point),
   ``MoveAbsJ``, the ``...DO``/``...Sync`` and ``Trigg`` variants, with a named or an inline
   target, the tool argument and ``\\WObj:=``; ``tool0`` and ``wobj0`` are the flange and
@@ -175,9 +177,22 @@ def _robtarget(path: str, text: str, name: str, node: Any, at: int) -> ProgramTa
     cf = _numbers(path, text, node[2], 4, at, "robtarget confdata")
     slots = dict(zip(("x", "y", "z", "q1", "q2", "q3", "q4", "cf1", "cf4", "cf6", "cfx"),
                      p + q + cf, strict=True))
+    slots.update(_eax_a(node[3]))
     line, col = position(text, p[0].start)
     conf = abb_configuration(*(int(round(s.value)) for s in cf))
     return ProgramTarget(name, path, line, col, "pose", slots, conf)
+
+
+#: An external axis value at or above this [deg / mm] is RAPID's "not used" (9E9).
+_UNUSED_AXIS = 8e9
+
+
+def _eax_a(extax: Any) -> dict[str, Slot]:
+    """``{"eax_a": slot}`` when the first external axis of ``extax`` is a used number."""
+    if isinstance(extax, list) and extax and isinstance(extax[0], Slot) \
+            and abs(extax[0].value) < _UNUSED_AXIS:
+        return {"eax_a": extax[0]}
+    return {}
 
 
 def _jointtarget(path: str, text: str, name: str, node: Any, at: int) -> ProgramTarget:
@@ -185,7 +200,9 @@ def _jointtarget(path: str, text: str, name: str, node: Any, at: int) -> Program
         raise fail(path, text, at, "a jointtarget is [[rax_1, ..., rax_6], [extax]]")
     j = _numbers(path, text, node[0], 6, at, "jointtarget robax")
     line, col = position(text, j[0].start)
-    return ProgramTarget(name, path, line, col, "joints", dict(zip(JOINT_KEYS, j, strict=True)))
+    slots = dict(zip(JOINT_KEYS, j, strict=True))
+    slots.update(_eax_a(node[1]))
+    return ProgramTarget(name, path, line, col, "joints", slots)
 
 
 def _split_args(code: str, start: int) -> tuple[list[tuple[int, str]], int]:
