@@ -62,3 +62,10 @@ kincal filter zelle3.ls --robot m10ia_cal.yaml --nominal m10ia --frames fanuc_fr
     -o filtered/zelle3.ls || echo "exit status $?"
 diff zelle3.ls filtered/zelle3.ls || true
 # --8<-- [end:fanuc]
+
+# --8<-- [start:yumi]
+cp examples/tutorials/files/YumiRight.mod examples/tutorials/files/yumi_r_cal.yaml .
+kincal filter YumiRight.mod --robot yumi_r_cal.yaml --nominal yumi_r \
+    -o filtered/YumiRight.mod || echo "exit status $?"
+diff YumiRight.mod filtered/YumiRight.mod || true
+# --8<-- [end:yumi]
