@@ -28,10 +28,10 @@ from the detections by ``cv2.calibrateCamera`` (pinhole + k1 k2 p1 p2 k3).  The 
 is ROS's ``distortion_model``: ``plumb_bob`` / ``rational_polynomial`` (OpenCV's
 radial-tangential, 4, 5 or 8 coefficients) or ``equidistant`` (OpenCV's fisheye, k1 k2 k3
 k4; in an OpenCV YAML ``fisheye_model: 1`` as OpenCV's calibration sample writes it).
-The file holds *undistorted* pixels, ``u = fx x / z + cx``, ``v = fy y / z + cy`` (the pinhole model of
-:mod:`kincal.measure.instruments.camera`, ``mount=hand``), one row per corner: the joint
-values, the corner's position on the board ``target_x/y/z``, ``u, v``, the intrinsics,
-``sigma`` and the bookkeeping columns ``image`` and ``corner`` (its id).
+The file holds *undistorted* pixels, ``u = fx x / z + cx``, ``v = fy y / z + cy`` (the
+pinhole model of :mod:`kincal.measure.instruments.camera`, ``mount=hand``), one row per
+corner: the joint values, the corner's position on the board ``target_x/y/z``, ``u, v``,
+the intrinsics, ``sigma`` and the bookkeeping columns ``image`` and ``corner`` (its id).
 """
 
 from __future__ import annotations
