@@ -485,9 +485,10 @@ def estimate_intrinsics(images: ImageSet, board: Board,
         raise KincalError(f"{len(images.detections)} images with the board: estimating "
                           "intrinsics needs 3 at least; give them with --intrinsics")
     if model == "equidistant":
-        obj64 = [board.corner_points(d.ids).reshape(-1, 1, 3) for d in images.detections]
-        img64 = [d.uv.reshape(-1, 1, 2).astype(np.float64) for d in images.detections]
-        flags = cv2.fisheye.CALIB_RECOMPUTE_EXTRINSIC | cv2.fisheye.CALIB_FIX_SKEW
+        obj64 = [board.corner_points(d.ids).reshape(1, -1, 3) for d in images.detections]
+        img64 = [d.uv.reshape(1, -1, 2).astype(np.float64) for d in images.detections]
+        flags = sum(getattr(cv2.fisheye, f, None) or getattr(cv2, f)   # 4.x | 5.x
+                    for f in ("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW"))
         crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
         try:
             rms, K, dist, _, _ = cv2.fisheye.calibrate(obj64, img64, images.size, None, None,
