@@ -11,6 +11,7 @@ to the printed board), detected and calibrated by ``kincal hand-eye --lens fishe
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -171,11 +172,13 @@ def _render(cv2, B: np.ndarray, rays: np.ndarray, rng: np.random.Generator) -> n
     """The printed board (100 px per square, 20 px white margin) seen through the fisheye:
     each output pixel's ray (``rays``, (H W, 3), on z = 1) meets the board plane at
     ``t ray`` with ``t = n . T / n . ray``; its board coordinates pick the printed pixel
-    (bilinear), then blur (sigma 0.7 px) and noise (2 grey levels)."""
+    (bilinear, the print blurred by 1 px against aliasing), then blur (sigma 0.7 px) and
+    noise (2 grey levels)."""
     px, margin = 100, 20
     d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_6X6_250)
     flat = np.pad(cv2.aruco.CharucoBoard((5, 7), BOARD.square, BOARD.marker, d)
                   .generateImage((5 * px, 7 * px)), margin, constant_values=255)
+    flat = cv2.GaussianBlur(flat, (0, 0), 1.0)      # no aliasing where squares shrink
     n, T = B[:3, 2], B[:3, 3]
     t = (n @ T) / (rays @ n)
     p = (t[:, None] * rays - T) @ B[:3, :3]
@@ -191,8 +194,8 @@ def _render(cv2, B: np.ndarray, rays: np.ndarray, rng: np.random.Generator) -> n
 
 def test_cli_fisheye_from_rendered_images(tmp_path: Path, capsys) -> None:
     """10 images rendered through the fisheye (no intrinsics given: cv2.fisheye.calibrate
-    starts the fit; the two views the detector misses near the image's rim are dropped
-    with the reason): the lens and the hand-eye within their stated uncertainty."""
+    starts the fit; the views where the detector misses most corners near the image's
+    rim are dropped with the reason): the lens and the hand-eye within their stated uncertainty."""
     cv2 = pytest.importorskip("cv2")
     from cli_helpers import run
 
@@ -215,7 +218,9 @@ def test_cli_fisheye_from_rendered_images(tmp_path: Path, capsys) -> None:
                          "--json", tmp_path / "f.json")
     assert code == 0, err
     assert "cv2.fisheye.calibrate" in out and "intrinsics (fisheye, equidistant)" in out
-    assert "8 images with the board, 2 dropped" in out
+    found = re.search(r"(\d+) images with the board, (\d+) dropped", out)
+    assert found and int(found[1]) >= 7 and int(found[1]) + int(found[2]) == 10, out
+    assert int(found[2]) == out.count("too few corners") + out.count("board not found")
     fit = json.loads((tmp_path / "f.json").read_text())
     assert fit["lens_model"] == "fisheye"
     for k, name in enumerate(("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4")):

@@ -42,7 +42,8 @@ def _quality(fit: Any) -> dict[str, Any]:
 @import_app.command("images")
 def import_images(
     folder: Annotated[str, typer.Argument(help="Folder of board images, or of pose folders "
-                                          "each with image.png and data.json.")],
+                                          "each with image.png and data.json, or a ROS bag "
+                                          "(with --image-topic).")],
     board: Annotated[str, typer.Option("--board", help="Board description YAML (type, "
                                        "squares, square, marker, dictionary).")],
     output: Annotated[str, typer.Option("-o", "--output", help="kincal measurement CSV to "
@@ -65,6 +66,16 @@ def import_images(
                                                  "contrast^2, px^-3).")] = 0.15,
     max_tilt: Annotated[str, typer.Option("--max-tilt", help="Drop an image whose board is "
                                           "tilted more from the viewing ray.")] = "60deg",
+    image_topic: Annotated[str | None, typer.Option("--image-topic", help="ROS bag: the "
+                                                    "sensor_msgs/Image or CompressedImage "
+                                                    "topic.")] = None,
+    joint_topic: Annotated[str, typer.Option("--joint-topic", help="ROS bag: the "
+                                             "sensor_msgs/JointState topic.")
+                           ] = "/joint_states",
+    max_gap: Annotated[str, typer.Option("--max-gap", help="ROS bag: drop an image without "
+                                         "joint states this near on both sides.")] = "20ms",
+    max_speed: Annotated[str, typer.Option("--max-speed", help="ROS bag: drop an image taken "
+                                           "while a joint moves faster.")] = "0.01rad/s",
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
@@ -93,7 +104,11 @@ def import_images(
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
     tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
-    images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
+    if image_topic is not None or joints is None and _is_bag(folder):
+        images = _bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
+                             joints, min_corners, min_sharpness)
+    else:
+        images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
     images = drop_oblique(images, b, intr, tilt)
     block = write_image_measurements(output, images, b, intr,
@@ -114,6 +129,32 @@ def import_images(
                            "dist": list(intr.dist), "source": intr.source},
             "images": [{"image": d.image, "corners": len(d.ids)} for d in images.detections],
             "dropped": [{"image": i, "reason": why} for i, why in images.dropped]})
+
+
+def _is_bag(path: str) -> bool:
+    from kincal.measure.camera_bags import is_bag
+
+    return is_bag(path)
+
+
+def _bag_images(bag: str, board: Any, image_topic: str | None, joint_topic: str,
+                max_gap: str, max_speed: str, robot: Any, joints: str | None,
+                min_corners: int, min_sharpness: float) -> Any:
+    """``kincal import images BAG --image-topic T``: :mod:`kincal.measure.camera_bags`."""
+    from kincal.cli.importers import _speed
+    from kincal.measure.camera_bags import ImageBagOptions, read_image_bag
+    from kincal.units import parse_quantity
+
+    if image_topic is None:
+        raise KincalError("a ROS bag: give the images' topic with --image-topic TOPIC",
+                          source=bag)
+    if joints is not None:
+        raise KincalError("--joints: a bag's joint values come from --joint-topic")
+    opt = ImageBagOptions(parse_quantity(max_gap, "time", "--max-gap", positive=True),
+                          _speed(max_speed, "--max-speed"))
+    return read_image_bag(bag, board, image_topic, joint_topic, opt,
+                          list(robot.joint_names) if robot is not None else None,
+                          min_corners, min_sharpness)
 
 
 def _fit_json(fit: Any, data: str) -> dict[str, Any]:

@@ -59,7 +59,7 @@ Array = NDArray[np.float64]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 __all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrinsics",
-           "detect_images", "write_image_measurements", "read_image_labels",
+           "detect_images", "detect_gray", "write_image_measurements", "read_image_labels",
            "read_flange_poses", "board_sharpness", "tilt_deg", "drop_oblique"]
 
 
@@ -418,6 +418,22 @@ def drop_oblique(images: ImageSet, board: Board, intr: Intrinsics,
     return ImageSet(keep, dropped, images.size, images.intrinsics, images.notes)
 
 
+def detect_gray(cv2: Any, gray: Any, board: Board, min_corners: int = 6,
+                min_sharpness: float = MIN_SHARPNESS) -> tuple[NDArray[np.int64], Array] | str:
+    """The corner ids and pixels [px] of ``board`` in one grey image, or why it is dropped:
+    board not found, fewer than ``min_corners`` corners, or blurred
+    (:func:`board_sharpness` under ``min_sharpness``)."""
+    ids, uv = detect_board(cv2, gray, board)
+    if len(ids) == 0:
+        return "board not found"
+    if len(ids) < min_corners:
+        return f"too few corners ({len(ids)} < {min_corners})"
+    if (sharp := board_sharpness(cv2, gray, uv)) < min_sharpness:
+        return (f"motion blur (sharpness {sharp:.2g} < {min_sharpness:g} px^-3: variance of "
+                "the Laplacian on the board x corner spacing / contrast^2)")
+    return ids, uv
+
+
 def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] | None = None,
                   min_corners: int = 6, require_joints: bool = True,
                   min_sharpness: float = MIN_SHARPNESS) -> ImageSet:
@@ -455,17 +471,11 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
             out.dropped.append((label, "cannot be read as an image"))
             continue
         out.size = (int(gray.shape[1]), int(gray.shape[0]))
-        ids, uv = detect_board(cv2, gray, board)
-        if len(ids) == 0:
-            out.dropped.append((label, "board not found"))
-        elif len(ids) < min_corners:
-            out.dropped.append((label, f"too few corners ({len(ids)} < {min_corners})"))
-        elif (sharp := board_sharpness(cv2, gray, uv)) < min_sharpness:
-            out.dropped.append((label, f"motion blur (sharpness {sharp:.2g} < "
-                                       f"{min_sharpness:g} px^-3: variance of the Laplacian"
-                                       " on the board x corner spacing / contrast^2)"))
+        found = detect_gray(cv2, gray, board, min_corners, min_sharpness)
+        if isinstance(found, str):
+            out.dropped.append((label, found))
         else:
-            out.detections.append(Detection(label, ids, uv, q))
+            out.detections.append(Detection(label, *found, q))
     if given:
         first = given[0]
         if any(g.pinhole != first.pinhole or g.dist != first.dist for g in given[1:]):
