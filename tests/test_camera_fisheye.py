@@ -117,6 +117,29 @@ def test_intrinsics_files_equidistant(tmp_path: Path) -> None:
     fs.release()
     i = read_intrinsics(ocv)
     assert i.model == "equidistant" and np.allclose(i.dist, FISH[4:])
+    # the measurement file's pinhole pixels: the fisheye's distortion removed
+    from kincal.measure.camera_images import undistort
+
+    x = np.column_stack([np.linspace(-1.2, 1.2, 9), np.linspace(0.8, -0.8, 9), np.ones(9)])
+    pin = x[:, :2] / x[:, 2:] * FISH[:2] + FISH[2:4]
+    assert np.abs(undistort(project_fisheye(x, FISH), i) - pin).max() < 1e-6
+
+
+def test_lens_option_follows_the_start_intrinsics() -> None:
+    from kincal.identify.hand_eye_lens import FISHEYE, LENS, lens_start
+    from kincal.measure.camera_images import Intrinsics
+
+    fish = Intrinsics(250.0, 251.0, 322.0, 238.0, (0.06, -0.03, 0.012, -0.004), "f.yaml",
+                      "equidistant")
+    model, lens0, fitted = lens_start(fish, "all")
+    assert model == "fisheye" and fitted == FISHEYE and np.array_equal(lens0, FISH)
+    assert lens_start(fish, "pinhole")[2] == FISHEYE[:4] and lens_start(fish, "none")[2] == ()
+    radtan = Intrinsics(900.0, 901.0, 640.0, 360.0, (0.1, -0.2, 0.0, 0.0), "cam.yaml")
+    model, lens0, fitted = lens_start(radtan, "all")
+    assert model == "radtan" and fitted == LENS and lens0[-1] == 0.0 and len(lens0) == 9
+    with pytest.raises(KincalError, match="--lens fisheye: the start intrinsics .cam.yaml. "
+                       "are a plumb_bob lens"):
+        lens_start(radtan, "fisheye")
 
 
 def _corners_in_view(B: np.ndarray, pts: np.ndarray, margin: float) -> np.ndarray | None:

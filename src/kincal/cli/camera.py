@@ -104,7 +104,7 @@ def import_images(
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
     tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
-    if image_topic is not None or joints is None and _is_bag(folder):
+    if image_topic is not None or (joints is None and _is_bag(folder)):
         images = _bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
                              joints, min_corners, min_sharpness)
     else:
@@ -126,7 +126,8 @@ def import_images(
         write_json(json_out, {
             "folder": folder, "output": output, "board": b.__dict__,
             "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
-                           "dist": list(intr.dist), "source": intr.source},
+                           "dist": list(intr.dist), "source": intr.source,
+                           "distortion_model": intr.model},
             "images": [{"image": d.image, "corners": len(d.ids)} for d in images.detections],
             "dropped": [{"image": i, "reason": why} for i, why in images.dropped]})
 

@@ -103,7 +103,7 @@ def joints_at(t: float, jt: Array, jq: Array, opt: ImageBagOptions,
 
 def _gray(cv2: Any, msg: Any, compressed: bool, where: str, path: str) -> Any:
     """The grey 8-bit image of a message (None if a compressed one does not decode); the
-    encoding of a raw one is one of :data:`ENCODINGS` (checked by :func:`_image_pass`)."""
+    encoding of a raw one is one of :data:`ENCODINGS` (checked by :func:`_images`)."""
     data = np.frombuffer(bytes(msg.data), dtype=np.uint8)
     if compressed:
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
@@ -131,92 +131,58 @@ def _gray(cv2: Any, msg: Any, compressed: bool, where: str, path: str) -> Any:
     return img
 
 
-def _image_pass(reader: Any, path: str, image_topic: str, joint_topic: str,
-                names: Sequence[str]) -> tuple[list[tuple[float, Any, bool]], Array | None]:
-    """The image messages ``(t, msg, compressed)`` in stamp order and the joint velocities
-    (one row per joint state, None unless every message carries them)."""
+def _velocities(reader: Any, joint_topic: str, names: Sequence[str]) -> Array | None:
+    """The recorded joint velocities (one row per joint state, in stamp order), None
+    unless every joint state carries them."""
     from kincal.measure.bags import _stamp
 
+    vel: list[tuple[float, list[float]]] = []
+    conns = [c for c in reader.connections if c.topic == joint_topic]
+    for conn, t_ns, raw in reader.messages(connections=conns):
+        msg: Any = reader.deserialize(raw, conn.msgtype)
+        order = {n: i for i, n in enumerate(msg.name)}
+        if not all(n in order for n in names):
+            continue                                       # a message for other joints
+        if len(msg.velocity) != len(msg.name):
+            return None
+        vel.append((_stamp(msg, t_ns), [float(msg.velocity[order[n]]) for n in names]))
+    vel.sort(key=lambda m: m[0])
+    return np.array([v for _, v in vel]) if vel else None
+
+
+def _images(reader: Any, path: str, image_topic: str, board: Board, s: Any,
+            jv: Array | None, opt: ImageBagOptions, min_corners: int,
+            min_sharpness: float) -> ImageSet:
+    """One image message at a time (none kept in memory): its stamp, the joint values
+    there, the grey image and the board's corners, or why it is dropped."""
+    from kincal.measure.bags import _stamp
+
+    cv2 = require_opencv()
     topics = {c.topic: c.msgtype for c in reader.connections}
     if image_topic not in topics:
         raise MeasurementFileError(f"--image-topic: no topic {image_topic!r} (topics: "
                                    f"{', '.join(sorted(topics))})", source=path)
-    kind = topics[image_topic].replace("/msg/", "/")
-    if kind not in [t.replace("/msg/", "/") for t in _IMAGE_TYPES]:
+    if topics[image_topic].replace("/msg/", "/") not in [t.replace("/msg/", "/")
+                                                         for t in _IMAGE_TYPES]:
         raise MeasurementFileError(f"--image-topic {image_topic}: its messages are "
                                    f"{topics[image_topic]}, expected "
                                    f"{' or '.join(_IMAGE_TYPES)}", source=path)
-    images: list[tuple[float, Any, bool]] = []
-    vel: list[tuple[float, list[float]]] = []
-    every = True
-    conns = [c for c in reader.connections if c.topic in (image_topic, joint_topic)]
-    for conn, t_ns, raw in reader.messages(connections=conns):
-        msg: Any = reader.deserialize(raw, conn.msgtype)
-        if conn.topic == image_topic:
-            compressed = "Compressed" in conn.msgtype
-            if not compressed and str(msg.encoding) not in ENCODINGS:
-                raise MeasurementFileError(
-                    f"--image-topic {image_topic}, message {len(images)}: image encoding "
-                    f"{str(msg.encoding)!r} is not read (use {', '.join(ENCODINGS)})",
-                    source=path)
-            images.append((_stamp(msg, t_ns), msg, compressed))
-        elif every:
-            order = {n: i for i, n in enumerate(msg.name)}
-            if not all(n in order for n in names):
-                continue                                   # a message for other joints
-            v = list(msg.velocity)
-            if len(v) != len(msg.name):
-                every = False
-                continue
-            vel.append((_stamp(msg, t_ns), [float(v[order[n]]) for n in names]))
-    images.sort(key=lambda m: m[0])
-    if not every or not vel:
-        return images, None
-    vel.sort(key=lambda m: m[0])
-    return images, np.array([v for _, v in vel])
-
-
-def read_image_bag(path: str | Path, board: Board, image_topic: str,
-                   joint_topic: str = "/joint_states", opt: ImageBagOptions = ImageBagOptions(),
-                   joint_names: Sequence[str] | None = None, min_corners: int = 6,
-                   min_sharpness: float = MIN_SHARPNESS) -> ImageSet:
-    """Detect ``board`` in every image of ``image_topic`` and give each the joint values
-    at its time (module docstring); errors name the bag and the topic or encoding."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    from kincal.measure.bags import _short
-
-    src = str(path)
-    cv2 = require_opencv()
-    s = read_bag_streams(src, joint_topic, joint_names=joint_names)
-    try:
-        reader = AnyReader([Path(src)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        reader.open()
-    except Exception as exc:                            # noqa: BLE001 - rosbags' own errors
-        raise MeasurementFileError(f"not a readable ROS bag ({_short(exc)})",
-                                   source=src) from None
-    try:
-        msgs, jv = _image_pass(reader, src, image_topic, joint_topic, s.joint_names)
-    except MeasurementFileError:
-        raise
-    except Exception as exc:                            # noqa: BLE001 - a damaged chunk
-        raise MeasurementFileError(f"damaged ROS bag: reading its images failed "
-                                   f"({_short(exc)})", source=src) from None
-    finally:
-        reader.close()
-    if not msgs:
-        raise MeasurementFileError(f"--image-topic {image_topic}: no images", source=src)
-    if jv is not None and len(jv) != len(s.joint_t):
-        jv = None
     out = ImageSet([], [], (0, 0))
-    for k, (t, msg, compressed) in enumerate(msgs):
+    conns = [c for c in reader.connections if c.topic == image_topic]
+    for k, (conn, t_ns, raw) in enumerate(reader.messages(connections=conns)):
+        msg: Any = reader.deserialize(raw, conn.msgtype)
+        compressed = "Compressed" in conn.msgtype
+        if not compressed and str(msg.encoding) not in ENCODINGS:
+            raise MeasurementFileError(f"--image-topic {image_topic}, message {k}: image "
+                                       f"encoding {str(msg.encoding)!r} is not read (use "
+                                       f"{', '.join(ENCODINGS)})", source=path)
+        t = _stamp(msg, t_ns)
         label = f"{k:04d}@{t:.3f}"
         q, why = joints_at(t, s.joint_t, s.joint_q, opt, jv)
         if why is not None:
             out.dropped.append((label, why))
             continue
-        gray = _gray(cv2, msg, compressed, f"{image_topic} message {k}", src)
+        gray = _gray(cv2, msg, compressed, f"{image_topic} message {k}", path)
         if gray is None:
             out.dropped.append((label, f"cannot be decoded ({msg.format})"))
             continue
@@ -226,6 +192,46 @@ def read_image_bag(path: str | Path, board: Board, image_topic: str,
             out.dropped.append((label, found))
         else:
             out.detections.append(Detection(label, *found, q))
-    out.notes.append(f"{len(msgs)} images on {image_topic}, joint states on {joint_topic} "
-                     f"({', '.join(s.joint_names)})")
+    if not out.detections and not out.dropped:
+        raise MeasurementFileError(f"--image-topic {image_topic}: no images", source=path)
+    return out
+
+
+def read_image_bag(path: str | Path, board: Board, image_topic: str,
+                   joint_topic: str = "/joint_states", opt: ImageBagOptions = ImageBagOptions(),
+                   joint_names: Sequence[str] | None = None, min_corners: int = 6,
+                   min_sharpness: float = MIN_SHARPNESS) -> ImageSet:
+    """Detect ``board`` in every image of ``image_topic`` and give each the joint values
+    at its time (module docstring); errors name the bag and the topic or encoding.  The
+    joint positions come from :func:`~kincal.measure.bags.read_bag_streams`; the bag is
+    then read twice more, for the joint velocities and for the images one at a time."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from kincal.measure.bags import _short
+
+    src = str(path)
+    require_opencv()
+    s = read_bag_streams(src, joint_topic, joint_names=joint_names)
+    try:
+        reader = AnyReader([Path(src)], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as exc:                            # noqa: BLE001 - rosbags' own errors
+        raise MeasurementFileError(f"not a readable ROS bag ({_short(exc)})",
+                                   source=src) from None
+    try:
+        jv = _velocities(reader, joint_topic, s.joint_names)
+        if jv is not None and len(jv) != len(s.joint_t):
+            jv = None
+        out = _images(reader, src, image_topic, board, s, jv, opt, min_corners,
+                      min_sharpness)
+    except MeasurementFileError:
+        raise
+    except Exception as exc:                            # noqa: BLE001 - a damaged chunk
+        raise MeasurementFileError(f"damaged ROS bag: reading its images failed "
+                                   f"({_short(exc)})", source=src) from None
+    finally:
+        reader.close()
+    out.notes.append(f"{len(out.detections) + len(out.dropped)} images on {image_topic}, "
+                     f"joint states on {joint_topic} ({', '.join(s.joint_names)})")
     return out
