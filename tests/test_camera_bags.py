@@ -1,5 +1,6 @@
 """ROS bags of board images in: real bags written with rosbags' own writer (ROS 1 with raw
-images in four encodings, ROS 2 MCAP with PNG CompressedImage and joint velocities) from a
+images in four encodings, ROS 2 MCAP with PNG and JPEG CompressedImage and joint
+velocities) from a
 simulated Panda with a hand camera: standstills with an image each, an image while the
 arm moves, one where the joint states have a hole, one after they end.  The imported rows
 are checked against the known postures and the board corners' true pixels, the drops
@@ -100,7 +101,7 @@ def _header(ts, kind: str, t: float):
 
 def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
     """ROS 1: /joint_states without velocities, raw Image in the four encodings in turn
-    (or ``encodings``); ROS 2 MCAP: joint velocities, PNG CompressedImage.  The joint
+    (or ``encodings``); ROS 2 MCAP: joint velocities, PNG and JPEG CompressedImage.  The joint
     states name one more joint (a gripper finger) than the arm has."""
     robot, jt, jq, jv, images, _ = session
     ts = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
@@ -131,9 +132,11 @@ def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
                 writer.write(cj, ns, ser(msg, js))
                 continue
             grey = images[i][1]
-            if kind != "ros1":
-                data = cv2.imencode(".png", grey)[1].reshape(-1)
-                msg = T[img_t](header=_header(ts, kind, t), format="png", data=data)
+            if kind != "ros1":                        # PNG and JPEG (quality 95) in turn
+                fmt = ("png", "jpeg")[i % 2]
+                data = cv2.imencode(".png" if fmt == "png" else ".jpg", grey,
+                                    [] if fmt == "png" else [cv2.IMWRITE_JPEG_QUALITY, 95])[1]
+                msg = T[img_t](header=_header(ts, kind, t), format=fmt, data=data.reshape(-1))
             else:
                 enc = encodings[i % len(encodings)]
                 pix = {"mono8": grey, "mono16": grey.astype(np.uint16) * 257,

@@ -191,6 +191,28 @@ def test_fisheye_and_hand_eye_recovered_together() -> None:
                                fit_lens=("p1",), model="fisheye")
 
 
+def test_expected_error_is_honest_with_the_fisheye_fitted() -> None:
+    """Monte Carlo over 8 sets of 12 views (0.3 px, and 0.1 deg of joint error per joint
+    and view that nothing models): the true hand-eye error over the expected error, RMS
+    in 1/1.5 .. 1.5."""
+    robot = load_serial_robot("panda")
+    pts = [BOARD.corner_points(np.arange(24))] * 12
+    ratios = []
+    for seed in range(8):
+        rng = np.random.default_rng(60 + seed)
+        q, _, uv = _poses(12, rng)
+        true = q + rng.normal(0.0, np.radians(0.1), q.shape)   # where the arm really was
+        Z = robot.fk(Q0) @ X_HAND @ BOARD_FROM_Q0
+        pts0 = BOARD.corner_points(np.arange(24))
+        uv = [project_fisheye(pts0 @ B[:3, :3].T + B[:3, 3], FISH) + rng.normal(0, 0.3, (24, 2))
+              for B in inverse(X_HAND) @ inverse(robot.fk(true)) @ Z]
+        fit = calibrate_board_camera(robot.fk(q), pts, uv, [f"{k:02d}" for k in range(12)],
+                                     np.r_[FISH[:4], np.zeros(4)], "hand", 0.0, sigma=0.3,
+                                     model="fisheye")
+        ratios.append(np.linalg.norm(fit.X[:3, 3] - X_HAND[:3, 3]) / fit.expected_position)
+    assert 1 / 1.5 < np.sqrt(np.mean(np.square(ratios))) < 1.5, ratios
+
+
 def _render(cv2, B: np.ndarray, rays: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """The printed board (100 px per square, 20 px white margin) seen through the fisheye:
     each output pixel's ray (``rays``, (H W, 3), on z = 1) meets the board plane at
