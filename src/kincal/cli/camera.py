@@ -82,6 +82,7 @@ def import_images(
     (undistorted pixels, joint values, corner ids, the image of every corner)."""
     import numpy as np
 
+    from kincal.cli.camera_bags import bag_images, is_bag
     from kincal.io import check_outputs, write_json
     from kincal.measure.camera_board import read_board
     from kincal.measure.camera_images import (
@@ -104,9 +105,9 @@ def import_images(
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
     tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
-    if image_topic is not None or (joints is None and _is_bag(folder)):
-        images = _bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
-                             joints, min_corners, min_sharpness)
+    if image_topic is not None or (joints is None and is_bag(folder)):
+        images = bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
+                            joints, min_corners, min_sharpness)
     else:
         images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
@@ -130,32 +131,6 @@ def import_images(
                            "distortion_model": intr.model},
             "images": [{"image": d.image, "corners": len(d.ids)} for d in images.detections],
             "dropped": [{"image": i, "reason": why} for i, why in images.dropped]})
-
-
-def _is_bag(path: str) -> bool:
-    from kincal.measure.camera_bags import is_bag
-
-    return is_bag(path)
-
-
-def _bag_images(bag: str, board: Any, image_topic: str | None, joint_topic: str,
-                max_gap: str, max_speed: str, robot: Any, joints: str | None,
-                min_corners: int, min_sharpness: float) -> Any:
-    """``kincal import images BAG --image-topic T``: :mod:`kincal.measure.camera_bags`."""
-    from kincal.cli.importers import _speed
-    from kincal.measure.camera_bags import ImageBagOptions, read_image_bag
-    from kincal.units import parse_quantity
-
-    if image_topic is None:
-        raise KincalError("a ROS bag: give the images' topic with --image-topic TOPIC",
-                          source=bag)
-    if joints is not None:
-        raise KincalError("--joints: a bag's joint values come from --joint-topic")
-    opt = ImageBagOptions(parse_quantity(max_gap, "time", "--max-gap", positive=True),
-                          _speed(max_speed, "--max-speed"))
-    return read_image_bag(bag, board, image_topic, joint_topic, opt,
-                          list(robot.joint_names) if robot is not None else None,
-                          min_corners, min_sharpness)
 
 
 def _fit_json(fit: Any, data: str) -> dict[str, Any]:
