@@ -97,3 +97,75 @@ sh("kincal calibrate puma560 --data train.csv --validate holdout.csv -o calibrat
    "> calibrate.txt")
 sh("grep -A 5 'Errors before' calibrate.txt; grep -A 7 'Held-out files' calibrate.txt")
 # --8<-- [end:calibrate]
+
+# --8<-- [start:images-record]
+# A Panda with a hand camera (640 x 480, fx = fy = 500 px) stops at 6 postures and the
+# camera publishes one image at each (sensor_msgs/Image, mono8), plus one while the arm
+# moves; the images are the ChArUco board rendered by a perspective warp.
+import cv2  # noqa: E402
+
+panda = kincal.load_robot("panda")
+with open("board.yaml", "w") as f:
+    f.write("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\nmarker: 28 mm\n"
+            "dictionary: DICT_6X6_250\n")
+with open("camera_info.yaml", "w") as f:        # as ROS's camera_calibration writes it
+    f.write("image_width: 640\nimage_height: 480\ncamera_matrix: {rows: 3, cols: 3, data: "
+            "[500, 0, 320, 0, 500, 240, 0, 0, 1]}\ndistortion_model: plumb_bob\n"
+            "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+flat = np.pad(cv2.aruco.CharucoBoard((5, 7), 0.034, 0.028, cv2.aruco.getPredefinedDictionary(
+    cv2.aruco.DICT_6X6_250)).generateImage((500, 700)), 20, constant_values=255)
+to_flat = np.array([[100 / 0.034, 0, 19.5], [0, 100 / 0.034, 19.5], [0, 0, 1]])
+home = np.array([-0.22, -0.19, 0.0, -2.42, 0.28, 2.15, 0.31])
+camera = np.eye(4)
+camera[:3, 3] = [0.04, -0.03, 0.065]                  # the camera on the flange
+board = panda.fk(home) @ camera                       # the board 0.42 m before the camera
+board[:3, 3] += board[:3, :3] @ [-0.085, -0.12, 0.42]
+stops = home + np.random.default_rng(4).uniform(-0.15, 0.15, (6, 7))
+
+
+def picture(q: np.ndarray) -> np.ndarray:
+    seen = np.linalg.inv(panda.fk(q) @ camera) @ board          # the board in the camera
+    H = K @ seen[:3][:, [0, 1, 3]] @ np.linalg.inv(to_flat)
+    return cv2.warpPerspective(flat, H, (640, 480), borderValue=255)
+
+
+t_joint, q_joint, shots, t = [], [], [], 0.0
+for k, q in enumerate(stops):                       # 1 s moves, 1 s stops, 50 Hz
+    start = stops[k - 1] if k else q
+    for s in np.arange(0.0, 2.0 if k else 1.0, 0.02):
+        blend = 0.5 - 0.5 * np.cos(np.pi * min(s, 1.0)) if k else 1.0
+        t_joint.append(t + s)
+        q_joint.append(start + blend * (q - start))
+    shots.append((t + (1.5 if k else 0.5), q))       # mid-stop
+    if k == 3:
+        shots.append((t + 0.5, start + 0.5 * (q - start)))        # mid-move
+    t += 2.0 if k else 1.0
+events = sorted([(s, 0, i) for i, s in enumerate(t_joint)]
+                + [(s, 1, i) for i, (s, _) in enumerate(shots)])
+with Writer("images_session", version=9, storage_plugin=StoragePlugin.MCAP) as bag:
+    joints = bag.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=store)
+    image = bag.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=store)
+    for s, topic, i in events:
+        header = T["std_msgs/msg/Header"](stamp=stamp(s), frame_id="camera")
+        if topic == 0:
+            msg = T["sensor_msgs/msg/JointState"](
+                header=header, name=list(panda.joint_names), position=q_joint[i],
+                velocity=np.zeros(0), effort=np.zeros(0))
+            bag.write(joints, int((1_700_000_000 + s) * 1e9),
+                      store.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+        else:
+            pixels = picture(shots[i][1])
+            msg = T["sensor_msgs/msg/Image"](header=header, height=480, width=640,
+                                             encoding="mono8", is_bigendian=0, step=640,
+                                             data=pixels.reshape(-1))
+            bag.write(image, int((1_700_000_000 + s) * 1e9),
+                      store.serialize_cdr(msg, "sensor_msgs/msg/Image"))
+print(f"images_session: {len(t_joint)} joint states, {len(shots)} images, {t:.0f} s")
+# --8<-- [end:images-record]
+
+# --8<-- [start:images-import]
+sh("kincal import images images_session --board board.yaml --image-topic /camera/image_raw "
+   "--intrinsics camera_info.yaml --robot panda -o camera.csv")
+sh("grep -v '^#' camera.csv | head -n 2 | cut -c 1-100")
+# --8<-- [end:images-import]

@@ -42,7 +42,8 @@ def _quality(fit: Any) -> dict[str, Any]:
 @import_app.command("images")
 def import_images(
     folder: Annotated[str, typer.Argument(help="Folder of board images, or of pose folders "
-                                          "each with image.png and data.json.")],
+                                          "each with image.png and data.json, or a ROS bag "
+                                          "(with --image-topic).")],
     board: Annotated[str, typer.Option("--board", help="Board description YAML (type, "
                                        "squares, square, marker, dictionary).")],
     output: Annotated[str, typer.Option("-o", "--output", help="kincal measurement CSV to "
@@ -65,12 +66,23 @@ def import_images(
                                                  "contrast^2, px^-3).")] = 0.15,
     max_tilt: Annotated[str, typer.Option("--max-tilt", help="Drop an image whose board is "
                                           "tilted more from the viewing ray.")] = "60deg",
+    image_topic: Annotated[str | None, typer.Option("--image-topic", help="ROS bag: the "
+                                                    "sensor_msgs/Image or CompressedImage "
+                                                    "topic.")] = None,
+    joint_topic: Annotated[str, typer.Option("--joint-topic", help="ROS bag: the "
+                                             "sensor_msgs/JointState topic.")
+                           ] = "/joint_states",
+    max_gap: Annotated[str, typer.Option("--max-gap", help="ROS bag: drop an image without "
+                                         "joint states this near on both sides.")] = "20ms",
+    max_speed: Annotated[str, typer.Option("--max-speed", help="ROS bag: drop an image taken "
+                                           "while a joint moves faster.")] = "0.01rad/s",
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
     (undistorted pixels, joint values, corner ids, the image of every corner)."""
     import numpy as np
 
+    from kincal.cli.camera_bags import bag_images, is_bag
     from kincal.io import check_outputs, write_json
     from kincal.measure.camera_board import read_board
     from kincal.measure.camera_images import (
@@ -93,7 +105,11 @@ def import_images(
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
     tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
-    images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
+    if image_topic is not None or (joints is None and is_bag(folder)):
+        images = bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
+                            joints, min_corners, min_sharpness)
+    else:
+        images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
     images = drop_oblique(images, b, intr, tilt)
     block = write_image_measurements(output, images, b, intr,
@@ -111,7 +127,8 @@ def import_images(
         write_json(json_out, {
             "folder": folder, "output": output, "board": b.__dict__,
             "intrinsics": {"fx": intr.fx, "fy": intr.fy, "cx": intr.cx, "cy": intr.cy,
-                           "dist": list(intr.dist), "source": intr.source},
+                           "dist": list(intr.dist), "source": intr.source,
+                           "distortion_model": intr.model},
             "images": [{"image": d.image, "corners": len(d.ids)} for d in images.detections],
             "dropped": [{"image": i, "reason": why} for i, why in images.dropped]})
 
@@ -156,7 +173,7 @@ def hand_eye_command(
                                        )] = "hand",
     lens: Annotated[str, typer.Option("--lens", help="Intrinsics fitted with --images: all "
                                       "(fx fy cx cy k1 k2 p1 p2 k3), pinhole (fx fy cx cy), "
-                                      "none.")] = "all",
+                                      "none, fisheye (fx fy cx cy k1 k2 k3 k4).")] = "all",
     holdout: Annotated[float, typer.Option("--holdout", help="Fraction of the images kept "
                                            "aside to check the fit.")] = 0.25,
     free: Annotated[list[str] | None, typer.Option("--free", help="Robot parameters (names "
@@ -258,7 +275,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     the board and the intrinsics on the raw pixels (:mod:`kincal.identify.hand_eye_lens`)."""
     import numpy as np
 
-    from kincal.identify.hand_eye_lens import LENS, calibrate_board_camera, lens_leave_one_out
+    from kincal.identify.hand_eye_lens import calibrate_board_camera, lens_leave_one_out, lens_start
     from kincal.io import check_outputs, write_json
     from kincal.measure.camera_board import read_board
     from kincal.measure.camera_images import (
@@ -279,9 +296,8 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
         raise KincalError("--images needs --board (the board YAML)")
     if mount not in ("hand", "fixed"):
         raise KincalError(f"--mount {mount}: use hand or fixed")
-    fitted = {"all": LENS, "pinhole": LENS[:4], "none": ()}.get(lens)
-    if fitted is None:
-        raise KincalError(f"--lens {lens}: use all, pinhole or none")
+    if lens not in ("all", "pinhole", "none", "fisheye"):
+        raise KincalError(f"--lens {lens}: use all, pinhole, none or fisheye")
     if free and (mount != "hand" or poses is not None):
         raise KincalError("--free: robot parameters are fitted with a camera on the hand "
                           "and the robot's joint values (not with --mount fixed or --poses)")
@@ -300,7 +316,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
         raise KincalError(f"the board was found in {len(found.detections)} images; a "
                           "hand-eye needs 3 at least (better 10 or more)", source=images)
     intr = (read_intrinsics(intrinsics) if intrinsics else found.intrinsics
-            or estimate_intrinsics(found, b))
+            or estimate_intrinsics(found, b, "equidistant" if lens == "fisheye" else "plumb_bob"))
     found = drop_oblique(found, b, intr)
     if len(found.detections) < 3:
         raise KincalError(f"{len(found.detections)} images left after dropping the too "
@@ -320,7 +336,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
         r = serial(load(robot), "hand-eye")
         A = r.fk(np.array([d.q for d in found.detections]))
         frame = "the base frame" if mount == "fixed" else "the tool frame"
-    lens0 = np.r_[intr.pinhole, (list(intr.dist) + [0.0] * 5)[:5]]
+    model, lens0, fitted = lens_start(intr, lens)
     names = [d.image for d in found.detections]
     pts = [b.corner_points(d.ids) for d in found.detections]
     uv = [d.uv for d in found.detections]
@@ -328,12 +344,12 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                                               minimum=0.0)))
     q = np.array([d.q for d in found.detections]) if r is not None else None
     fit = calibrate_board_camera(A, pts, uv, names, lens0, mount, holdout, fitted,
-                                 0.5, min_deg, robot=r, q=q, free=free or ())
+                                 0.5, min_deg, robot=r, q=q, free=free or (), model=model)
     _print_lens_fit(out, fit, found, intr, frame, mount)
     doc = _lens_json(fit, images, mount)
     if loo:
         lo = lens_leave_one_out(A, pts, uv, names, lens0, mount, fitted, 0.5, min_deg, r, q,
-                                free or ())
+                                free or (), model)
         _print_loo(out, lo)
         doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
                                 "rms_3d_m": lo.rms_3d.tolist(),
@@ -368,7 +384,6 @@ def _print_loo(out: Any, lo: Any) -> None:
 def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount: str) -> None:
     import numpy as np
 
-    from kincal.identify.hand_eye_lens import LENS
     from kincal.spatial import frame_from_matrix
 
     out.print(f"{len(found.detections)} images with the board, {len(found.dropped)} dropped"
@@ -390,10 +405,11 @@ def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount
     out.print(f"board in {where} (x y z mm, rz ry rx deg): "
               + " ".join(f"{v * 1e3:.2f}" for v in z[:3]) + ", "
               + " ".join(f"{np.degrees(v):.3f}" for v in z[3:]))
-    fitted = [n for n in fit.names if n in LENS]
-    out.print("intrinsics: " + ", ".join(
+    fitted = [n for n in fit.names if n in fit.lens_names]
+    kind = " (fisheye, equidistant)" if fit.model == "fisheye" else ""
+    out.print(f"intrinsics{kind}: " + ", ".join(
         f"{n} {fit.lens[k]:.5g}" + (f" ± {fit.lens_std[k]:.2g}" if n in fitted else " (held)")
-        for k, n in enumerate(LENS)))
+        for k, n in enumerate(fit.lens_names)))
     if fit.robot:
         out.print("robot parameters fitted: " + ", ".join(
             f"{n} {v:.6g} ± {s:.2g}" for n, (v, s) in fit.robot.items()))
@@ -409,7 +425,6 @@ def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount
 
 
 def _lens_json(fit: Any, images: str, mount: str) -> dict[str, Any]:
-    from kincal.identify.hand_eye_lens import LENS
     from kincal.spatial import frame_from_matrix
 
     return {"images": images, "mount": mount, "training": fit.training,
@@ -419,8 +434,9 @@ def _lens_json(fit: Any, images: str, mount: str) -> dict[str, Any]:
             "board": {"matrix": fit.Z.tolist(),
                       "frame_m_rad": frame_from_matrix(fit.Z).tolist()},
             "closed_form_start": fit.start.X.tolist(),
-            "intrinsics": dict(zip(LENS, fit.lens.tolist(), strict=True)),
-            "intrinsics_std": dict(zip(LENS, fit.lens_std.tolist(), strict=True)),
+            "lens_model": fit.model,
+            "intrinsics": dict(zip(fit.lens_names, fit.lens.tolist(), strict=True)),
+            "intrinsics_std": dict(zip(fit.lens_names, fit.lens_std.tolist(), strict=True)),
             "robot_parameters": {n: {"value": v, "std": s} for n, (v, s) in fit.robot.items()},
             **_quality(fit),
             "flange_rotation_deg": fit.rotation_deg.tolist(), "sigma0": fit.sigma0}

@@ -16,9 +16,16 @@ A camera-frame point ``x = B_i P`` projects with OpenCV's pinhole + radial-tange
     a' = a g + 2 p1 a b + p2 (r^2 + 2 a^2),   b' = b g + p1 (r^2 + 2 b^2) + 2 p2 a b
     u = fx a' + cx,   v = fy b' + cy                                              [px]
 
+or, ``model="fisheye"``, with OpenCV's equidistant (Kannala-Brandt) model
+(``lens = fx fy cx cy k1 k2 k3 k4``, :mod:`~kincal.identify.lens_fisheye`)::
+
+    theta = atan2(|x1, x2|, x3),   theta_d = theta (1 + k1 theta^2 + .. + k4 theta^8)
+    u = fx theta_d x1 / |x1, x2| + cx,   v = fy theta_d x2 / |x1, x2| + cy         [px]
+
 The fit (:func:`fit_board_camera`) minimises ``sum |uv_pred - uv| ^ 2 / sigma^2`` over
 ``X``, ``Z`` and the intrinsics named in ``fit_lens`` by Levenberg-Marquardt (Jacobian by
-central differences: 21 parameters), from a closed-form start: the intrinsics given or
+central differences: 21 parameters; the fisheye model's analytic, :func:`_fisheye_jacobian`,
+the robot parameters' by central differences), from a closed-form start: the intrinsics given or
 estimated beforehand (OpenCV's ``calibrateCamera``, or without distortion as the ABB
 set's), the pixels undistorted with them (:func:`undistort_pixels`), the board pose per
 image (:func:`~kincal.measure.camera_board.board_pose`) and the order-free hand-eye
@@ -48,7 +55,14 @@ from kincal.identify.hand_eye_fit import (
     fit_hand_camera,
     split_images,
 )
+from kincal.identify.lens_fisheye import (
+    FISHEYE,
+    fisheye_jacobian,
+    project_fisheye,
+    undistort_fisheye,
+)
 from kincal.measure.camera_board import board_pose
+from kincal.measure.camera_images import Intrinsics
 from kincal.measure.instruments.camera import HandCameraMeasurement
 from kincal.robots.chain import Robot
 from kincal.spatial import exp_so3, inverse, log_so3
@@ -57,9 +71,13 @@ Array = NDArray[np.float64]
 
 LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 POSE = ("x", "y", "z", "wx", "wy", "wz")
+#: The lens models and their intrinsics: OpenCV's radial-tangential (ROS ``plumb_bob``)
+#: and fisheye (ROS ``equidistant``).
+MODELS = {"radtan": LENS, "fisheye": FISHEYE}
 
-__all__ = ["LENS", "LensFit", "project_lens", "undistort_pixels", "fit_board_camera",
-           "calibrate_board_camera", "lens_leave_one_out"]
+__all__ = ["LENS", "FISHEYE", "MODELS", "LensFit", "project_lens", "project_model",
+           "undistort_pixels", "undistort_model", "fit_board_camera",
+           "calibrate_board_camera", "lens_leave_one_out", "lens_start"]
 
 
 def project_lens(x: Array, lens: ArrayLike) -> Array:
@@ -93,6 +111,43 @@ def undistort_pixels(uv: Array, lens: ArrayLike, iterations: int = 50) -> Array:
     return np.column_stack([fx * a + cx, fy * b + cy])
 
 
+def _model(model: str) -> tuple[str, ...]:
+    if model not in MODELS:
+        raise KincalError(f"lens model {model!r}: use {' or '.join(MODELS)}")
+    return MODELS[model]
+
+
+def project_model(x: Array, lens: ArrayLike, model: str = "radtan") -> Array:
+    """Raw pixels (n, 2) [px] of camera-frame points ``x`` (n, 3) [m] through ``model``."""
+    _model(model)
+    return project_fisheye(x, lens) if model == "fisheye" else project_lens(x, lens)
+
+
+def undistort_model(uv: Array, lens: ArrayLike, model: str = "radtan") -> Array:
+    """The pinhole pixels (n, 2) [px] of the rays of raw pixels ``uv`` through ``model``."""
+    _model(model)
+    return undistort_fisheye(uv, lens) if model == "fisheye" else undistort_pixels(uv, lens)
+
+
+def lens_start(intr: Intrinsics, lens: str) -> tuple[str, Array, tuple[str, ...]]:
+    """The lens model (``"radtan"`` or ``"fisheye"``: the start intrinsics' own), the start
+    vector and the intrinsics fitted for the option ``--lens`` (``all`` or ``fisheye``:
+    every one, ``pinhole``: fx fy cx cy, ``none``); ``--lens fisheye`` with
+    radial-tangential start intrinsics is refused in one line."""
+    fish = intr.model == "equidistant"
+    if lens == "fisheye" and not fish:
+        raise KincalError(f"--lens fisheye: the start intrinsics ({intr.source}) are a "
+                          f"{intr.model} lens; give equidistant ones (distortion_model: "
+                          "equidistant) or none (estimated by cv2.fisheye.calibrate)")
+    names = FISHEYE if fish else LENS
+    fitted = {"all": names, "fisheye": names, "pinhole": names[:4], "none": ()}.get(lens)
+    if fitted is None:
+        raise KincalError(f"--lens {lens}: use all, pinhole, none or fisheye")
+    n = len(names) - 4
+    return ("fisheye" if fish else "radtan",
+            np.r_[intr.pinhole, (list(intr.dist) + [0.0] * n)[:n]], tuple(fitted))
+
+
 def _chain(A: Array, mount: str) -> Array:
     """``C_i`` with ``B_i = X^-1 C_i Z``: ``A_i^-1`` (hand) or ``A_i`` (fixed)."""
     if mount == "hand":
@@ -115,7 +170,8 @@ class LensFit:
 
     Attributes:
         X, Z: the hand-eye and the board (module docstring), 4x4.
-        lens: the intrinsics ``fx fy cx cy k1 k2 p1 p2 k3`` [px, 1].
+        lens: the intrinsics ``lens_names`` (``fx fy cx cy k1 k2 p1 p2 k3`` [px, 1], or
+            the fisheye's ``fx fy cx cy k1 k2 k3 k4``).
         lens_std: their standard errors from the covariance (0 where not fitted).
         names: the fitted parameters (``X.x .. X.wz, Z.x .. Z.wz``, then the intrinsics).
         covariance, clustered: ``sigma0^2 (J^T J)^-1`` and the image-clustered one over
@@ -151,6 +207,8 @@ class LensFit:
     start: HandEye | None = None
     robot: dict[str, tuple[float, float]] = field(default_factory=dict)
     rotation_deg: Array = field(default_factory=lambda: np.zeros(3))
+    model: str = "radtan"
+    lens_names: tuple[str, ...] = LENS
 
     @property
     def floor_position(self) -> float:
@@ -174,12 +232,39 @@ class LensFit:
 
 
 def _residuals(C: Sequence[Array], points: Sequence[Array], uv: Sequence[Array], X: Array,
-               Z: Array, lens: Array) -> Array:
+               Z: Array, lens: Array, model: str = "radtan") -> Array:
     Xi = inverse(X)
     out = []
     for Ci, P, obs in zip(C, points, uv, strict=True):
         B = Xi @ Ci @ Z
-        out.append((project_lens(P @ B[:3, :3].T + B[:3, 3], lens) - obs).reshape(-1))
+        out.append((project_model(P @ B[:3, :3].T + B[:3, 3], lens, model) - obs).reshape(-1))
+    return np.concatenate(out)
+
+
+def _skew(v: Array) -> Array:
+    """``[v]_x`` of every row of ``v`` (n, 3): (n, 3, 3)."""
+    S = np.zeros((len(v), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    return S - S.transpose(0, 2, 1)
+
+
+def _fisheye_jacobian(C: Sequence[Array], points: Sequence[Array], X: Array, Z: Array,
+                      lens: Array, lk: Sequence[int]) -> Array:
+    """``d uv / d (X.x .. X.wz, Z.x .. Z.wz, lens[lk])`` (2 n, 12 + len(lk)) [px per m,
+    rad, unit] of the fisheye residuals, analytic.  With ``y = C Z P`` and ``u = y - t_X``
+    the camera point is ``x = R_X^T u``; the updates ``t <- t + dv``, ``R <- exp(dw) R``
+    give ``dx/dX.v = -R_X^T``, ``dx/dX.w = R_X^T [u]_x``, ``dx/dZ.v = R_X^T R_C`` and
+    ``dx/dZ.w = -R_X^T R_C [R_Z P]_x``, chained with :func:`fisheye_jacobian`."""
+    RX, tX = X[:3, :3], X[:3, 3]
+    out = []
+    for Ci, P in zip(C, points, strict=True):
+        zP = P @ Z[:3, :3].T
+        u = (zP + Z[:3, 3]) @ Ci[:3, :3].T + Ci[:3, 3] - tX
+        jx, jl = fisheye_jacobian(u @ RX, lens)
+        M = RX.T @ Ci[:3, :3]
+        dx = np.concatenate([np.broadcast_to(-RX.T, (len(P), 3, 3)), RX.T @ _skew(u),
+                             np.broadcast_to(M, (len(P), 3, 3)), -M @ _skew(zP)], axis=2)
+        out.append(np.concatenate([jx @ dx, jl[:, :, list(lk)]], axis=2).reshape(-1, 12 + len(lk)))
     return np.concatenate(out)
 
 
@@ -200,22 +285,26 @@ def _refuse_if_singular(J: Array, names: Sequence[str]) -> None:
 
 def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
                      images: Sequence[str], lens0: ArrayLike, X0: Array, Z0: Array,
-                     mount: str = "hand", fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
-                     iterations: int = 100,
+                     mount: str = "hand", fit_lens: Sequence[str] | None = None,
+                     sigma: float = 0.5, iterations: int = 100,
                      kinematics: Callable[[Array], Array] | None = None,
-                     robot_names: Sequence[str] = (), robot_values: ArrayLike = ()
-                     ) -> LensFit:
+                     robot_names: Sequence[str] = (), robot_values: ArrayLike = (),
+                     model: str = "radtan") -> LensFit:
     """Levenberg-Marquardt over ``X``, ``Z`` and the intrinsics ``fit_lens`` (module
     docstring) from ``(X0, Z0, lens0)``; one entry of ``points`` (n_i, 3) [m] and raw
     ``uv`` (n_i, 2) [px] per image, ``sigma`` the stated corner noise [px].
 
     With ``kinematics`` (robot parameter values -> the flange poses (N, 4, 4) of the
     images), the robot parameters ``robot_names`` are fitted too, from ``robot_values``
-    (``robot_poses`` is then unused)."""
-    unknown = [n for n in fit_lens if n not in LENS]
+    (``robot_poses`` is then unused).  ``model``: ``"radtan"`` or ``"fisheye"``
+    (``lens0`` and ``fit_lens`` its intrinsics, default all of them)."""
+    lens_names = _model(model)
+    fit_lens = lens_names if fit_lens is None else fit_lens
+    unknown = [n for n in fit_lens if n not in lens_names]
     if unknown:
-        raise KincalError(f"{unknown[0]!r} is not an intrinsic; use {', '.join(LENS)}")
-    lk = [LENS.index(n) for n in fit_lens]
+        raise KincalError(f"{unknown[0]!r} is not an intrinsic of the {model} lens; use "
+                          f"{', '.join(lens_names)}")
+    lk = [lens_names.index(n) for n in fit_lens]
     rv = np.asarray(robot_values, dtype=float).reshape(-1)
     nr = len(rv) if kinematics is not None else 0
     names = ([f"X.{n}" for n in POSE] + [f"Z.{n}" for n in POSE] + list(fit_lens)
@@ -233,11 +322,14 @@ def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[A
     def res(p: Array) -> Array:
         Xp, Zp, ln, th = moved(p)
         C = list(_chain(kinematics(th), mount)) if kinematics is not None and nr else C0
-        return _residuals(C, points, uv, Xp, Zp, ln) / sigma
+        return _residuals(C, points, uv, Xp, Zp, ln, model) / sigma
 
     def jac() -> Array:
         cols = []
-        for k, h in enumerate(steps):
+        if model == "fisheye":
+            C = list(_chain(kinematics(rv), mount)) if kinematics is not None and nr else C0
+            cols = list(_fisheye_jacobian(C, points, X, Z, lens, lk).T / sigma)
+        for k, h in enumerate(steps[len(cols):], start=len(cols)):
             d = np.zeros(len(names))
             d[k] = h
             cols.append((res(d) - res(-d)) / (2.0 * h))
@@ -270,7 +362,7 @@ def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[A
     owner = np.concatenate([np.full(2 * len(P), n, dtype=object)
                             for n, P in zip(images, points, strict=True)])
     clus = np.asarray(clustered_covariance(J, r, owner.astype(str)), dtype=float)
-    std = np.zeros(len(LENS))
+    std = np.zeros(len(lens_names))
     std[lk] = np.sqrt(np.diag(cov)[12:nl])
 
     def tr(M: Array, s: slice) -> float:
@@ -281,15 +373,17 @@ def fit_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[A
                    tr(cov, slice(3, 6)), tr(clus, slice(0, 3)), tr(clus, slice(3, 6)),
                    sorted(set(images)), train_rms_px=float(np.sqrt(np.mean(e**2))),
                    robot={n: (float(v), float(np.sqrt(cov[nl + k, nl + k])))
-                          for k, (n, v) in enumerate(zip(names[nl:], rv, strict=True))})
+                          for k, (n, v) in enumerate(zip(names[nl:], rv, strict=True))},
+                   model=model, lens_names=lens_names)
 
 
 def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
                            images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
-                           holdout: float = 0.25, fit_lens: Sequence[str] = LENS,
+                           holdout: float = 0.25, fit_lens: Sequence[str] | None = None,
                            sigma: float = 0.5, min_rotation_deg: float = 5.0,
                            held_out: Sequence[str] | None = None, robot: Robot | None = None,
-                           q: ArrayLike | None = None, free: Sequence[str] = ()) -> LensFit:
+                           q: ArrayLike | None = None, free: Sequence[str] = (),
+                           model: str = "radtan") -> LensFit:
     """Held-out images kept aside (:func:`~kincal.identify.hand_eye_fit.split_images`),
     the rotation check, the closed-form start on the pixels undistorted with ``lens0``,
     :func:`fit_board_camera` on the training images, and the held-out images' raw-pixel
@@ -319,7 +413,7 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     it = [idx[n] for n in train]
     rot = check_rotations(A[it], min_rotation_deg, mount=mount)
     L0 = np.asarray(lens0, dtype=float)
-    B = np.array([board_pose(points[k], undistort_pixels(uv[k], L0), L0[:4])[0]
+    B = np.array([board_pose(points[k], undistort_model(uv[k], L0, model), L0[:4])[0]
                   for k in it])
     start = hand_eye(A[it], B, mount)
     if free:
@@ -328,19 +422,19 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
                               "the robot and the joint values of the images")
         Q = np.asarray(q, dtype=float)
         rn, rv, X0, Z0 = _robot_start(robot, Q[it], [points[k] for k in it],
-                                      [undistort_pixels(uv[k], L0) for k in it], train, L0,
-                                      free, sigma)
+                                      [undistort_model(uv[k], L0, model) for k in it],
+                                      train, L0, free, sigma)
 
         def kin(th: Array) -> Array:
             return robot.with_params(dict(zip(rn, th.tolist(), strict=True))).fk(Q[it])
 
         fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
                                X0, Z0, mount, fit_lens, sigma, kinematics=kin,
-                               robot_names=rn, robot_values=rv)
+                               robot_names=rn, robot_values=rv, model=model)
         A = robot.with_params({n: v for n, (v, _) in fit.robot.items()}).fk(Q)
     else:
         fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
-                               start.X, start.Z, mount, fit_lens, sigma)
+                               start.X, start.Z, mount, fit_lens, sigma, model=model)
     fit.start, fit.rotation_deg, fit.held_out = start, rot, held
     if held:
         C = _chain(A[[idx[n] for n in held]], mount)
@@ -348,7 +442,7 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
         for j, n in enumerate(held):
             P = points[idx[n]]
             e[n] = np.hypot(*_residuals([C[j]], [P], [uv[idx[n]]], fit.X, fit.Z,
-                                        fit.lens).reshape(-1, 2).T)
+                                        fit.lens, model).reshape(-1, 2).T)
             B = inverse(fit.X) @ C[j] @ fit.Z
             e3.append(e[n] * (P @ B[2, :3] + B[2, 3]) / (0.5 * (fit.lens[0] + fit.lens[1])))
         fit.held_per_image = {n: float(np.sqrt(np.mean(v**2))) for n, v in e.items()}
@@ -374,15 +468,17 @@ def _robot_start(robot: Robot, q: Array, points: Sequence[Array], uv: Sequence[A
 
 def lens_leave_one_out(robot_poses: Array, points: Sequence[Array], uv: Sequence[Array],
                        images: Sequence[str], lens0: ArrayLike, mount: str = "hand",
-                       fit_lens: Sequence[str] = LENS, sigma: float = 0.5,
+                       fit_lens: Sequence[str] | None = None, sigma: float = 0.5,
                        min_rotation_deg: float = 5.0, robot: Robot | None = None,
-                       q: ArrayLike | None = None, free: Sequence[str] = ()) -> LeaveOneOut:
+                       q: ArrayLike | None = None, free: Sequence[str] = (),
+                       model: str = "radtan") -> LeaveOneOut:
     """:func:`calibrate_board_camera` once per image with that image held out: its
     reprojection RMS [px] and 3-D error [m], and the jackknife spread of the hand-eye
     (as :func:`~kincal.identify.hand_eye_fit.leave_one_out`)."""
     names = sorted(images)
     fits = [calibrate_board_camera(robot_poses, points, uv, images, lens0, mount, 0.0,
-                                   fit_lens, sigma, min_rotation_deg, [n], robot, q, free)
+                                   fit_lens, sigma, min_rotation_deg, [n], robot, q, free,
+                                   model)
             for n in names]
     X = np.array([f.X for f in fits])
     n = len(names)

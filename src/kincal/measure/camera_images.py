@@ -26,11 +26,14 @@ Two folder layouts:
 
 Intrinsics: given (``--intrinsics``: a ROS ``camera_info`` YAML or an OpenCV YAML with
 ``camera_matrix`` and ``distortion_coefficients``), from the pose folders, or estimated
-from the detections by ``cv2.calibrateCamera`` (pinhole + k1 k2 p1 p2 k3).  The file holds
-*undistorted* pixels, ``u = fx x / z + cx``, ``v = fy y / z + cy`` (the pinhole model of
-:mod:`kincal.measure.instruments.camera`, ``mount=hand``), one row per corner: the joint
-values, the corner's position on the board ``target_x/y/z``, ``u, v``, the intrinsics,
-``sigma`` and the bookkeeping columns ``image`` and ``corner`` (its id).
+from the detections by ``cv2.calibrateCamera`` (pinhole + k1 k2 p1 p2 k3).  The lens model
+is ROS's ``distortion_model``: ``plumb_bob`` / ``rational_polynomial`` (OpenCV's
+radial-tangential, 4, 5 or 8 coefficients) or ``equidistant`` (OpenCV's fisheye, k1 k2 k3
+k4; in an OpenCV YAML ``fisheye_model: 1`` as OpenCV's calibration sample writes it).
+The file holds *undistorted* pixels, ``u = fx x / z + cx``, ``v = fy y / z + cy`` (the
+pinhole model of :mod:`kincal.measure.instruments.camera`, ``mount=hand``), one row per
+corner: the joint values, the corner's position on the board ``target_x/y/z``, ``u, v``,
+the intrinsics, ``sigma`` and the bookkeeping columns ``image`` and ``corner`` (its id).
 """
 
 from __future__ import annotations
@@ -58,7 +61,7 @@ Array = NDArray[np.float64]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp")
 
 __all__ = ["Intrinsics", "Detection", "ImageSet", "require_opencv", "read_intrinsics",
-           "detect_images", "write_image_measurements", "read_image_labels",
+           "detect_images", "detect_gray", "write_image_measurements", "read_image_labels",
            "read_flange_poses", "board_sharpness", "tilt_deg", "drop_oblique"]
 
 
@@ -74,7 +77,8 @@ def require_opencv(what: str = "reading board images") -> Any:
 @dataclass(frozen=True)
 class Intrinsics:
     """Pinhole intrinsics ``fx, fy, cx, cy`` [px], OpenCV distortion ``k1 k2 p1 p2 k3``
-    [1] and where they came from."""
+    [1] (``model="equidistant"``: the fisheye's ``k1 k2 k3 k4``) and where they came
+    from."""
 
     fx: float
     fy: float
@@ -82,6 +86,7 @@ class Intrinsics:
     cy: float
     dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
     source: str = "given"
+    model: str = "plumb_bob"
 
     @property
     def matrix(self) -> Array:
@@ -92,24 +97,46 @@ class Intrinsics:
         return (self.fx, self.fy, self.cx, self.cy)
 
 
-def _intrinsics_from(K: Any, dist: Any, source: str) -> Intrinsics:
+#: ROS ``distortion_model`` values read: OpenCV's radial-tangential and its fisheye.
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+
+
+def _intrinsics_from(K: Any, dist: Any, source: str, model: str = "plumb_bob") -> Intrinsics:
     k = np.asarray(K, dtype=float).reshape(-1)
     d = np.asarray(dist if dist is not None else [], dtype=float).reshape(-1)
     if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
         raise KincalError("camera matrix: expected 9 finite numbers with fx, fy > 0",
                           source=source)
-    if d.size not in (0, 4, 5, 8) or not np.all(np.isfinite(d)):
+    if model == "equidistant":
+        if d.size not in (0, 4) or not np.all(np.isfinite(d)):
+            raise KincalError("distortion: the equidistant (fisheye) model has 4 "
+                              f"coefficients (k1 k2 k3 k4), not {d.size}", source=source)
+        d = np.r_[d, np.zeros(4 - d.size)]
+    elif d.size not in (0, 4, 5, 8) or not np.all(np.isfinite(d)):
         raise KincalError("distortion: expected 4, 5 or 8 coefficients (k1 k2 p1 p2 [k3 ..])",
                           source=source)
     return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]),
-                      tuple(float(v) for v in d), source)
+                      tuple(float(v) for v in d), source, model)
+
+
+def _distortion_model(value: Any, source: str) -> str:
+    """The ROS ``distortion_model`` named in a file, or one line refusing it."""
+    if value is None or value == "":
+        return "plumb_bob"
+    if not isinstance(value, str) or value not in DISTORTION_MODELS:
+        raise KincalError(f"distortion_model: {value!r} is not a lens model kincal reads "
+                          f"({', '.join(DISTORTION_MODELS)})", source=source)
+    return value
 
 
 def read_intrinsics(path: str | Path) -> Intrinsics:
     """A ROS ``camera_info`` YAML (``camera_matrix: {data: [9]}``,
-    ``distortion_coefficients: {data: [...]}``), an OpenCV FileStorage YAML, or
+    ``distortion_model``, ``distortion_coefficients: {data: [...]}``), an OpenCV
+    FileStorage YAML (``camera_matrix``, ``distortion_coefficients``, and
+    ``fisheye_model: 1`` or ``distortion_model: equidistant`` for a fisheye), or
     ROS-Industrial industrial_calibration's ``intrinsics: {fx, fy, cx, cy}`` (no
-    distortion)."""
+    distortion).  An unknown ``distortion_model`` is refused (one line naming the file and
+    the field)."""
     src = str(path)
     if not Path(path).is_file():
         raise KincalError("no such intrinsics file", source=src)
@@ -118,10 +145,13 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
         cv2 = require_opencv()
         fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
         K, d = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat()
+        named, fish = fs.getNode("distortion_model"), fs.getNode("fisheye_model")
+        model = (_distortion_model(named.string(), src) if not named.empty() else
+                 "equidistant" if not fish.empty() and fish.real() != 0 else "plumb_bob")
         fs.release()
         if K is None:
             raise KincalError("no camera_matrix in this OpenCV YAML", source=src)
-        return _intrinsics_from(K, d, src)
+        return _intrinsics_from(K, d, src, model)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError:
@@ -138,7 +168,8 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
         raise KincalError("expected camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}",
                           source=src)
     dc = data.get("distortion_coefficients", {})
-    return _intrinsics_from(cm["data"], dc.get("data") if isinstance(dc, dict) else None, src)
+    return _intrinsics_from(cm["data"], dc.get("data") if isinstance(dc, dict) else None, src,
+                            _distortion_model(data.get("distortion_model"), src))
 
 
 @dataclass
@@ -417,6 +448,22 @@ def drop_oblique(images: ImageSet, board: Board, intr: Intrinsics,
     return ImageSet(keep, dropped, images.size, images.intrinsics, images.notes)
 
 
+def detect_gray(cv2: Any, gray: Any, board: Board, min_corners: int = 6,
+                min_sharpness: float = MIN_SHARPNESS) -> tuple[NDArray[np.int64], Array] | str:
+    """The corner ids and pixels [px] of ``board`` in one grey image, or why it is dropped:
+    board not found, fewer than ``min_corners`` corners, or blurred
+    (:func:`board_sharpness` under ``min_sharpness``)."""
+    ids, uv = detect_board(cv2, gray, board)
+    if len(ids) == 0:
+        return "board not found"
+    if len(ids) < min_corners:
+        return f"too few corners ({len(ids)} < {min_corners})"
+    if (sharp := board_sharpness(cv2, gray, uv)) < min_sharpness:
+        return (f"motion blur (sharpness {sharp:.2g} < {min_sharpness:g} px^-3: variance of "
+                "the Laplacian on the board x corner spacing / contrast^2)")
+    return ids, uv
+
+
 def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] | None = None,
                   min_corners: int = 6, require_joints: bool = True,
                   min_sharpness: float = MIN_SHARPNESS) -> ImageSet:
@@ -454,17 +501,11 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
             out.dropped.append((label, "cannot be read as an image"))
             continue
         out.size = (int(gray.shape[1]), int(gray.shape[0]))
-        ids, uv = detect_board(cv2, gray, board)
-        if len(ids) == 0:
-            out.dropped.append((label, "board not found"))
-        elif len(ids) < min_corners:
-            out.dropped.append((label, f"too few corners ({len(ids)} < {min_corners})"))
-        elif (sharp := board_sharpness(cv2, gray, uv)) < min_sharpness:
-            out.dropped.append((label, f"motion blur (sharpness {sharp:.2g} < "
-                                       f"{min_sharpness:g} px^-3: variance of the Laplacian"
-                                       " on the board x corner spacing / contrast^2)"))
+        found = detect_gray(cv2, gray, board, min_corners, min_sharpness)
+        if isinstance(found, str):
+            out.dropped.append((label, found))
         else:
-            out.detections.append(Detection(label, ids, uv, q))
+            out.detections.append(Detection(label, *found, q))
     if given:
         first = given[0]
         if any(g.pinhole != first.pinhole or g.dist != first.dist for g in given[1:]):
@@ -474,12 +515,30 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
     return out
 
 
-def estimate_intrinsics(images: ImageSet, board: Board) -> Intrinsics:
-    """Pinhole + k1 k2 p1 p2 k3 from the detections by ``cv2.calibrateCamera``."""
+def estimate_intrinsics(images: ImageSet, board: Board,
+                        model: str = "plumb_bob") -> Intrinsics:
+    """Pinhole + k1 k2 p1 p2 k3 from the detections by ``cv2.calibrateCamera``; with
+    ``model="equidistant"`` the fisheye's k1 k2 k3 k4 by ``cv2.fisheye.calibrate`` (skew
+    fixed at 0, the board poses recomputed at every step)."""
     cv2 = require_opencv()
     if len(images.detections) < 3:
         raise KincalError(f"{len(images.detections)} images with the board: estimating "
                           "intrinsics needs 3 at least; give them with --intrinsics")
+    if model == "equidistant":
+        obj64 = [board.corner_points(d.ids).reshape(1, -1, 3) for d in images.detections]
+        img64 = [d.uv.reshape(1, -1, 2).astype(np.float64) for d in images.detections]
+        flags = sum(getattr(cv2.fisheye, f, None) or getattr(cv2, f)   # 4.x | 5.x
+                    for f in ("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW"))
+        crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+        try:
+            rms, K, dist, _, _ = cv2.fisheye.calibrate(obj64, img64, images.size, None, None,
+                                                       flags=flags, criteria=crit)
+        except cv2.error as exc:
+            raise KincalError("cv2.fisheye.calibrate failed on these images ("
+                              + " ".join(str(exc).split())[-100:] + "); give the "
+                              "intrinsics with --intrinsics") from None
+        return _intrinsics_from(K, dist, f"estimated (cv2.fisheye.calibrate, RMS {rms:.3g} "
+                                "px)", "equidistant")
     obj = [board.corner_points(d.ids).astype(np.float32) for d in images.detections]
     img = [d.uv.astype(np.float32).reshape(-1, 1, 2) for d in images.detections]
     rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, images.size, None, None)
@@ -487,10 +546,17 @@ def estimate_intrinsics(images: ImageSet, board: Board) -> Intrinsics:
 
 
 def undistort(uv: Array, intr: Intrinsics) -> Array:
-    """Undistorted pixels (the pinhole image of the same rays) [px]."""
+    """Undistorted pixels (the pinhole image of the same rays) [px]; the fisheye's by
+    ``cv2.fisheye.undistortPoints``."""
     if not any(intr.dist):
         return uv.copy()
     cv2 = require_opencv()
+    if intr.model == "equidistant":
+        crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-14)
+        fish = cv2.fisheye.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64),
+                                           intr.matrix, np.asarray(intr.dist, dtype=float),
+                                           P=intr.matrix, criteria=crit)
+        return np.asarray(fish, dtype=float).reshape(-1, 2)
     out = cv2.undistortPoints(uv.reshape(-1, 1, 2).astype(np.float64), intr.matrix,
                               np.asarray(intr.dist, dtype=float), P=intr.matrix)
     return np.asarray(out, dtype=float).reshape(-1, 2)
@@ -536,7 +602,9 @@ def write_image_measurements(path: str | Path, images: ImageSet, board: Board,
     dist = " ".join(f"{v:.6g}" for v in intr.dist)
     write_block_table(path, block_tags("camera", block, mount="hand"), q, cols, None, robot,
                       [_board_note(board),
-                       f"intrinsics {intr.source}; distortion (k1 k2 p1 p2 k3) {dist} "
+                       f"intrinsics {intr.source}; distortion ("
+                       + ("equidistant k1 k2 k3 k4" if intr.model == "equidistant" else
+                          "k1 k2 p1 p2 k3") + f") {dist} "
                        "removed: u = fx x/z + cx, v = fy y/z + cy",
                        f"{len(images.detections)} images, {len(q)} corners; dropped: "
                        + (", ".join(f"{i} ({r})" for i, r in images.dropped) or "none")])

@@ -1,0 +1,245 @@
+"""ROS bags of board images in: real bags written with rosbags' own writer (ROS 1 with raw
+images in four encodings, ROS 2 MCAP with PNG and JPEG CompressedImage and joint
+velocities) from a
+simulated Panda with a hand camera: standstills with an image each, an image while the
+arm moves, one where the joint states have a hole, one after they end.  The imported rows
+are checked against the known postures and the board corners' true pixels, the drops
+against their causes, and the refusals (damaged bag, wrong topic, unknown encoding)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_helpers import run
+
+from kincal.robots.files import load_serial_robot
+from kincal.spatial import inverse, matrix_from_frame
+
+pytest.importorskip("rosbags", reason="the 'ros' extra (rosbags) is not installed")
+cv2 = pytest.importorskip("cv2")
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from test_camera_fisheye import BOARD, _render  # noqa: E402
+
+W, H = 640, 480
+K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+Q0 = np.array([-0.22, -0.19, 0.0, -2.42, 0.28, 2.15, 0.31])
+X_HAND = matrix_from_frame([0.040, -0.030, 0.065, 0.80, 0.01, -0.05])
+RATE, STILL, MOVE = 50.0, 1.0, 1.0                 # joint states [Hz], [s], [s]
+T0 = 1_700_000_000
+ENCODINGS = ["mono8", "bgr8", "rgb8", "mono16"]
+
+
+def _pixels(B: np.ndarray) -> np.ndarray:
+    x = BOARD.corner_points(np.arange(BOARD.num_corners)) @ B[:3, :3].T + B[:3, 3]
+    return x[:, :2] / x[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
+
+
+@pytest.fixture(scope="module")
+def session():
+    """Postures, joint states (t, q, qdot) and the images ``(t, grey, label)``: one in
+    each standstill, one mid-move, one in a hole of the joint states, one after them."""
+    robot = load_serial_robot("panda")
+    rng = np.random.default_rng(4)
+    Z = robot.fk(Q0) @ X_HAND @ matrix_from_frame([-0.085, -0.12, 0.42, 0.2, 0.1, -0.1])
+
+    def view(q: np.ndarray) -> np.ndarray:
+        return inverse(X_HAND) @ inverse(robot.fk(q)) @ Z
+
+    postures: list[np.ndarray] = []
+    while len(postures) < 5:
+        q = Q0 + rng.uniform(-0.25, 0.25, 7)
+        uv = _pixels(view(q))
+        if uv.min() > 40 and uv[:, 0].max() < W - 40 and uv[:, 1].max() < H - 40:
+            postures.append(q)
+    ts, qs, vs, shots = [], [], [], []
+    t = 0.0
+    for k, q in enumerate(postures):
+        if k:
+            for s in np.arange(0.0, MOVE, 1 / RATE):
+                a = 0.5 - 0.5 * math.cos(math.pi * s / MOVE)
+                ts.append(t + s)
+                qs.append(postures[k - 1] + a * (q - postures[k - 1]))
+                vs.append(0.5 * math.pi / MOVE * math.sin(math.pi * s / MOVE)
+                          * (q - postures[k - 1]))
+            shots.append((t + 0.5 * MOVE + 0.003, "moving", k))
+            t += MOVE
+        for s in np.arange(0.0, STILL, 1 / RATE):
+            ts.append(t + s)
+            qs.append(q.copy())
+            vs.append(np.zeros(7))
+        shots.append((t + 0.5 * STILL + 0.0037, "still", k))
+        t += STILL
+    jt, jq, jv = np.array(ts), np.array(qs), np.array(vs)
+    hole = shots[-1][0]                             # no joint states within 60 ms of it
+    keep = np.abs(jt - hole) > 0.06
+    jt, jq, jv = jt[keep], jq[keep], jv[keep]
+    shots[-1] = (hole, "hole", len(postures) - 1)
+    shots.append((jt[-1] + 0.5, "after", len(postures) - 1))
+    images = []
+    for t_img, what, k in shots:
+        q = postures[k] if what != "moving" else np.array(
+            [np.interp(t_img, jt, jq[:, j]) for j in range(7)])
+        u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+        rays = np.column_stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1],
+                                np.ones(W * H)])
+        images.append((t_img, _render(cv2, view(q), rays, rng).reshape(H, W), what, q))
+    truth = {k: (postures[k], _pixels(view(postures[k]))) for k in range(len(postures))}
+    return robot, jt, jq, jv, images, truth
+
+
+def _header(ts, kind: str, t: float):
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=T0 + int(t), nanosec=int(round((t % 1) * 1e9)))
+    kw = {"seq": 0} if kind == "ros1" else {}
+    return T["std_msgs/msg/Header"](stamp=stamp, frame_id="camera", **kw)
+
+
+def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
+    """ROS 1: /joint_states without velocities, raw Image in the four encodings in turn
+    (or ``encodings``); ROS 2 MCAP: joint velocities, PNG and JPEG CompressedImage.  The joint
+    states name one more joint (a gripper finger) than the arm has."""
+    robot, jt, jq, jv, images, _ = session
+    ts = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
+    T = ts.types
+    js, img_t = "sensor_msgs/msg/JointState", ("sensor_msgs/msg/Image" if kind == "ros1"
+                                               else "sensor_msgs/msg/CompressedImage")
+    if kind == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        writer, ser = Writer(path), ts.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        writer, ser = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP), ts.serialize_cdr
+    names = [*robot.joint_names, "finger_joint"]
+    events = sorted([(t, 0, i) for i, t in enumerate(jt)]
+                    + [(im[0], 1, i) for i, im in enumerate(images)])
+    encodings = encodings or ENCODINGS
+    with writer:
+        cj = writer.add_connection("/joint_states", js, typestore=ts)
+        ci = writer.add_connection("/camera/image", img_t, typestore=ts)
+        for t, which, i in events:
+            ns = T0 * 1_000_000_000 + int(round(t * 1e9))
+            if which == 0:
+                vel = np.r_[jv[i], 0.0] if kind != "ros1" else np.zeros(0)
+                msg = T[js](header=_header(ts, kind, t), name=names,
+                            position=np.r_[jq[i], 0.02], velocity=vel, effort=np.zeros(0))
+                writer.write(cj, ns, ser(msg, js))
+                continue
+            grey = images[i][1]
+            if kind != "ros1":                        # PNG and JPEG (quality 95) in turn
+                fmt = ("png", "jpeg")[i % 2]
+                data = cv2.imencode(".png" if fmt == "png" else ".jpg", grey,
+                                    [] if fmt == "png" else [cv2.IMWRITE_JPEG_QUALITY, 95])[1]
+                msg = T[img_t](header=_header(ts, kind, t), format=fmt, data=data.reshape(-1))
+            else:
+                enc = encodings[i % len(encodings)]
+                pix = {"mono8": grey, "mono16": grey.astype(np.uint16) * 257,
+                       "bgr8": np.dstack([grey] * 3), "rgb8": np.dstack([grey] * 3)}.get(
+                    enc, grey)
+                data = np.frombuffer(pix.astype(pix.dtype.newbyteorder("<")).tobytes(),
+                                     dtype=np.uint8)
+                msg = T[img_t](header=_header(ts, kind, t), height=H, width=W, encoding=enc,
+                               is_bigendian=0, step=data.size // H, data=data)
+            writer.write(ci, ns, ser(msg, img_t))
+
+
+def _files(tmp_path: Path) -> tuple[Path, Path]:
+    board = tmp_path / "board.yaml"
+    board.write_text("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\nmarker: 28 mm\n"
+                     "dictionary: DICT_6X6_250\n")
+    cam = tmp_path / "camera_info.yaml"
+    cam.write_text("camera_matrix: {rows: 3, cols: 3, data: [500, 0, 320, 0, 500, 240, 0, 0, "
+                   "1]}\ndistortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, "
+                   "cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    return board, cam
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_image_bag_rows_are_the_known_postures_and_corners(kind, tmp_path, capsys,
+                                                           session) -> None:
+    robot, jt, jq, jv, images, truth = session
+    bag = tmp_path / ("cal.bag" if kind == "ros1" else "cal")
+    write_image_bag(bag, kind, session)
+    board, cam = _files(tmp_path)
+    code, out, err = run(capsys, "import", "images", bag, "--board", board, "--image-topic",
+                         "/camera/image", "--intrinsics", cam, "--robot", "panda",
+                         "-o", tmp_path / "m.csv", "--json", tmp_path / "m.json")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "m.json").read_text())
+    why = {d["image"].split("@")[0]: d["reason"] for d in doc["dropped"]}
+    kinds = [im[2] for im in images]
+    for k, what in enumerate(kinds):
+        label = f"{k:04d}"
+        if what == "still":
+            assert label not in why, why
+        else:
+            expect = {"moving": "robot moving", "hole": "no joint states within 20 ms",
+                      "after": "none after"}[what]
+            assert expect in why[label], (what, why[label])
+    assert len(doc["images"]) == kinds.count("still") == 4
+    rows = [r for r in csv.DictReader(line for line in (tmp_path / "m.csv").read_text()
+                                      .splitlines() if not line.startswith("#"))]
+    names = [n for n in rows[0] if n.endswith("_rad")]
+    assert len(names) == 7                                 # the finger joint left out
+    still = [im for im in images if im[2] == "still"]
+    for (t_img, _, _, q), label in zip(still, sorted({r["image"] for r in rows}), strict=True):
+        mine = [r for r in rows if r["image"] == label]
+        assert abs(float(label.split("@")[1]) - (T0 + t_img)) < 1e-3
+        assert np.abs(np.array([float(mine[0][n]) for n in names]) - q).max() < 1e-12
+        k = [j for j, (p, _) in truth.items() if np.array_equal(p, q)][0]
+        uv = np.array([[float(r["u_px"]), float(r["v_px"])] for r in mine])
+        ids = np.array([int(r["corner"]) for r in mine])
+        err_px = np.linalg.norm(uv - truth[k][1][ids], axis=1)
+        assert len(ids) >= 16 and np.sqrt(np.mean(err_px**2)) < 0.15 and err_px.max() < 0.3
+
+
+def test_image_bag_refusals(tmp_path, capsys, session) -> None:
+    """One line, exit 2: a damaged bag, a topic it does not have, a topic of another type,
+    an encoding kincal does not read; without --image-topic the bag is named."""
+    board, cam = _files(tmp_path)
+    bag = tmp_path / "cal.bag"
+    write_image_bag(bag, "ros1", session, encodings=["mono8", "bayer_rggb8"])
+    base = ["import", "images", bag, "--board", board, "--intrinsics", cam, "-o",
+            tmp_path / "m.csv"]
+    for extra, match in [(["--image-topic", "/camera/nope"], "no topic '/camera/nope'"),
+                         (["--image-topic", "/joint_states"], "expected sensor_msgs/msg/Image"),
+                         (["--image-topic", "/camera/image"], "encoding 'bayer_rggb8'"),
+                         ([], "give the images' topic with --image-topic")]:
+        code, out, err = run(capsys, *base, *extra)
+        assert code == 2 and err.count("\n") == 1 and match in err, err
+        assert str(bag) in err or "--image-topic" in err
+    data = bag.read_bytes()
+    bag.write_bytes(data[: len(data) // 2])
+    code, out, err = run(capsys, *base, "--image-topic", "/camera/image")
+    assert code == 2 and err.count("\n") == 1 and "ROS bag" in err, err
+    assert not (tmp_path / "m.csv").exists()
+
+
+def test_joints_at_interpolates_and_checks_gap_and_speed() -> None:
+    """Linear interpolation between the neighbours; an exact stamp takes its sample; a
+    recorded velocity alone (positions still) marks the robot moving."""
+    from kincal.measure.camera_bags import ImageBagOptions, joints_at
+
+    jt = np.array([0.0, 0.01, 0.02, 0.05])
+    jq = np.array([[0.0, 1.0], [0.0, 1.0], [0.0002, 1.0], [0.0002, 1.0]])
+    opt = ImageBagOptions(max_gap=0.02, max_speed=0.01)
+    q, why = joints_at(0.015, jt, jq, opt)
+    assert why is not None and "robot moving (0.02 " in why     # 2e-4 rad in 10 ms
+    q, why = joints_at(0.015, jt, jq, ImageBagOptions(0.02, 0.05))
+    assert why is None and np.allclose(q, [0.0001, 1.0])
+    q, why = joints_at(0.01, jt, jq, ImageBagOptions(0.02, 0.05))
+    assert why is None and np.array_equal(q, jq[1])
+    q, why = joints_at(0.045, jt, jq, opt)
+    assert why is not None and "before 25 ms, after 5 ms" in why
+    q, why = joints_at(0.06, jt, jq, opt)
+    assert why is not None and "none after" in why
+    jv = np.zeros((4, 2))
+    jv[:, 1] = 0.5
+    q, why = joints_at(0.035, jt, jq, ImageBagOptions(0.02, 0.01), jv)
+    assert why is not None and "robot moving (0.5 " in why
