@@ -10,8 +10,8 @@ frame, ``B(q) = X^-1 T(q) Z``.  A board corner ``P`` projects with the pinhole
 
 Default placements (:func:`default_placement`, at the ``center`` configuration): the
 board's centre on the optical axis at ``distance`` (default: the board fills half the
-image, ``d = max(fx w_board / (0.5 W), fy h_board / (0.5 H))``), its printed face (board +z) towards the
-camera; eye-in-hand ``X = I`` (the camera looks along the tool's z), eye-to-hand the
+image, ``d = max(fx w_board / (0.5 W), fy h_board / (0.5 H))``), its printed face (board
++z) towards the camera; eye-in-hand ``X = I`` (the camera looks along the tool's z), eye-to-hand the
 board centred on the flange with its face along the tool's z.
 
 A candidate pose **sees the board** (:func:`board_view`) when
