@@ -92,3 +92,38 @@ def test_predicted_errors_match_a_monte_carlo_of_captures(robot, hand_plan) -> N
     ratio_p = np.sqrt(np.mean(np.square(e_pos))) / p.std_position
     ratio_r = np.sqrt(np.mean(np.square(e_rot))) / p.std_rotation
     assert 0.55 < ratio_p < 1.6 and 0.55 < ratio_r < 1.6, (ratio_p, ratio_r)
+
+
+CAMERA_INFO = ("image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: "
+               "[640, 0, 645, 0, 641, 355, 0, 0, 1]}\ndistortion_coefficients: {rows: 1, cols: 5,"
+               " data: [0, 0, 0, 0, 0]}\n")
+
+
+def test_cli_writes_the_joints_csv_import_images_reads(tmp_path, capsys) -> None:
+    """`kincal plan --camera fixed`: the CSV is what `import images --joints` reads (the
+    JSON's poses), the hand-eye error is printed; bad options refused in one line."""
+    import json
+
+    from cli_helpers import run
+
+    from kincal.measure.camera_images import read_joints_csv
+
+    (tmp_path / "board.yaml").write_text("type: charuco\nsquares: [4, 5]\nsquare: 40mm\n"
+                                         "marker: 30mm\ndictionary: DICT_6X6_250\n")
+    (tmp_path / "cam.yaml").write_text(CAMERA_INFO)
+    args = ["plan", "panda", "--camera", "fixed", "--board", tmp_path / "board.yaml",
+            "--intrinsics", tmp_path / "cam.yaml", "--center", "0,-17,0,-115,0,103,46",
+            "--spread", "25deg", "--candidates", "200", "-n", "6", "--angle-unit", "deg"]
+    code, out, err = run(capsys, *args, "-o", tmp_path / "p.csv", "--json", tmp_path / "p.json")
+    assert code == 0, err
+    assert "predicted hand-eye error" in out and "see the whole board" in out
+    doc = json.loads((tmp_path / "p.json").read_text())
+    q = read_joints_csv(tmp_path / "p.csv")
+    assert list(q) == doc["images"] and len(q) == 6
+    assert np.allclose(np.array(list(q.values())), doc["poses"], atol=1e-7)
+    for extra, match in [(["--camera", "wrist"], "--camera"),
+                         (["--camera", "hand", "--image-size", "big"], "--image-size"),
+                         (["--camera", "hand", "-n", "150"], "see the whole board")]:
+        code, out, err = run(capsys, *args, *extra, "-o", tmp_path / "x.csv")
+        assert code == 2 and err.count("\n") == 1 and match in err, err
+        assert not (tmp_path / "x.csv").exists()

@@ -72,7 +72,7 @@ from kincal.spatial import frame_from_matrix, inverse, matrix_from_frame
 Array = NDArray[np.float64]
 
 __all__ = ["CameraPlan", "BoardView", "board_view", "default_placement", "plan_camera_poses",
-           "predicted_hand_eye_std", "RANDOM_DESIGNS"]
+           "predicted_hand_eye_std", "write_camera_poses", "RANDOM_DESIGNS"]
 
 TOOL = tuple(f"tool.{f}" for f in ("x", "y", "z", "rz", "ry", "rx"))
 #: Random designs of the baseline.
@@ -324,3 +324,22 @@ def plan_camera_poses(robot: Robot, corners: Array, intrinsics: Sequence[float],
     return CameraPlan(design.q, Xp, Zp, chosen, design, sp, sr,
                       dict(zip(problem.names, std.tolist(), strict=True)), rp, rr, why,
                       len(q), len(qv), inputs)
+
+
+def write_camera_poses(path: str, robot: Robot, q: ArrayLike, angle_unit: str = "deg",
+                       length_unit: str = "mm", comments: Sequence[str] = ()) -> list[str]:
+    """Write the planned poses as the joints CSV of ``kincal import images --joints``:
+    ``image`` (``pose_01.png`` ...: name the images so), then one column per joint with
+    its unit (``{joint}_{unit}``), ``#`` comment lines first; atomically.  Returns the
+    image names."""
+    from kincal.io import atomic_write_text
+    from kincal.measure.files import joint_columns
+
+    Q = np.atleast_2d(np.asarray(q, dtype=float))
+    cols = joint_columns(robot, Q.shape[1], angle_unit, length_unit)
+    names = [f"pose_{k + 1:02d}.png" for k in range(len(Q))]
+    lines = [f"# {c}" for c in comments] + [",".join(["image"] + [n for n, _ in cols])]
+    lines += [",".join([n] + [f"{v * f:.6f}" for v, (_, f) in zip(row, cols, strict=True)])
+              for n, row in zip(names, Q, strict=True)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+    return names
