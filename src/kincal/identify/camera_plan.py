@@ -10,17 +10,19 @@ frame, ``B(q) = X^-1 T(q) Z``.  A board corner ``P`` projects with the pinhole
 
 Default placements (:func:`default_placement`, at the ``center`` configuration): the
 board's centre on the optical axis at ``distance`` (default: the board fills half the
-image, ``d = max(fx w_board / (0.5 W), fy h_board / (0.5 H))``), its printed face (board
-+z) towards the camera; eye-in-hand ``X = I`` (the camera looks along the tool's z), eye-to-hand the
-board centred on the flange with its face along the tool's z.
+image, ``d = max(fx w_board / (0.5 W), fy h_board / (0.5 H))``), its printed face towards
+the camera (OpenCV's board frame: x along the first row of corners, z into the board, away
+from the viewer: the board's axes are the camera's); eye-in-hand ``X = I`` (the camera
+looks along the tool's z), eye-to-hand the board centred on the flange, its printed face
+along the tool's z (``Z = Rx(pi)`` about its centre).
 
 A candidate pose **sees the board** (:func:`board_view`) when
 
 1. every corner is at least 5 cm in front of the camera and projects inside the image
    shrunk by ``margin`` (a fraction of its width and height, default 5 %);
-2. the board is not too oblique: the angle between its normal and the ray from its
-   centre to the camera is at most ``max_tilt`` (default 45 deg; ``kincal import images``
-   drops images beyond 60 deg);
+2. the board is not too oblique, and its printed face is seen: the angle between its z
+   axis and the ray from the camera to its centre is at most ``max_tilt`` (default
+   45 deg; ``kincal import images`` drops images beyond 60 deg);
 3. the board is not too far: the diagonal of its corners' bounding box in the image is
    at least ``min_size`` (default 0.2) of the image diagonal.
 
@@ -97,13 +99,13 @@ def default_placement(robot: Robot, center: ArrayLike, corners: Array, mount: st
     is kept."""
     Tc = robot.fk(np.asarray(center, dtype=float))
     c = corners.mean(axis=0)
-    face = _shift([0.0, 0.0, distance]) @ _rx_pi()     # camera -> board centre frame
+    face = _shift([0.0, 0.0, distance])     # the board centre's frame in the camera
     if mount == "hand":
         Xh = np.eye(4) if X is None else X
         return Xh, (Tc @ Xh @ face @ _shift(-c) if Z is None else Z)
     if mount != "fixed":
         raise KincalError(f"mount={mount!r}: use 'hand' or 'fixed'")
-    Zf = _shift(-c) if Z is None else Z
+    Zf = _rx_pi() @ _shift(-c) if Z is None else Z
     return (Tc @ Zf @ _shift(c) @ inverse(face) if X is None else X), Zf
 
 
@@ -142,8 +144,8 @@ def board_view(robot: Robot, q: ArrayLike, corners: Array, X: Array, Z: Array, m
               & (uv[..., 1] >= margin * H) & (uv[..., 1] <= (1 - margin) * H)
               & (x[..., 2] > 0.05)).all(axis=1)
     centre = np.einsum("nij,j->ni", B[:, :3, :3], corners.mean(axis=0)) + B[:, :3, 3]
-    to_cam = -centre / np.linalg.norm(centre, axis=1, keepdims=True)
-    tilt = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", B[:, :3, 2], to_cam), -1, 1)))
+    ray = centre / np.linalg.norm(centre, axis=1, keepdims=True)
+    tilt = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", B[:, :3, 2], ray), -1, 1)))
     size = np.hypot(*(uv.max(axis=1) - uv.min(axis=1)).T) / np.hypot(W, H)
     ok = inside & (tilt <= max_tilt_deg) & (size >= min_size)
     return BoardView(uv, tilt, centre[:, 2], size, ok)
