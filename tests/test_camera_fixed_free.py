@@ -108,3 +108,60 @@ def test_without_joints_robot_parameters_are_refused() -> None:
     with pytest.raises(Exception, match="joint values"):
         calibrate_board_camera(nominal.fk(q), pts, uv, list("abcd"), LENS, "fixed", 0.0,
                                fit_lens=(), sigma=0.3, free=["theta_offset*"])
+
+
+def test_cli_fixed_camera_with_joints_fits_the_offsets_and_names_the_held(tmp_path,
+                                                                        capsys) -> None:
+    """`kincal hand-eye panda --images --joints --mount fixed --free 'theta_offset*'` on 6
+    rendered images (perspective warp of the board, blur, noise) of a board on the flange
+    of a Panda with joint-offset errors: the offsets within 4 stated standard errors, the
+    first and last named as held, in the console and the JSON."""
+    cv2 = pytest.importorskip("cv2")
+    import json
+
+    from cli_helpers import run
+    from test_camera_images import MARGIN, PX, _render
+
+    board = Board("charuco", 5, 7, 0.034, 0.028, "DICT_6X6_250")
+    (tmp_path / "board.yaml").write_text("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\n"
+                                         "marker: 28 mm\ndictionary: DICT_6X6_250\n")
+    (tmp_path / "cam.yaml").write_text("camera_matrix: {rows: 3, cols: 3, data: [640, 0, "
+                                       "645, 0, 641, 355, 0, 0, 1]}\n")
+    Kt = np.array([[640.0, 0, 645], [0, 641.0, 355], [0, 0, 1]])
+    S = np.array([[PX / board.square, 0, MARGIN - 0.5], [0, PX / board.square, MARGIN - 0.5],
+                  [0, 0, 1]])
+    nominal = load_serial_robot("panda")
+    offsets = {k: v for k, v in TRUTH.items() if k.startswith("theta")}
+    true = nominal.with_params(offsets)
+    on_flange = matrix_from_frame([0.0, 0.0, 0.05, 0.0, 0.0, np.pi])  # OpenCV: z into board
+    camera = true.fk(Q0) @ on_flange @ matrix_from_frame([0.07, 0.1, -0.45, 0.3, 0.0, 0.0])
+    pts = board.corner_points(np.arange(board.num_corners))
+    rng = np.random.default_rng(11)
+    (tmp_path / "img").mkdir()
+    rows = ["image," + ",".join(f"q{k + 1}_rad" for k in range(7))]
+    while len(rows) < 7:
+        q = Q0 + rng.uniform(-0.3, 0.3, 7)
+        B = inverse(camera) @ true.fk(q) @ on_flange
+        x = pts @ B[:3, :3].T + B[:3, 3]
+        uv = x[:, :2] / x[:, 2:] * 640 + [645, 355]
+        if (B[:3, 2] @ B[:3, 3] / np.linalg.norm(B[:3, 3]) < 0.7 or uv.min() < 40
+                or uv[:, 0].max() > 1240 or uv[:, 1].max() > 680):
+            continue
+        H = Kt @ np.column_stack([B[:3, 0], B[:3, 1], B[:3, 3]]) @ np.linalg.inv(S)
+        name = f"{len(rows):02d}.png"
+        cv2.imwrite(str(tmp_path / "img" / name), _render(cv2, board, H / H[2, 2], rng))
+        rows.append(name + "," + ",".join(f"{v:.9f}" for v in q))
+    (tmp_path / "joints.csv").write_text("\n".join(rows) + "\n")
+    code, out, err = run(capsys, "hand-eye", "panda", "--images", tmp_path / "img", "--board",
+                         tmp_path / "board.yaml", "--joints", tmp_path / "joints.csv",
+                         "--mount", "fixed", "--intrinsics", tmp_path / "cam.yaml", "--lens",
+                         "none", "--holdout", "0", "--free", "theta_offset*", "--json",
+                         tmp_path / "f.json")
+    assert code == 0, err
+    assert "held at nominal: theta_offset[1]" in out and "robot parameters fitted" in out
+    doc = json.loads((tmp_path / "f.json").read_text())
+    assert set(doc["robot_parameters_held"]) == {"theta_offset[1]", "theta_offset[7]"}
+    fitted = doc["robot_parameters"]
+    assert set(fitted) == set(offsets)
+    for n, v in fitted.items():
+        assert abs(v["value"] - offsets[n]) < 4 * v["std"], (n, v, offsets[n])
