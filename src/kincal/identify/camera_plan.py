@@ -48,7 +48,11 @@ parameters' units, the corner noise ``sigma`` included), the hand-eye's position
 ``sqrt(trace Cov_xyz)`` [m] and rotation error ``sqrt(trace(A Cov_rot A^T))`` [rad] with
 ``A`` the world axes of the ``rz, ry, rx`` angles (a small rotation vector is ``A d``).
 The same for :data:`RANDOM_DESIGNS` random designs of the same size from the same visible
-candidates, the median quoted as the baseline.
+candidates, the median quoted as the baseline.  Measured (``python
+benchmarks/camera_plan.py --trials 40``: Panda, hand camera, 5x7 board, 12 poses, joint
+offsets free, 0.5 px): predicted 0.130 mm / 0.0202 deg, Monte Carlo of fits at the
+planned poses 0.117 mm / 0.0202 deg (ratio 0.90 / 1.00); 12 random visible poses
+0.267 mm / 0.0326 deg.
 """
 
 from __future__ import annotations
