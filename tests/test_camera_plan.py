@@ -124,7 +124,8 @@ def test_cli_writes_the_joints_csv_import_images_reads(tmp_path, capsys) -> None
     assert np.allclose(np.array(list(q.values())), doc["poses"], atol=1e-7)
     for extra, match in [(["--camera", "wrist"], "--camera"),
                          (["--camera", "hand", "--image-size", "big"], "--image-size"),
-                         (["--camera", "hand", "-n", "150"], "see the whole board")]:
+                         (["--camera", "hand", "-n", "150"], "see the whole board"),
+                         (["--program", "krl"], "--program: not with --camera")]:
         code, out, err = run(capsys, *args, *extra, "-o", tmp_path / "x.csv")
         assert code == 2 and err.count("\n") == 1 and match in err, err
         assert not (tmp_path / "x.csv").exists()

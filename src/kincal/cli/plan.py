@@ -327,6 +327,11 @@ def plan(
     if camera is not None:
         from kincal.cli.camera_plan import camera_plan
 
+        extra = [o for o, v in (("--iso9283", iso9283), ("--program", program), ("--report",
+                 report), ("--candidates-file", candidates_file), ("--reachable", reachable))
+                 if v]
+        if extra:
+            raise KincalError(f"option {extra[0]}: not with --camera")
         _check_units(angle_unit, length_unit)
         camera_plan(err_console if json_out == "-" else console,
                     robot_arg(robot, base_link, tip_link), output, camera, board, intrinsics,

@@ -204,7 +204,8 @@ def fixed_camera_robot_start(robot: Robot, q: Array, points: Sequence[Array],
     block = BoardOnFlangeMeasurement(name, np.repeat(Q, [len(P) for P in points], axis=0),
                                      np.vstack(points), np.vstack(uv), sigma, tuple(K))
     cam = list(block.parameters().names)
-    wanted = [robot.param_names[i] for i in match_names(robot.param_names, list(free))]
+    wanted = [robot.param_names[i] for i in match_names(robot.param_names, list(free))
+              if robot.param_names[i] not in TOOL]         # the tool frame is the board
     res = calibrate(robot0, [block], free=[*TOOL, f"{name}.camera.*", *wanted],
                     initial=dict(zip(cam, frame_from_matrix(start.X).tolist(), strict=True)),
                     prefer=[*TOOL, f"{name}.camera.*"])
