@@ -298,9 +298,9 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
         raise KincalError(f"--mount {mount}: use hand or fixed")
     if lens not in ("all", "pinhole", "none", "fisheye"):
         raise KincalError(f"--lens {lens}: use all, pinhole, none or fisheye")
-    if free and (mount != "hand" or poses is not None):
-        raise KincalError("--free: robot parameters are fitted with a camera on the hand "
-                          "and the robot's joint values (not with --mount fixed or --poses)")
+    if free and poses is not None:
+        raise KincalError("--free: robot parameters are fitted from the robot's joint "
+                          "values (ROBOT and --joints), not with --poses")
     if output and (mount != "hand" or poses is not None):
         raise KincalError("-o writes the robot with the camera as its tool frame: a camera "
                           "on the hand and joint values (use --json)")
@@ -413,6 +413,8 @@ def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount
     if fit.robot:
         out.print("robot parameters fitted: " + ", ".join(
             f"{n} {v:.6g} ± {s:.2g}" for n, (v, s) in fit.robot.items()))
+    for n, why in fit.held.items():
+        out.print(f"held at nominal: {escape(n)}: {escape(why)}")
     out.print(f"expected error of the hand-eye (1 sigma): {fit.expected_position * 1e3:.2f} "
               f"mm, {np.degrees(fit.expected_rotation):.3f} deg: covariance "
               f"{fit.std_position * 1e3:.2f} mm, {np.degrees(fit.std_rotation):.3f} deg "
@@ -438,5 +440,6 @@ def _lens_json(fit: Any, images: str, mount: str) -> dict[str, Any]:
             "intrinsics": dict(zip(fit.lens_names, fit.lens.tolist(), strict=True)),
             "intrinsics_std": dict(zip(fit.lens_names, fit.lens_std.tolist(), strict=True)),
             "robot_parameters": {n: {"value": v, "std": s} for n, (v, s) in fit.robot.items()},
+            "robot_parameters_held": fit.held,
             **_quality(fit),
             "flange_rotation_deg": fit.rotation_deg.tolist(), "sigma0": fit.sigma0}

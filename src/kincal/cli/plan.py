@@ -24,6 +24,20 @@ from rich.markup import escape
 from rich.table import Table
 
 from kincal.cli.app import app
+from kincal.cli.camera_plan import (
+    BoardOpt,
+    BoardPoseOpt,
+    CameraOpt,
+    CameraPoseOpt,
+    CenterOpt,
+    DistanceOpt,
+    FreeOpt,
+    ImageSizeOpt,
+    IntrinsicsOpt,
+    MaxTiltOpt,
+    PixelNoiseOpt,
+    SpreadOpt,
+)
 from kincal.cli.common import (
     RobotArg,
     console,
@@ -298,9 +312,33 @@ def plan(
     tip_link: Annotated[str | None, typer.Option("--tip-link", help="URDF only: last link.")
                         ] = None,
     si: SiOpt = False,
+    camera: CameraOpt = None, board: BoardOpt = None, intrinsics: IntrinsicsOpt = None,
+    image_size: ImageSizeOpt = None, free: FreeOpt = None, camera_pose: CameraPoseOpt = None,
+    board_pose: BoardPoseOpt = None, center: CenterOpt = None, spread: SpreadOpt = "30deg",
+    max_tilt: MaxTiltOpt = "45deg", board_distance: DistanceOpt = None,
+    pixel_noise: PixelNoiseOpt = "0.5px",
 ) -> None:
     """Choose calibration poses by an observability criterion (O1-O5, kappa) and predict the
-    accuracy after calibration before measuring anything."""
+    accuracy after calibration before measuring anything.
+
+    \f
+    Why this is long: one parameter per command-line option (the tracker's, the ISO 9283
+    cube's and the camera's); the cube and the camera plans branch off at once."""
+    if camera is not None:
+        from kincal.cli.camera_plan import camera_plan
+
+        extra = [o for o, v in (("--iso9283", iso9283), ("--program", program), ("--report",
+                 report), ("--candidates-file", candidates_file), ("--reachable", reachable))
+                 if v]
+        if extra:
+            raise KincalError(f"option {extra[0]}: not with --camera")
+        _check_units(angle_unit, length_unit)
+        camera_plan(err_console if json_out == "-" else console,
+                    robot_arg(robot, base_link, tip_link), output, camera, board, intrinsics,
+                    image_size, poses, free, camera_pose, board_pose, center, spread, max_tilt,
+                    board_distance, pixel_noise, candidates, _criterion(criterion), seed,
+                    angle_unit, json_out)
+        return
     if iso9283:
         _iso_plan(robot, output, cube_center, cube_size, cycles, program, dwell, angle_unit,
                   length_unit, base_link, tip_link, json_out, use_si(si))

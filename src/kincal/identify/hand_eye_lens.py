@@ -55,6 +55,7 @@ from kincal.identify.hand_eye_fit import (
     fit_hand_camera,
     split_images,
 )
+from kincal.identify.hand_eye_fixed import fixed_camera_robot_start
 from kincal.identify.lens_fisheye import (
     FISHEYE,
     fisheye_jacobian,
@@ -184,6 +185,8 @@ class LensFit:
             3-D error their pixels imply at the board, ``|duv| z / f`` [m] per corner.
         robot: ``{name: (value, standard error)}`` of the robot parameters fitted.
         start: the closed-form hand-eye; rotation_deg: the flange's rotation spread.
+        held: ``{name: reason}`` of the robot parameters asked for and held at nominal
+            (eye-to-hand: :mod:`~kincal.identify.hand_eye_fixed`).
     """
 
     X: Array
@@ -209,6 +212,7 @@ class LensFit:
     rotation_deg: Array = field(default_factory=lambda: np.zeros(3))
     model: str = "radtan"
     lens_names: tuple[str, ...] = LENS
+    held: dict[str, str] = field(default_factory=dict)
 
     @property
     def floor_position(self) -> float:
@@ -389,12 +393,14 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     :func:`fit_board_camera` on the training images, and the held-out images' raw-pixel
     reprojection RMS under the fitted ``X``, ``Z`` and intrinsics.
 
-    ``free`` (eye-in-hand, with the ``robot`` and the joint values ``q`` (N, n) of the
-    images; ``robot_poses`` = ``robot.fk(q)``): robot parameter names or patterns fitted
-    too.  Which of them the images identify is kincal's solver's answer on the pinhole
-    fit with the pixels undistorted by ``lens0``
-    (:func:`~kincal.identify.hand_eye_fit.fit_hand_camera`, which also gives the start);
-    the joint fit then frees exactly those."""
+    ``free`` (with the ``robot`` and the joint values ``q`` (N, n) of the images;
+    ``robot_poses`` = ``robot.fk(q)``): robot parameter names or patterns fitted too.
+    Which of them the images identify is kincal's solver's answer on the pinhole fit
+    with the pixels undistorted by ``lens0`` (eye-in-hand:
+    :func:`~kincal.identify.hand_eye_fit.fit_hand_camera`; eye-to-hand:
+    :func:`~kincal.identify.hand_eye_fixed.fixed_camera_robot_start`, which also
+    holds those the images fix no better than their tolerances, ``held``); the joint
+    fit then frees exactly those."""
     A = np.asarray(robot_poses, dtype=float)
     names = list(images)
     if not len(A) == len(points) == len(uv) == len(names):
@@ -416,14 +422,21 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     B = np.array([board_pose(points[k], undistort_model(uv[k], L0, model), L0[:4])[0]
                   for k in it])
     start = hand_eye(A[it], B, mount)
+    held_robot: dict[str, str] = {}
     if free:
-        if robot is None or q is None or mount != "hand":
-            raise KincalError("robot parameters are fitted with a camera on the hand, from "
-                              "the robot and the joint values of the images")
+        if robot is None or q is None:
+            raise KincalError("robot parameters are fitted from the robot and the joint "
+                              "values of the images")
         Q = np.asarray(q, dtype=float)
-        rn, rv, X0, Z0 = _robot_start(robot, Q[it], [points[k] for k in it],
-                                      [undistort_model(uv[k], L0, model) for k in it],
-                                      train, L0, free, sigma)
+        if mount == "fixed":
+            fs = fixed_camera_robot_start(robot, Q[it], [points[k] for k in it],
+                                          [undistort_model(uv[k], L0, model) for k in it],
+                                          L0, free, sigma)
+            rn, rv, X0, Z0, held_robot = fs.names, fs.values, fs.X, fs.Z, fs.held
+        else:
+            rn, rv, X0, Z0 = _robot_start(robot, Q[it], [points[k] for k in it],
+                                          [undistort_model(uv[k], L0, model) for k in it],
+                                          train, L0, free, sigma)
 
         def kin(th: Array) -> Array:
             return robot.with_params(dict(zip(rn, th.tolist(), strict=True))).fk(Q[it])
@@ -435,7 +448,7 @@ def calibrate_board_camera(robot_poses: Array, points: Sequence[Array], uv: Sequ
     else:
         fit = fit_board_camera(A[it], [points[k] for k in it], [uv[k] for k in it], train, L0,
                                start.X, start.Z, mount, fit_lens, sigma, model=model)
-    fit.start, fit.rotation_deg, fit.held_out = start, rot, held
+    fit.start, fit.rotation_deg, fit.held_out, fit.held = start, rot, held, held_robot
     if held:
         C = _chain(A[[idx[n] for n in held]], mount)
         e, e3 = {}, []
