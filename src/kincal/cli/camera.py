@@ -20,6 +20,16 @@ from rich.markup import escape
 
 from kincal.cli.app import app
 from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
+from kincal.cli.camera_outputs import (
+    CameraInfoOpt,
+    ChildFrameOpt,
+    HandEyeFiles,
+    ParentFrameOpt,
+    ReportOpt,
+    RosLaunchOpt,
+    RosYamlOpt,
+    UrdfJointOpt,
+)
 from kincal.cli.importers import import_app
 from kincal.errors import KincalError
 
@@ -169,6 +179,10 @@ def hand_eye_command(
     loo: Annotated[bool, typer.Option("--leave-one-out", help="Also fit once per image with "
                                       "that image held out: its error, and the spread of the "
                                       "hand-eye (jackknife).")] = False,
+    ros_yaml: RosYamlOpt = None, ros_launch: RosLaunchOpt = None,
+    urdf_joint: UrdfJointOpt = None, camera_info: CameraInfoOpt = None,
+    report: ReportOpt = None, parent_frame: ParentFrameOpt = None,
+    child_frame: ChildFrameOpt = "camera_optical_frame",
     json_out: JsonOpt = None,
 ) -> None:
     """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
@@ -186,16 +200,20 @@ def hand_eye_command(
     from kincal.units import parse_quantity
 
     out = out_console(json_out)
+    files = HandEyeFiles(ros_yaml, ros_launch, urdf_joint, camera_info, report, parent_frame,
+                         child_frame)
     if images is not None or data is None:
         _hand_eye_images(out, robot, images, board, joints, poses, intrinsics, mount, lens,
-                         holdout, free, min_rotation, loo, output, json_out, data)
+                         holdout, free, min_rotation, loo, output, json_out, data, files)
         return
     if mount != "hand":
         raise KincalError("--mount fixed: give the images (--images FOLDER --board ...); "
                           "the measurement file is for a camera on the hand")
     if robot is None:
         raise KincalError("ROBOT: the robot the camera is on is missing")
-    check_outputs({"-o": output, "--json": json_out}, {"--data": [data], "ROBOT": [robot]})
+    files.check("hand", images=False)
+    check_outputs({"-o": output, "--json": json_out, **files.outputs()},
+                  {"--data": [data], "ROBOT": [robot]})
     r = serial(load(robot), "hand-eye")
     blocks = read_camera(data, r)
     if not isinstance(blocks[0], HandCameraMeasurement):
@@ -245,6 +263,7 @@ def hand_eye_command(
     if output:
         atomic_write_text(output, robot_yaml_text(fit.result.robot))
         out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    files.write_transform(out, fit, "hand", data)
     if json_out:
         write_json(json_out, doc)
 
@@ -253,7 +272,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                      joints: str | None, poses: str | None, intrinsics: str | None,
                      mount: str, lens: str, holdout: float, free: list[str] | None,
                      min_rotation: str, loo: bool, output: str | None, json_out: str | None,
-                     data: str | None) -> None:
+                     data: str | None, files: HandEyeFiles) -> None:
     """``kincal hand-eye --images``: detect, closed-form start, one fit of the hand-eye,
     the board and the intrinsics on the raw pixels (:mod:`kincal.identify.hand_eye_lens`)."""
     import numpy as np
@@ -290,9 +309,10 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                           "on the hand and joint values (use --json)")
     if poses is not None and (robot is not None or joints is not None):
         raise KincalError("--poses gives the flange poses: no ROBOT and no --joints with it")
-    check_outputs({"--json": json_out, "-o": output}, {"--images": [images], "--board": [board],
-                                         "--joints": joints, "--poses": poses,
-                                         "--intrinsics": intrinsics})
+    files.check(mount, images=True)
+    check_outputs({"--json": json_out, "-o": output, **files.outputs()},
+                  {"--images": [images], "--board": [board], "--joints": joints,
+                   "--poses": poses, "--intrinsics": intrinsics})
     b = read_board(board)
     table = read_joints_csv(joints) if joints else None
     found = detect_images(images, b, table, require_joints=poses is None)
@@ -350,8 +370,31 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                           tool.tolist(), strict=True))
         atomic_write_text(output, robot_yaml_text(r.with_params(values)))
         out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    _lens_files(out, files, fit, found, images, A, pts, mount, r, q)
     if json_out:
         write_json(json_out, doc)
+
+
+def _lens_files(out: Any, files: HandEyeFiles, fit: Any, found: Any, images: str, A: Any,
+                pts: list[Any], mount: str, r: Any, q: Any) -> None:
+    """The ROS files, the camera_info and the report of ``kincal hand-eye --images``."""
+    import numpy as np
+
+    from kincal.cli.camera_outputs import write_lens_report
+
+    files.write_transform(out, fit, mount, images)
+    files.write_camera_info(out, fit.lens, found.size)
+    if files.report:
+        if fit.robot:                      # the flange poses of the fitted robot
+            A = r.with_params({n: v for n, (v, _) in fit.robot.items()}).fk(q)
+        held = (f", held out {fit.held_rms_px:.3f} px" if fit.held_out else "")
+        summary = [f"{len(fit.training)} training images, {len(fit.held_out)} held out; "
+                   f"reprojection RMS training {fit.train_rms_px:.3f} px{held}.",
+                   f"Camera in the {'base' if mount == 'fixed' else 'flange (tool)'} frame"
+                   " (x y z mm): " + " ".join(f"{v * 1e3:.2f}" for v in fit.X[:3, 3])
+                   + f"; expected error (1 sigma) {fit.expected_position * 1e3:.2f} mm, "
+                   f"{np.degrees(fit.expected_rotation):.3f} deg."]
+        write_lens_report(out, files.report, images, fit, found, A, pts, mount, summary)
 
 
 def _print_loo(out: Any, lo: Any) -> None:
