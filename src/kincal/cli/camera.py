@@ -196,7 +196,6 @@ def hand_eye_command(
     from kincal.measure.camera_images import read_image_labels
     from kincal.measure.instruments.camera import HandCameraMeasurement, read_camera
     from kincal.robots.files import robot_yaml_text
-    from kincal.spatial import frame_from_matrix
     from kincal.units import parse_quantity
 
     out = out_console(json_out)
@@ -222,6 +221,32 @@ def hand_eye_command(
     min_deg = float(np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
                                               minimum=0.0)))
     fit = fit_hand_camera(r, blocks[0], read_image_labels(data), holdout, free or (), min_deg)
+    _print_hand_fit(out, fit)
+    doc = _fit_json(fit, data)
+    if loo:
+        from kincal.identify.hand_eye_fit import leave_one_out
+
+        lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
+        _print_loo(out, lo)
+        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
+                                "rms_3d_m": lo.rms_3d.tolist(),
+                                "position_spread_m": lo.position_spread,
+                                "rotation_spread_rad": lo.rotation_spread}
+    if output:
+        atomic_write_text(output, robot_yaml_text(fit.result.robot))
+        out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    files.write_transform(out, fit, "hand", data)
+    if json_out:
+        write_json(json_out, doc)
+
+
+def _print_hand_fit(out: Any, fit: Any) -> None:
+    """The console lines of ``kincal hand-eye ROBOT --data``: the images, the closed-form
+    start, the camera, its expected error, the robot parameters and the reprojection."""
+    import numpy as np
+
+    from kincal.spatial import frame_from_matrix
+
     rot = ", ".join(f"{v:.1f}" for v in fit.rotation_deg)
     out.print(f"{len(fit.training)} training images, {len(fit.held_out)} held out"
               + (f" ({', '.join(fit.held_out)})" if fit.held_out else "")
@@ -250,22 +275,6 @@ def hand_eye_command(
             " (" + ", ".join(f"{k} {v:.2f}" for k, v in fit.held_per_image.items()) + ")"
             if fit.held_out else "no held-out images")
     out.print(f"reprojection RMS: training {fit.train_rms_px:.2f} px; {held}")
-    doc = _fit_json(fit, data)
-    if loo:
-        from kincal.identify.hand_eye_fit import leave_one_out
-
-        lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
-        _print_loo(out, lo)
-        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
-                                "rms_3d_m": lo.rms_3d.tolist(),
-                                "position_spread_m": lo.position_spread,
-                                "rotation_spread_rad": lo.rotation_spread}
-    if output:
-        atomic_write_text(output, robot_yaml_text(fit.result.robot))
-        out.print(f"robot (camera as tool frame) -> {escape(output)}")
-    files.write_transform(out, fit, "hand", data)
-    if json_out:
-        write_json(json_out, doc)
 
 
 def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str | None,
