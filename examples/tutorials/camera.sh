@@ -60,5 +60,7 @@ kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses -
     --intrinsics $ABB/cal_data.yaml --ros-yaml abb_handeye.yaml --ros-launch camera_tf.launch \
     --urdf-joint camera_joint.urdf --camera-info camera_info.yaml --report abb_report.html \
     | grep -- '->'
-cat abb_handeye.yaml camera_tf.launch camera_joint.urdf camera_info.yaml
+# the files hold 17 digits; cut to 6 decimals here, as the last ones vary between machines
+cat abb_handeye.yaml camera_tf.launch camera_joint.urdf camera_info.yaml \
+    | sed -E 's/([0-9]\.[0-9]{6})[0-9]+/\1/g'
 # --8<-- [end:ros]
