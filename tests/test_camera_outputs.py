@@ -226,3 +226,31 @@ def test_closed_form_does_not_depend_on_the_order_with_noise() -> None:
     for seed in range(3):
         p = np.random.default_rng(seed).permutation(12)
         assert np.abs(hand_eye(A[p], noisy[p]).X - a).max() < 1e-9
+
+
+def test_hand_camera_from_a_measurement_file_writes_its_transform(tmp_path: Path,
+                                                                  capsys) -> None:
+    """``--data`` (camera on the hand): the files hold the camera in the tool frame, what
+    the JSON states, under the default frame names tool0 -> camera_optical_frame."""
+    from test_camera_hand_eye import _write, simulate
+
+    from kincal.robots.files import load_serial_robot
+
+    block, labels, _ = simulate(load_serial_robot("panda"), 8, 0.3, np.random.default_rng(4))
+    _write(tmp_path / "d.csv", block, labels)
+    code, out, err = run(capsys, "hand-eye", "panda", "--data", tmp_path / "d.csv",
+                         "--ros-yaml", tmp_path / "he.yaml", "--urdf-joint", tmp_path / "j.urdf",
+                         "--json", tmp_path / "f.json")
+    assert code == 0, err
+    fit = np.array(json.loads((tmp_path / "f.json").read_text())
+                   ["camera_in_tool_frame"]["matrix"])
+    doc = yaml.safe_load((tmp_path / "he.yaml").read_text())
+    assert doc["parameters"]["eye_on_hand"] is True
+    assert doc["parameters"]["robot_effector_frame"] == "tool0"
+    tr = doc["transformation"]
+    T = _T([tr["x"], tr["y"], tr["z"]], _quat_matrix(*(tr[k] for k in ("qx", "qy", "qz",
+                                                                         "qw"))))
+    assert np.abs(T - fit).max() < 1e-12
+    U, joint = _urdf_matrix((tmp_path / "j.urdf").read_text())
+    assert joint.find("parent").get("link") == "tool0"                   # type: ignore[union-attr]
+    assert np.abs(U - fit).max() < 1e-12
