@@ -188,7 +188,8 @@ def hand_eye_command(
     """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
     the flange or fixed): order-free closed-form start, joint fit of the reprojection
     errors (with the intrinsics and distortion from --images), expected error with the
-    unmodelled floor, held-out images."""
+    unmodelled floor, held-out images; the hand-eye for ROS (--ros-yaml, --ros-launch,
+    --urdf-joint), the intrinsics as camera_info and a page of pictures (--report)."""
     import numpy as np
 
     from kincal.identify.hand_eye_fit import fit_hand_camera
