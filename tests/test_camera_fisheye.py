@@ -260,7 +260,7 @@ def test_cli_fisheye_from_rendered_images(tmp_path: Path, capsys) -> None:
                      "dictionary: DICT_6X6_250\n")
     code, out, err = run(capsys, "hand-eye", "panda", "--images", tmp_path / "img", "--board",
                          board, "--joints", tmp_path / "joints.csv", "--lens", "fisheye",
-                         "--json", tmp_path / "f.json")
+                         "--json", tmp_path / "f.json", "--camera-info", tmp_path / "ci.yaml")
     assert code == 0, err
     assert "cv2.fisheye.calibrate" in out and "intrinsics (fisheye, equidistant)" in out
     found = re.search(r"(\d+) images with the board, (\d+) dropped", out)
@@ -274,4 +274,12 @@ def test_cli_fisheye_from_rendered_images(tmp_path: Path, capsys) -> None:
     assert np.linalg.norm(X[:3, 3] - X_HAND[:3, 3]) < 4 * fit["expected_error"]["position_m"]
     assert _rot(X, X_HAND) < 4 * fit["expected_error"]["rotation_rad"]
     assert fit["reprojection_rms_px"]["held_out"] < 1.0
+    # the camera_info says equidistant and reads back as the fitted lens
+    from kincal.measure.camera_images import read_intrinsics
+
+    info = read_intrinsics(tmp_path / "ci.yaml")
+    assert info.model == "equidistant"
+    assert (info.fx, info.fy, info.cx, info.cy) == tuple(
+        fit["intrinsics"][k] for k in ("fx", "fy", "cx", "cy"))
+    assert info.dist == tuple(fit["intrinsics"][k] for k in ("k1", "k2", "k3", "k4"))
 

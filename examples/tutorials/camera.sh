@@ -59,3 +59,13 @@ kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses -
 kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses --mount fixed \
     --intrinsics $ABB/cal_data.yaml --leave-one-out
 # --8<-- [end:abb-lens]
+
+# --8<-- [start:ros]
+kincal hand-eye --images $ABB/images --board abb_board.yaml --poses $ABB/poses --mount fixed \
+    --intrinsics $ABB/cal_data.yaml --ros-yaml abb_handeye.yaml --ros-launch camera_tf.launch \
+    --urdf-joint camera_joint.urdf --camera-info camera_info.yaml --report abb_report.html \
+    | grep -- '->'
+# the files hold 17 digits; cut to 6 decimals here, as the last ones vary between machines
+cat abb_handeye.yaml camera_tf.launch camera_joint.urdf camera_info.yaml \
+    | sed -E 's/([0-9]\.[0-9]{6})[0-9]+/\1/g'
+# --8<-- [end:ros]

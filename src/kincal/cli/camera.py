@@ -20,6 +20,16 @@ from rich.markup import escape
 
 from kincal.cli.app import app
 from kincal.cli.calibration_common import JsonOpt, load, out_console, serial
+from kincal.cli.camera_outputs import (
+    CameraInfoOpt,
+    ChildFrameOpt,
+    HandEyeFiles,
+    ParentFrameOpt,
+    ReportOpt,
+    RosLaunchOpt,
+    RosYamlOpt,
+    UrdfJointOpt,
+)
 from kincal.cli.importers import import_app
 from kincal.errors import KincalError
 
@@ -186,12 +196,17 @@ def hand_eye_command(
     loo: Annotated[bool, typer.Option("--leave-one-out", help="Also fit once per image with "
                                       "that image held out: its error, and the spread of the "
                                       "hand-eye (jackknife).")] = False,
+    ros_yaml: RosYamlOpt = None, ros_launch: RosLaunchOpt = None,
+    urdf_joint: UrdfJointOpt = None, camera_info: CameraInfoOpt = None,
+    report: ReportOpt = None, parent_frame: ParentFrameOpt = None,
+    child_frame: ChildFrameOpt = "camera_optical_frame",
     json_out: JsonOpt = None,
 ) -> None:
     """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
     the flange or fixed): order-free closed-form start, joint fit of the reprojection
     errors (with the intrinsics and distortion from --images), expected error with the
-    unmodelled floor, held-out images."""
+    unmodelled floor, held-out images; the hand-eye for ROS (--ros-yaml, --ros-launch,
+    --urdf-joint), the intrinsics as camera_info and a page of pictures (--report)."""
     import numpy as np
 
     from kincal.identify.hand_eye_fit import fit_hand_camera
@@ -199,20 +214,23 @@ def hand_eye_command(
     from kincal.measure.camera_images import read_image_labels
     from kincal.measure.instruments.camera import HandCameraMeasurement, read_camera
     from kincal.robots.files import robot_yaml_text
-    from kincal.spatial import frame_from_matrix
     from kincal.units import parse_quantity
 
     out = out_console(json_out)
+    files = HandEyeFiles(ros_yaml, ros_launch, urdf_joint, camera_info, report, parent_frame,
+                         child_frame)
     if images is not None or data is None:
         _hand_eye_images(out, robot, images, board, joints, poses, intrinsics, mount, lens,
-                         holdout, free, min_rotation, loo, output, json_out, data)
+                         holdout, free, min_rotation, loo, output, json_out, data, files)
         return
     if mount != "hand":
         raise KincalError("--mount fixed: give the images (--images FOLDER --board ...); "
                           "the measurement file is for a camera on the hand")
     if robot is None:
         raise KincalError("ROBOT: the robot the camera is on is missing")
-    check_outputs({"-o": output, "--json": json_out}, {"--data": [data], "ROBOT": [robot]})
+    files.check("hand", images=False)
+    check_outputs({"-o": output, "--json": json_out, **files.outputs()},
+                  {"--data": [data], "ROBOT": [robot]})
     r = serial(load(robot), "hand-eye")
     blocks = read_camera(data, r)
     if not isinstance(blocks[0], HandCameraMeasurement):
@@ -221,6 +239,32 @@ def hand_eye_command(
     min_deg = float(np.degrees(parse_quantity(min_rotation, "angle", "--min-rotation",
                                               minimum=0.0)))
     fit = fit_hand_camera(r, blocks[0], read_image_labels(data), holdout, free or (), min_deg)
+    _print_hand_fit(out, fit)
+    doc = _fit_json(fit, data)
+    if loo:
+        from kincal.identify.hand_eye_fit import leave_one_out
+
+        lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
+        _print_loo(out, lo)
+        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
+                                "rms_3d_m": lo.rms_3d.tolist(),
+                                "position_spread_m": lo.position_spread,
+                                "rotation_spread_rad": lo.rotation_spread}
+    if output:
+        atomic_write_text(output, robot_yaml_text(fit.result.robot))
+        out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    files.write_transform(out, fit, "hand", data)
+    if json_out:
+        write_json(json_out, doc)
+
+
+def _print_hand_fit(out: Any, fit: Any) -> None:
+    """The console lines of ``kincal hand-eye ROBOT --data``: the images, the closed-form
+    start, the camera, its expected error, the robot parameters and the reprojection."""
+    import numpy as np
+
+    from kincal.spatial import frame_from_matrix
+
     rot = ", ".join(f"{v:.1f}" for v in fit.rotation_deg)
     out.print(f"{len(fit.training)} training images, {len(fit.held_out)} held out"
               + (f" ({', '.join(fit.held_out)})" if fit.held_out else "")
@@ -249,28 +293,13 @@ def hand_eye_command(
             " (" + ", ".join(f"{k} {v:.2f}" for k, v in fit.held_per_image.items()) + ")"
             if fit.held_out else "no held-out images")
     out.print(f"reprojection RMS: training {fit.train_rms_px:.2f} px; {held}")
-    doc = _fit_json(fit, data)
-    if loo:
-        from kincal.identify.hand_eye_fit import leave_one_out
-
-        lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
-        _print_loo(out, lo)
-        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
-                                "rms_3d_m": lo.rms_3d.tolist(),
-                                "position_spread_m": lo.position_spread,
-                                "rotation_spread_rad": lo.rotation_spread}
-    if output:
-        atomic_write_text(output, robot_yaml_text(fit.result.robot))
-        out.print(f"robot (camera as tool frame) -> {escape(output)}")
-    if json_out:
-        write_json(json_out, doc)
 
 
 def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str | None,
                      joints: str | None, poses: str | None, intrinsics: str | None,
                      mount: str, lens: str, holdout: float, free: list[str] | None,
                      min_rotation: str, loo: bool, output: str | None, json_out: str | None,
-                     data: str | None) -> None:
+                     data: str | None, files: HandEyeFiles) -> None:
     """``kincal hand-eye --images``: detect, closed-form start, one fit of the hand-eye,
     the board and the intrinsics on the raw pixels (:mod:`kincal.identify.hand_eye_lens`)."""
     import numpy as np
@@ -306,9 +335,10 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                           "on the hand and joint values (use --json)")
     if poses is not None and (robot is not None or joints is not None):
         raise KincalError("--poses gives the flange poses: no ROBOT and no --joints with it")
-    check_outputs({"--json": json_out, "-o": output}, {"--images": [images], "--board": [board],
-                                         "--joints": joints, "--poses": poses,
-                                         "--intrinsics": intrinsics})
+    files.check(mount, images=True)
+    check_outputs({"--json": json_out, "-o": output, **files.outputs()},
+                  {"--images": [images], "--board": [board], "--joints": joints,
+                   "--poses": poses, "--intrinsics": intrinsics})
     b = read_board(board)
     table = read_joints_csv(joints) if joints else None
     found = detect_images(images, b, table, require_joints=poses is None)
@@ -366,8 +396,31 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                           tool.tolist(), strict=True))
         atomic_write_text(output, robot_yaml_text(r.with_params(values)))
         out.print(f"robot (camera as tool frame) -> {escape(output)}")
+    _lens_files(out, files, fit, found, images, A, pts, mount, r, q)
     if json_out:
         write_json(json_out, doc)
+
+
+def _lens_files(out: Any, files: HandEyeFiles, fit: Any, found: Any, images: str, A: Any,
+                pts: list[Any], mount: str, r: Any, q: Any) -> None:
+    """The ROS files, the camera_info and the report of ``kincal hand-eye --images``."""
+    import numpy as np
+
+    from kincal.cli.camera_outputs import write_lens_report
+
+    files.write_transform(out, fit, mount, images)
+    files.write_camera_info(out, fit.lens, found.size, fit.model)
+    if files.report:
+        if fit.robot:                      # the flange poses of the fitted robot
+            A = r.with_params({n: v for n, (v, _) in fit.robot.items()}).fk(q)
+        held = (f", held out {fit.held_rms_px:.3f} px" if fit.held_out else "")
+        summary = [f"{len(fit.training)} training images, {len(fit.held_out)} held out; "
+                   f"reprojection RMS training {fit.train_rms_px:.3f} px{held}.",
+                   f"Camera in the {'base' if mount == 'fixed' else 'flange (tool)'} frame"
+                   " (x y z mm): " + " ".join(f"{v * 1e3:.2f}" for v in fit.X[:3, 3])
+                   + f"; expected error (1 sigma) {fit.expected_position * 1e3:.2f} mm, "
+                   f"{np.degrees(fit.expected_rotation):.3f} deg."]
+        write_lens_report(out, files.report, images, fit, found, A, pts, mount, summary)
 
 
 def _print_loo(out: Any, lo: Any) -> None:

@@ -8,8 +8,8 @@ and ``Z`` the board in the base frame.  Eye-to-hand (camera fixed, board on the 
 flange frame -- the same equations with ``A_i`` inverted (:func:`hand_eye`,
 ``mount="fixed"``).
 
-Every *pair* ``i < j`` gives a relative motion ``A = A_j^-1 A_i``, ``B = B_j B_i^-1`` with
-``A X = X B``.  Over all ``N (N - 1) / 2`` pairs:
+Every *ordered pair* ``i != j`` gives a relative motion ``A = A_j^-1 A_i``, ``B = B_j
+B_i^-1`` with ``A X = X B``.  Over all ``N (N - 1)`` ordered pairs:
 
 * rotation: with unit quaternions (scalar first, ``w >= 0``), ``q_A q_X = q_X q_B`` is
   linear in ``q_X``: ``(L(q_A) - R(q_B)) q_X = 0``, ``L``, ``R`` the left / right
@@ -18,10 +18,14 @@ Every *pair* ``i < j`` gives a relative motion ``A = A_j^-1 A_i``, ``B = B_j B_i
 * translation: ``(R_A - I) t_X = R_X t_B - t_A``, solved by least squares over all pairs
   (3x3 normal equations).
 
-Both sums run over the *set* of pairs, so shuffling the samples changes nothing but the
-order of floating-point additions (the answer agrees to ~1e-15); swapping the two samples
-of a pair gives the inverse motion, whose equations are the same ones multiplied by an
-orthogonal matrix (``L(q)^T``, ``R_A^T``): the same sums.  ``Z`` is the mean of
+Both sums run over the *set* of ordered pairs, so shuffling the samples changes nothing
+but the order of floating-point additions (the answer agrees to ~1e-15).  A pair and its
+reverse (the inverse motion) give the same rotation equation up to unit quaternion
+factors (the same sum); their translation equations, ``(R_A - I) t_X = R_X t_B - t_A``
+and, multiplied by ``-R_A``, ``(R_A - I) t_X = R_A R_X R_B^T t_B - t_A``, agree only when
+the rotations fit exactly: with noise, one orientation per pair (``i < j`` in the
+samples' order) would make ``t_X`` depend on the order (0.08 mm median with 0.5 px and
+0.2 mm of robot noise, ``benchmarks/hand_eye.py``), so both enter.  ``Z`` is the mean of
 ``A_i X B_i`` (rotations averaged by projecting their sum on SO(3)).
 
 :func:`rotation_spread` measures how much the flange turned about each principal axis:
@@ -134,6 +138,7 @@ def hand_eye(robot_poses: ArrayLike, board_poses: ArrayLike, mount: str = "hand"
     elif mount != "hand":
         raise KincalError(f"mount={mount!r}: use 'hand' or 'fixed'")
     i, j = _pairs(len(A))
+    i, j = np.r_[i, j], np.r_[j, i]           # both orientations: module docstring
     Ar = inverse(A[j]) @ A[i]
     Br = B[j] @ inverse(B[i])
     M = _left(quaternion(Ar[:, :3, :3])) - _right(quaternion(Br[:, :3, :3]))
