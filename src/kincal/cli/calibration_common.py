@@ -373,7 +373,7 @@ def print_selection(out: Console, sel: Any) -> None:
 
     name, f, unit = console_quantity(sel.kind) if sel.kind else ("error", 1.0, "")
     t = Table(title=f"Model selection: {sel.folds}-fold cross-validation on the training "
-              f"files (seed {sel.seed})", caption=f"rule: {RULE}")
+              "files", caption=f"rule: {RULE}")
     for c in ("joint model", "prior", f"CV RMS {name} [{unit}]", "not eligible because"):
         t.add_column(escape(c), justify="right" if c.startswith("CV") else "left",
                      overflow="fold")
@@ -385,6 +385,8 @@ def print_selection(out: Console, sel: Any) -> None:
             cells = [f"[bold green]{x}[/bold green]" for x in cells[:3]] + ["<- chosen"]
         t.add_row(*cells)
     out.print(t)
+    if getattr(sel, "split", ""):
+        out.print(escape(sel.split))
     for n in sel.notes:
         out.print(f"[yellow]note[/yellow]: {escape(n)}")
 

@@ -432,7 +432,8 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     from kincal.identify.checks import judge
     from kincal.identify.solver import calibrate
     train = [b if u is None else _subset(b, u) for b, u in zip(spec.blocks, spec.train,
-                                                                strict=True)]
+                                                                strict=True)
+             if u is None or len(u)]              # a file held out whole is not fitted
     try:
         res = calibrate(spec.robot, train, **dict(spec.options))
     except KincalError as exc:
@@ -440,7 +441,7 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     errors: dict[str, list[Array]] = {}
     extras = res.extras()
     for b, u in zip(spec.blocks, spec.test, strict=True):
-        if u is None:
+        if u is None or not len(u):
             continue
         held = _subset(b, u)
         e = _parameters_of(res.robot, held, extras, 0, True)     # as validate() takes them
