@@ -146,6 +146,8 @@ class Selection:
         notes: sentences (blocks always in training, why nothing was chosen).
         split: one line: what each fold holds out (files, placements, workspace regions
             or random rows; :func:`~kincal.identify.region_folds.group_folds`).
+        split_by: the same in a word or two: ``file``, ``placement``, ``workspace
+            region``, ``rows`` (random folds).
     """
 
     candidates: list[Candidate]
@@ -160,6 +162,7 @@ class Selection:
     chosen: int | None
     notes: list[str] = field(default_factory=list)
     split: str = ""
+    split_by: str = ""
 
     @property
     def choice(self) -> Candidate | None:
@@ -174,6 +177,11 @@ class Selection:
                                 **{f"rms_{k}": v for k, v in self.rms_all[i].items()},
                                 "eligible": self.trusted[i], "reason": self.reasons[i]}
                                for i, c in enumerate(self.candidates)]}
+
+
+#: What one fold holds out, by the kind of split.
+_SPLIT_BY = {"files": "file", "placements": "placement", "regions": "workspace region",
+             "random": "rows"}
 
 
 #: The selection rule, in words (the JSON and the report state it).
@@ -250,7 +258,7 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
         nan = [math.nan] * n
         return Selection(cands, folds, seed, "", nan, [{} for _ in cands],
                          [np.zeros(0) for _ in cands], [False] * n, ["not cross-validated"] * n,
-                         None, notes, plan.text)
+                         None, notes, plan.text, _SPLIT_BY[plan.kind])
     specs = fold_specs(robot, [wrapped[c.terms] for c in cands], cands, parts, tolerances,
                        options)
     results = gather_results(mapper(run_fold, specs))
@@ -277,4 +285,4 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
     if chosen is None:
         notes.append("no candidate is eligible (none converged with plausible estimates)")
     return Selection(cands, folds, seed, kind, rms, rms_all, errs, trusted, reasons, chosen,
-                     notes, plan.text)
+                     notes, plan.text, _SPLIT_BY[plan.kind])

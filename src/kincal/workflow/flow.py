@@ -324,7 +324,7 @@ def _cross_validation_summary(robot: Any, blocks: Sequence[Any], selection: Any,
         from kincal.identify.selection import split_kind
 
         return {"folds": selection.folds, "seed": selection.seed,
-                "split": selection.split or split_kind(blocks),
+                "split": selection.split_by or split_kind(blocks),
                 "model": selection.candidates[i].label,
                 **{f"rms_{k}": v for k, v in selection.rms_all[i].items()}}
     if cross_validate is None:
