@@ -50,7 +50,8 @@ JointModelOpt = Annotated[str | None, typer.Option(
     "--joint-model", metavar="TERMS", help="Non-geometric joint model, comma separated: "
     "'hysteresis' (each joint lags its encoder by a play, in the direction it last moved; "
     "needs the rows of every file in the order measured) and/or 'compliance' (each joint "
-    "yields under its gravity load; needs a URDF robot with <inertial> masses). Default: "
+    "yields under its gravity load; needs link masses: a URDF's <inertial>, a robot file's "
+    "masses:, the built-in URs'). Default: "
     "geometric only.")]
 LengthUnit = Annotated[str, typer.Option("--length-unit", help="Length unit of written CSV "
                                          "files: m, mm, um.")]
