@@ -55,14 +55,18 @@ def test_the_split_follows_the_data(puma):
     assert plan.kind == "regions" and plan.folds == 5 and "workspace region" in plan.text
     held = sorted(i for p in plan.parts[0] for i in p)
     assert held == list(range(40))                           # every row held out once
-    # three files of one set-up (a shared name): one file out per fold, a lone file stays
-    a, b, c = (simulate_positions(puma, q[i::3], rng, 1e-5, INSTRUMENT, MARKER)
+    # four files: one file out per fold, each held-out file's frame registered on it
+    a, b, c = (simulate_positions(puma, q[i::3], rng, 1e-5, INSTRUMENT, MARKER, name=f"t{i}")
                for i in range(3))
-    lone = simulate_positions(puma, q[:9], rng, 1e-5, INSTRUMENT, MARKER, name="other")
+    lone = simulate_positions(puma, q[:9], rng, 1e-5, [0.3, -1.0, 0.2, 1.0, 0.0, 0.1],
+                              MARKER, name="other")
     plan = group_folds([a, b, c, lone], 10)
-    assert plan.kind == "files" and plan.folds == 3 and plan.parts[3] is None
-    assert [len(p[k]) for k, p in enumerate(plan.parts[:3])] == [a.N, b.N, c.N]
-    assert "other" in plan.notes[0]
+    assert plan.kind == "files" and plan.folds == 4
+    assert [len(p[k]) for k, p in enumerate(plan.parts)] == [a.N, b.N, c.N, lone.N]
+    tol = {n: 1e-3 for n in puma.param_names}
+    sel = select_model(puma, [a, b, c, lone], tol, [Candidate((), 1.0)], folds=10)
+    assert sel.split.startswith("split by file: 4 folds") and sel.chosen == 0
+    assert sel.rms[0] < 1e-4                          # exact robot, 10 um noise: no fold failed
     # too few rows for regions: random folds, and the line says why
     plan = group_folds([one.subset(np.arange(12))], 10)
     assert plan.kind == "random" and "too few rows" in plan.text

@@ -5,9 +5,10 @@ model that interpolates well, not one that carries to another session, placement
 of the workspace, which is what a calibration is used for.  :func:`group_folds` splits the
 training data by the largest structure they have, in this order:
 
-1. **files** (leave one file out): training files that share a ``name=`` (one instrument
-   set-up, so a held-out file keeps the frames the others fix); files with a name of their
-   own stay in training (their frame would have nothing to come from);
+1. **files** (leave one file out) when there are several training files: a held-out
+   file's own parameters (instrument frame, marker, probe) are registered on it with the
+   robot fixed, the held-out protocol of another set-up
+   (:func:`~kincal.identify.validation.validate`'s ``register``);
 2. **placements** (leave one placement out): an artifact file's placements (the sockets of
    a held-out placement are fitted with the robot fixed);
 3. **workspace regions**: the joint configurations of every training row, each moving
@@ -26,7 +27,6 @@ held out) plus one line saying which split was used.
 
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -113,21 +113,16 @@ def workspace_regions(q: Array, k: int, seed: int = 0, iterations: int = 100
 
 
 def _by_files(blocks: Sequence[Any], folds: int, seed: int) -> SplitPlan | None:
-    names = Counter(b.name for b in blocks)
-    shared = [i for i, b in enumerate(blocks) if names[b.name] > 1]
-    if len(shared) < 2:
+    if len(blocks) < 2:
         return None
-    fold = _deal(len(shared), folds, seed)
+    fold = _deal(len(blocks), folds, seed)
     K = max(fold) + 1
-    parts: list[list[list[Any]] | None] = [None] * len(blocks)
-    for g, i in enumerate(shared):
-        units = _units(blocks[i])[0]
-        parts[i] = [list(units) if fold[g] == k else [] for k in range(K)]
-    notes = [f"{b.name}: the only file named {b.name!r}: always in training"
-             for b in blocks if names[b.name] == 1]
-    what = "one file" if K == len(shared) else f"about {len(shared) / K:.2g} files"
-    return SplitPlan(parts, K, "files", f"split by file: {K} folds, each holds out {what} "
-                     f"of the {len(shared)} that share an instrument name", notes)
+    parts: list[list[list[Any]] | None] = [
+        [list(_units(b)[0]) if fold[i] == k else [] for k in range(K)]
+        for i, b in enumerate(blocks)]
+    what = "one file" if K == len(blocks) else f"about {len(blocks) / K:.2g} files"
+    return SplitPlan(parts, K, "files", f"split by file: {K} folds, each holds out {what} of "
+                     f"{len(blocks)} (its own frame, marker or probe registered on it)", [])
 
 
 def _by_placements(blocks: Sequence[Any], folds: int, seed: int) -> SplitPlan | None:

@@ -440,11 +440,17 @@ def run_fold(spec: FoldSpec) -> FoldResult:
         return FoldResult(spec.candidate, spec.fold, {}, False, False, f"failed: {exc}")
     errors: dict[str, list[Array]] = {}
     extras = res.extras()
-    for b, u in zip(spec.blocks, spec.test, strict=True):
+    for b, u, t in zip(spec.blocks, spec.test, spec.train, strict=True):
         if u is None or not len(u):
             continue
         held = _subset(b, u)
-        e = _parameters_of(res.robot, held, extras, 0, True)     # as validate() takes them
+        own = _extras_for(held, extras, 0)
+        if t is not None and not len(t) and not all(     # a whole file out: its frame
+                n in own for n, r in zip(held.parameters().names, held.parameters().roles,
+                                         strict=True) if r != PER_PLACEMENT_ROLE):
+            e = _parameters_of(res.robot, held, None, 0, True)   # registered on it
+        else:
+            e = _parameters_of(res.robot, held, extras, 0, True)  # as validate() takes them
         for k, x in held.errors(res.robot, e).items():
             errors.setdefault(k, []).append(np.ravel(np.asarray(x, dtype=float)))
     verdict = judge(res, spec.tolerances)
