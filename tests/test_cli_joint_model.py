@@ -89,7 +89,7 @@ def test_validate_uses_the_calibrated_joint_model(capsys, files):
 @pytest.mark.parametrize(("args", "message"), [
     (["--joint-model", "backlash"], "option --joint-model: unknown term 'backlash'"),
     (["--joint-model", "hysteresis,hysteresis"], "listed twice"),
-    (["--joint-model", "compliance"], "'puma560' is not a URDF file"),
+    (["--joint-model", "compliance"], "'puma560' states none"),
 ])
 def test_bad_joint_model_is_one_line(capsys, files, args, message):
     out_file = files / "bad.yaml"

@@ -1,6 +1,6 @@
 """Orientation conventions of pose files, each checked against
 ``scipy.spatial.transform.Rotation`` (an independent implementation), through the file
-reader; per-axis standard deviations combined as documented."""
+reader; per-axis standard deviations kept per axis."""
 
 from __future__ import annotations
 
@@ -106,17 +106,17 @@ def test_matrix_order_of_intrinsic_and_extrinsic():
                                rotation_matrices(Orientation(), a), atol=1e-15)
 
 
-def test_per_axis_sigmas_weighted_by_their_rms(tmp_path, puma):
+def test_per_axis_sigmas_are_kept_per_axis(tmp_path, puma):
     ang = np.zeros((2, 3))
     sig = np.array([[0.01, 0.02, 0.02, 0.001, 0.002, 0.002],
                     [0.03, 0.03, 0.03, 0.004, 0.004, 0.004]])
     cols = ["rx_deg", "ry_deg", "rz_deg", "sigma_x_mm", "sigma_y_mm", "sigma_z_mm",
             "sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"]
     (b,) = read_measurements(_pose_file(tmp_path, cols, np.hstack([ang, sig])), puma)
-    want_p = np.sqrt(np.mean(sig[:, :3] ** 2, axis=1)) / 1000
-    want_o = np.radians(np.sqrt(np.mean(sig[:, 3:] ** 2, axis=1)))
-    np.testing.assert_allclose(b.sigma_position, want_p, rtol=1e-14)
-    np.testing.assert_allclose(b.sigma_orientation, want_o, rtol=1e-14)
-    assert any("RMS per row" in n for n in b.provenance.table.notes)
+    np.testing.assert_allclose(b.sigma_position, sig[:, :3] / 1000, rtol=1e-14)
+    np.testing.assert_allclose(b.sigma_orientation, np.radians(sig[:, 3:]), rtol=1e-14)
+    # rpy at zero: the angles turn about the instrument axes z, y, x (R = Rz Ry Rx)
+    np.testing.assert_allclose(b.orientation_axes[0], np.eye(3), atol=1e-9)
+    assert any("per instrument axis" in n for n in b.provenance.table.notes)
     with pytest.raises(MeasurementFileError, match="missing 'sigma_z'"):
         read_measurements(_pose_file(tmp_path, cols[:5], np.hstack([ang, sig[:, :2]])), puma)

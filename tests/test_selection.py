@@ -106,7 +106,8 @@ def test_one_fold_mechanism_for_cross_validate_and_select(sim):
     assert sorted(u for part in cv["held_out"] for u in part) == list(range(play.N))
     assert all(r.problem.blocks[0].N == play.N - len(h)
                for r, h in zip(cv["results"], cv["held_out"], strict=True))
-    sel = select_model(nominal, [play], tol, [Candidate((), None)], folds=3, seed=0)
+    sel = select_model(nominal, [play], tol, [Candidate((), None)], folds=3, seed=0,
+                       split="random")
     assert cv["rms_position_m"] == pytest.approx(sel.rms[0], rel=1e-9)
     assert sum(f["n"] for f in cv["folds"]) == play.N
     with pytest.raises(KincalError, match="folds must be between 2 and its number of rows"):

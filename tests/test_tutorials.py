@@ -12,7 +12,9 @@ pages show, and here, where the data are present, the recording must equal a fre
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
+import os
 import re
 import sys
 from pathlib import Path
@@ -45,8 +47,30 @@ def _page_directives() -> list[tuple[str, str, str | None]]:
 normalised = pages.normalised
 
 
+#: Real-data scripts too slow for the suite's time budget (about ten calibrations each):
+#: here their pages must show their recording; the site build runs them again (and fails
+#: on a stale region), as does this test with KINCAL_SLOW_TUTORIALS=1.
+SLOW = {"examples/tutorials/more-robots.sh"}
+
+
+def _pages_show(script: str, run) -> None:
+    for page in pages.site_pages():
+        text = page.read_text(encoding="utf-8")
+        if script not in pages.scripts_of(text):
+            continue
+        stale = pages.stale_regions(text, {script: run}.__getitem__, only=script)
+        assert not stale, (f"{page.relative_to(ROOT)}: shown output or code differs from "
+                           f"what {script} gives today ({', '.join(stale)}); run: python "
+                           "docs/hooks/kincal_pages.py update")
+
+
 @pytest.mark.parametrize("script", SCRIPTS)
 def test_tutorial_script_runs(script: str) -> None:
+    if script in SLOW and not os.environ.get("KINCAL_SLOW_TUTORIALS"):
+        recorded = pages.read_recording(script)        # shown as a fresh run shows it
+        _pages_show(script, dataclasses.replace(recorded, recorded=""))
+        pytest.skip(f"{script}: too slow for the suite (KINCAL_SLOW_TUTORIALS=1 runs it); "
+                    "its pages show its recording")
     run = pages.execute(script)
     if run.status == pages.SKIP:
         assert pages.recording(script).is_file(), (
@@ -63,14 +87,7 @@ def test_tutorial_script_runs(script: str) -> None:
         assert normalised(recorded.output) == normalised(run.output), (
             f"{script}: the recorded output differs from a fresh run on the data; record it "
             f"again: python docs/hooks/kincal_pages.py record {script}")
-    for page in pages.site_pages():
-        text = page.read_text(encoding="utf-8")
-        if script not in pages.scripts_of(text):
-            continue
-        stale = pages.stale_regions(text, {script: run}.__getitem__, only=script)
-        assert not stale, (f"{page.relative_to(ROOT)}: shown output or code differs from "
-                           f"what {script} gives today ({', '.join(stale)}); run: python "
-                           "docs/hooks/kincal_pages.py update")
+    _pages_show(script, run)
 
 
 def test_every_page_region_is_generated() -> None:

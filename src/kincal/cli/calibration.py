@@ -186,8 +186,9 @@ CrossValidateOpt = Annotated[int | None, typer.Option(
     "markers) by it, not by the validation file.")]
 SelectOpt = Annotated[str, typer.Option(
     "--select", metavar="auto|none", help="auto: choose the joint model (geometric, "
-    "+hysteresis, +compliance where the URDF has masses) and the prior scale (1x, 3x the "
-    "tolerances, least squares) by K-fold cross-validation on the training files, print "
+    "+hysteresis, +compliance where the robot has link masses) and the prior scale (1x, 3x "
+    "the tolerances, least squares) by cross-validation on the training files (folds by "
+    "file, placement or workspace region; random rows only when none applies), print "
     "the table and fit the winner: the lowest cross-validated RMS among the fits that "
     "converge with plausible estimates. --joint-model and --prior none/scale= restrict "
     "it. none (default): fit the model as given.")]

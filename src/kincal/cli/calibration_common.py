@@ -50,7 +50,8 @@ JointModelOpt = Annotated[str | None, typer.Option(
     "--joint-model", metavar="TERMS", help="Non-geometric joint model, comma separated: "
     "'hysteresis' (each joint lags its encoder by a play, in the direction it last moved; "
     "needs the rows of every file in the order measured) and/or 'compliance' (each joint "
-    "yields under its gravity load; needs a URDF robot with <inertial> masses). Default: "
+    "yields under its gravity load; needs link masses: a URDF's <inertial>, a robot file's "
+    "masses:, the built-in URs'). Default: "
     "geometric only.")]
 LengthUnit = Annotated[str, typer.Option("--length-unit", help="Length unit of written CSV "
                                          "files: m, mm, um.")]
@@ -373,7 +374,7 @@ def print_selection(out: Console, sel: Any) -> None:
 
     name, f, unit = console_quantity(sel.kind) if sel.kind else ("error", 1.0, "")
     t = Table(title=f"Model selection: {sel.folds}-fold cross-validation on the training "
-              f"files (seed {sel.seed})", caption=f"rule: {RULE}")
+              "files", caption=f"rule: {RULE}")
     for c in ("joint model", "prior", f"CV RMS {name} [{unit}]", "not eligible because"):
         t.add_column(escape(c), justify="right" if c.startswith("CV") else "left",
                      overflow="fold")
@@ -385,6 +386,8 @@ def print_selection(out: Console, sel: Any) -> None:
             cells = [f"[bold green]{x}[/bold green]" for x in cells[:3]] + ["<- chosen"]
         t.add_row(*cells)
     out.print(t)
+    if getattr(sel, "split", ""):
+        out.print(escape(sel.split))
     for n in sel.notes:
         out.print(f"[yellow]note[/yellow]: {escape(n)}")
 

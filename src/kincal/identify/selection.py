@@ -14,11 +14,12 @@ those whose fit on the whole training data converges with every estimate within 
 tolerances of nominal** (:mod:`kincal.identify.checks`).  The validation files never
 choose anything.
 
-Folds: every training block is split into ``K`` folds of its units (rows; an artifact's
-placements, whose seatings share their socket points) with a permutation drawn from
-``seed`` (0); fold ``k`` holds out the ``k``-th part of every block that has at least
-``K`` units, blocks with fewer are always in training.  When no block can be split the
-selection says why and chooses nothing.
+Folds (:func:`~kincal.identify.region_folds.group_folds`): by default they judge each
+model where it was not fitted: leave one file out among training files that share an
+instrument name, else one placement out, else one workspace region out (k-means of the
+joint configurations), and random folds of rows / placements only when none of these
+applies (``split="random"`` asks for them); :attr:`Selection.split` says in one line
+which was used.  When nothing can be held out the selection says why and chooses nothing.
 
 The folds are independent pure tasks of :mod:`kincal.identify.validation` (the one fold
 mechanism, also :func:`~kincal.identify.validation.cross_validate`'s): :class:`FoldSpec`
@@ -39,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kincal.errors import KincalError
+from kincal.identify.region_folds import group_folds
 from kincal.identify.validation import (
     FoldResult,
     FoldSpec,
@@ -142,6 +144,10 @@ class Selection:
         chosen: index of the chosen candidate, or None (nothing could be split, or no
             candidate is eligible).
         notes: sentences (blocks always in training, why nothing was chosen).
+        split: one line: what each fold holds out (files, placements, workspace regions
+            or random rows; :func:`~kincal.identify.region_folds.group_folds`).
+        split_by: the same in a word or two: ``file``, ``placement``, ``workspace
+            region``, ``rows`` (random folds).
     """
 
     candidates: list[Candidate]
@@ -155,6 +161,8 @@ class Selection:
     reasons: list[str]
     chosen: int | None
     notes: list[str] = field(default_factory=list)
+    split: str = ""
+    split_by: str = ""
 
     @property
     def choice(self) -> Candidate | None:
@@ -162,12 +170,18 @@ class Selection:
 
     def to_dict(self) -> dict[str, Any]:
         return {"rule": RULE, "folds": self.folds, "seed": self.seed, "kind": self.kind,
+                "split": self.split,
                 "chosen": None if self.choice is None else self.choice.label,
                 "notes": list(self.notes),
                 "candidates": [{**c.to_dict(), f"rms_{self.kind}": self.rms[i],
                                 **{f"rms_{k}": v for k, v in self.rms_all[i].items()},
                                 "eligible": self.trusted[i], "reason": self.reasons[i]}
                                for i, c in enumerate(self.candidates)]}
+
+
+#: What one fold holds out, by the kind of split.
+_SPLIT_BY = {"files": "file", "placements": "placement", "regions": "workspace region",
+             "random": "rows"}
 
 
 #: The selection rule, in words (the JSON and the report state it).
@@ -202,7 +216,7 @@ def gather_folds(robot: Any, blocks_by_candidate: Sequence[Sequence[Any]],
 def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, float],
                  cands: Sequence[Candidate] | None = None, *, masses: Sequence[Any] | None = None,
                  folds: int = 10, seed: int = 0,
-                 mapper: Callable[..., Iterable[Any]] = map,
+                 mapper: Callable[..., Iterable[Any]] = map, split: str = "auto",
                  **options: Any) -> Selection:
     """Cross-validate every candidate on the training ``blocks`` and choose one (:data:`RULE`).
 
@@ -214,7 +228,11 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
             scale times these.
         cands: the candidates (default :func:`candidates`, compliance when ``masses``).
         masses: link masses for the compliance term.
-        folds, seed: K and the permutation seed of the folds.
+        folds, seed: K (at most; fewer with fewer files, placements or regions) and the
+            seed of the folds.
+        split: ``"auto"``: by files sharing a name, else placements, else workspace
+            regions, random folds only when none applies; ``"random"``: random folds
+            (:func:`~kincal.identify.region_folds.group_folds`).
         mapper: runs :func:`run_fold` over the :class:`FoldSpec` list (``map``, an
             executor's ``map``, a Dask client's ``map``).
         options: further :func:`~kincal.identify.solver.calibrate` options (free, fixed,
@@ -225,7 +243,9 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
     cands = list(cands) if cands is not None else candidates(bool(masses))
     if folds < 2:
         raise KincalError(f"model selection needs at least 2 folds (got {folds})")
-    parts, notes = fold_units(blocks, folds, seed)
+    plan = group_folds(blocks, folds, seed, split)
+    parts: list[list[Any] | None] = list(plan.parts)
+    notes, folds = list(plan.notes), plan.folds
     wrapped: dict[tuple[str, ...], list[Any]] = {}
     for c in cands:
         if c.terms not in wrapped:
@@ -238,7 +258,7 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
         nan = [math.nan] * n
         return Selection(cands, folds, seed, "", nan, [{} for _ in cands],
                          [np.zeros(0) for _ in cands], [False] * n, ["not cross-validated"] * n,
-                         None, notes)
+                         None, notes, plan.text, _SPLIT_BY[plan.kind])
     specs = fold_specs(robot, [wrapped[c.terms] for c in cands], cands, parts, tolerances,
                        options)
     results = gather_results(mapper(run_fold, specs))
@@ -265,4 +285,4 @@ def select_model(robot: Any, blocks: Sequence[Any], tolerances: Mapping[str, flo
     if chosen is None:
         notes.append("no candidate is eligible (none converged with plausible estimates)")
     return Selection(cands, folds, seed, kind, rms, rms_all, errs, trusted, reasons, chosen,
-                     notes)
+                     notes, plan.text, _SPLIT_BY[plan.kind])

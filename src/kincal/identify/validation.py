@@ -432,18 +432,25 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     from kincal.identify.checks import judge
     from kincal.identify.solver import calibrate
     train = [b if u is None else _subset(b, u) for b, u in zip(spec.blocks, spec.train,
-                                                                strict=True)]
+                                                                strict=True)
+             if u is None or len(u)]              # a file held out whole is not fitted
     try:
         res = calibrate(spec.robot, train, **dict(spec.options))
     except KincalError as exc:
         return FoldResult(spec.candidate, spec.fold, {}, False, False, f"failed: {exc}")
     errors: dict[str, list[Array]] = {}
     extras = res.extras()
-    for b, u in zip(spec.blocks, spec.test, strict=True):
-        if u is None:
+    for b, u, t in zip(spec.blocks, spec.test, spec.train, strict=True):
+        if u is None or not len(u):
             continue
         held = _subset(b, u)
-        e = _parameters_of(res.robot, held, extras, 0, True)     # as validate() takes them
+        own = _extras_for(held, extras, 0)
+        if t is not None and not len(t) and not all(     # a whole file out: its frame
+                n in own for n, r in zip(held.parameters().names, held.parameters().roles,
+                                         strict=True) if r != PER_PLACEMENT_ROLE):
+            e = _parameters_of(res.robot, held, None, 0, True)   # registered on it
+        else:
+            e = _parameters_of(res.robot, held, extras, 0, True)  # as validate() takes them
         for k, x in held.errors(res.robot, e).items():
             errors.setdefault(k, []).append(np.ravel(np.asarray(x, dtype=float)))
     verdict = judge(res, spec.tolerances)

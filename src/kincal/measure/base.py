@@ -199,9 +199,12 @@ class MeasurementModel(ABC):
 
     def measurement_sigma(self) -> Array | None:
         """Stated standard deviation of each measurement, in SI units (m for lengths,
-        rad for angles, px for pixels): (N,) or (N, K); the position sigma for blocks
-        that measure several quantities (pose); None when the block states no single
-        one (artifacts).  The whitening divisor ``sigma_i`` of :meth:`evaluate`."""
+        rad for angles, px for pixels): (N,) or (N, K) (e.g. a pose file's ``sigma_x,
+        sigma_y, sigma_z``: one per row and instrument axis, each residual component
+        divided by its own); the position sigma for blocks that measure several
+        quantities (pose); None when the block states no single one (artifacts).  The
+        whitening divisor ``sigma_i`` of :meth:`evaluate`: the fit weighs each residual
+        by ``1 / sigma_i^2``."""
         return None
 
     def with_q(self, q: Array) -> MeasurementModel:

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from kincal.errors import MeasurementFileError
 from kincal.measure.files import MeasurementTable, read_header
-from kincal.spatial import exp_so3, rotx, roty, rotz
+from kincal.spatial import exp_so3, log_so3, rotx, roty, rotz
 
 Array = NDArray[np.float64]
 
@@ -158,16 +158,6 @@ def quaternion_norm_error(angles: dict[str, Array]) -> tuple[int, float] | None:
 AXIS_SIGMAS = (("sigma_x", "sigma_y", "sigma_z"), ("sigma_rx", "sigma_ry", "sigma_rz"))
 
 
-def combined_sigma(values: dict[str, Array], axes: tuple[str, str, str]) -> Array | None:
-    """One standard deviation per row from per-axis ones: the RMS over the axes,
-    ``s = sqrt((s_x^2 + s_y^2 + s_z^2) / 3)`` (the same total variance, spread evenly);
-    None when the file has none of the three columns."""
-    have = [a for a in axes if a in values]
-    if not have:
-        return None
-    return np.asarray(np.sqrt(sum(values[a] ** 2 for a in have) / len(have)), dtype=float)
-
-
 def pose_rotations(t: MeasurementTable) -> tuple[Array, Orientation]:
     """(N, 3, 3) rotations of a pose table by its ``orientation`` tag (default ``rpy``);
     quaternion columns choose ``quaternion`` by themselves.  A missing column or a
@@ -198,11 +188,50 @@ def quaternion_units(path: str | os.PathLike[str]) -> dict[str, str]:
     return {c: "1" for c in QUATERNION_COLUMNS if c in names}
 
 
-def row_sigmas(t: MeasurementTable) -> tuple[Array | None, Array | None]:
-    """Per-row position and orientation standard deviations of a pose table: the
-    ``sigma`` / ``sigma_rot`` columns, else the per-axis ones combined by
-    :func:`combined_sigma` (a note says so), else None."""
+def angle_axes(orientation: Orientation, angles: dict[str, Array], step: float = 1e-6
+               ) -> Array:
+    """(N, 3, 3) rotation axes of the three angle columns, in the frame the rotations are
+    expressed in: column ``k`` is ``w_k = dR/dr_k R^T`` as a vector, so that small changes
+    ``dr`` of ``rx, ry, rz`` [rad] turn ``R`` by ``exp(E dr) R`` (left perturbation).
+    By central differences of :func:`rotation_matrices`, ``w_k = log(R(r + h e_k)
+    R(r - h e_k)^T) / (2 h)``, exact to ``O(h^2)``; for ``rpy`` / ``euler`` / ``rotvec``."""
+    cols = ("rx", "ry", "rz")
+    E = np.empty(np.shape(angles["rx"]) + (3, 3))
+    for k, c in enumerate(cols):
+        hi = {a: angles[a] + (step if a == c else 0.0) for a in cols}
+        lo = {a: angles[a] - (step if a == c else 0.0) for a in cols}
+        D = rotation_matrices(orientation, hi) @ np.swapaxes(rotation_matrices(orientation,
+                                                                               lo), -1, -2)
+        E[..., :, k] = log_so3(D) / (2.0 * step)
+    return E
+
+
+@dataclass(frozen=True)
+class PoseSigmas:
+    """Stated standard deviations of a pose table, per row.
+
+    Attributes:
+        position: (N,) one per row (each coordinate), (N, 3) one per instrument axis
+            [m], or None.
+        orientation: (N,) one per rotation-vector component, (N, 3) one per angle
+            column [rad], or None.
+        orientation_axes: (N, 3, 3) with per-angle ones: the angles' rotation axes
+            (:func:`angle_axes`), so the rotation error's covariance is ``E diag(s^2)
+            E^T``; else None.
+    """
+
+    position: Array | None
+    orientation: Array | None
+    orientation_axes: Array | None = None
+
+
+def pose_sigmas(t: MeasurementTable, orientation: Orientation) -> PoseSigmas:
+    """The ``sigma`` / ``sigma_rot`` columns, else the per-axis ones (``sigma_x ..``:
+    per instrument axis; ``sigma_rx ..``: per angle column of ``orientation``,
+    propagated to rotations by :func:`angle_axes`; a note says so), else None.  Per-angle
+    ones with quaternion columns are one error line (a quaternion has no angles)."""
     out: list[Array | None] = []
+    axes_matrix: Array | None = None
     for single, axes in (("sigma", AXIS_SIGMAS[0]), ("sigma_rot", AXIS_SIGMAS[1])):
         per_axis = [a for a in axes if a in t.values]
         if single in t.values and per_axis:
@@ -214,8 +243,18 @@ def row_sigmas(t: MeasurementTable) -> tuple[Array | None, Array | None]:
                           f"missing {missing[0]!r}")
         s = t.values.get(single)
         if s is None and per_axis:
-            s = combined_sigma(t.values, axes)
-            t.notes.append(f"{', '.join(t.columns[a] for a in axes)}: weighted by their "
-                           "RMS per row, sqrt((sx^2 + sy^2 + sz^2) / 3)")
+            s = np.stack([np.asarray(t.values[a], dtype=float) for a in axes], axis=1)
+            names = ", ".join(t.columns[a] for a in axes)
+            if single == "sigma":
+                t.notes.append(f"{names}: weighted per instrument axis (1/sigma^2 each)")
+            elif orientation.kind == "quaternion":
+                raise t.error(f"{names}: per-angle standard deviations need angle columns "
+                              "(rpy, euler, rotvec), not a quaternion; give sigma_rot")
+            else:
+                axes_matrix = angle_axes(orientation, {c: t.values[c]
+                                                       for c in ("rx", "ry", "rz")})
+                t.notes.append(f"{names}: per-angle standard deviations of "
+                               f"{orientation.text}, propagated to rotations about the "
+                               "instrument axes (covariance E diag(s^2) E^T)")
         out.append(s)
-    return out[0], out[1]
+    return PoseSigmas(out[0], out[1], axes_matrix)

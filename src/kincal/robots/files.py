@@ -178,6 +178,8 @@ def _meta(r: FieldReader, data: Mapping[str, Any], convention: str) -> dict[str,
         meta["calibration_source"] = r.source
     if data.get("joint_model") is not None:     # read by kincal.workflow.carried_joint_model
         meta["joint_model"] = dict(r.mapping(data["joint_model"], "joint_model"))
+    if data.get("masses") is not None:                  # read by kincal.robots.masses
+        meta["masses"] = dict(r.mapping(data["masses"], "masses"))
     return meta
 
 

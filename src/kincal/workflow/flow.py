@@ -323,7 +323,8 @@ def _cross_validation_summary(robot: Any, blocks: Sequence[Any], selection: Any,
         i = selection.chosen
         from kincal.identify.selection import split_kind
 
-        return {"folds": selection.folds, "seed": selection.seed, "split": split_kind(blocks),
+        return {"folds": selection.folds, "seed": selection.seed,
+                "split": selection.split_by or split_kind(blocks),
                 "model": selection.candidates[i].label,
                 **{f"rms_{k}": v for k, v in selection.rms_all[i].items()}}
     if cross_validate is None:

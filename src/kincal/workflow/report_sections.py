@@ -336,7 +336,7 @@ def trust_section_html(flow: FlowResult) -> str:
             f"<td class='l'>{'chosen' if i == sel.chosen else e(sel.reasons[i])}</td></tr>"
             for i, c in enumerate(sel.candidates))
         parts.append(f"<h3>Model selection ({sel.folds}-fold cross-validation on the training "
-                     f"files, seed {sel.seed})</h3><p>Rule: {e(RULE)}.</p><table><tr>"
+                     f"files)</h3><p>{e(sel.split)}. Rule: {e(RULE)}.</p><table><tr>"
                      f"<th class='l'>model</th><th>CV RMS {e(name)} [{e(unit)}]</th>"
                      f"<th class='l'>status</th></tr>{rows}</table>"
                      + "".join(f"<p class='small'>{e(n)}</p>" for n in sel.notes))

@@ -44,12 +44,21 @@ class Session:
 def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None = None
                  ) -> list[Any]:
     """Link masses of ROBOT for ``--joint-model compliance``: a URDF's ``<inertial>``
-    elements on the chain ``base_link -> tip_link``; a one-line error otherwise."""
+    elements on the chain ``base_link -> tip_link``, or the ``masses:`` section of a
+    robot file or built-in robot (:mod:`kincal.robots.masses`); a one-line error
+    otherwise."""
     from kincal.robots.urdf import load_urdf_inertials
 
     if not str(spec).lower().endswith(".urdf"):
-        raise KincalError(f"--joint-model compliance needs the link masses: {spec!r} is not a "
-                          "URDF file (give the robot as a URDF with <inertial> elements)")
+        from kincal.robots.files import load_serial_robot
+        from kincal.robots.masses import stated_masses
+
+        stated = stated_masses(load_serial_robot(spec)) if spec else None
+        if not stated:
+            raise KincalError(f"--joint-model compliance needs the link masses: {spec!r} "
+                              "states none (give a URDF with <inertial> elements or a robot "
+                              "file with a masses: section)")
+        return stated
     masses = load_urdf_inertials(spec, base_link=base_link, tip_link=tip_link)
     if not masses:
         raise KincalError(f"--joint-model compliance: {spec!r} has no <inertial> mass on the "
@@ -59,9 +68,10 @@ def joint_masses(spec: str, base_link: str | None = None, tip_link: str | None =
 
 def available_masses(spec: str | None, base_link: str | None = None,
                      tip_link: str | None = None) -> list[Any] | None:
-    """The link masses of ROBOT when it is a URDF with ``<inertial>`` masses on the chain,
-    else None (``--select auto`` then tries no compliance model)."""
-    if not spec or not str(spec).lower().endswith(".urdf"):
+    """The link masses of ROBOT when it states them (a URDF's ``<inertial>`` masses on
+    the chain, a robot file's ``masses:``), else None (``--select auto`` then tries no
+    compliance model)."""
+    if not spec:
         return None
     try:
         return joint_masses(spec, base_link, tip_link)

@@ -61,7 +61,12 @@ from kincal.measure.instruments.position import (
     scalar_sigma,
     tag_sigma,
 )
-from kincal.measure.orientation import AXIS_SIGMAS, pose_rotations, quaternion_units, row_sigmas
+from kincal.measure.orientation import (
+    AXIS_SIGMAS,
+    pose_rotations,
+    pose_sigmas,
+    quaternion_units,
+)
 from kincal.measure.registry import Instrument, register
 from kincal.measure.simulate import random_configurations
 from kincal.robots.chain import Robot
@@ -97,7 +102,8 @@ class PoseMeasurement(MeasurementModel):
     """
 
     def __init__(self, q: ArrayLike, poses: ArrayLike, sigma_position: ArrayLike = 1e-5,
-                 sigma_orientation: ArrayLike = 1e-5, name: str = "tracker") -> None:
+                 sigma_orientation: ArrayLike = 1e-5, name: str = "tracker",
+                 orientation_axes: ArrayLike | None = None) -> None:
         self.name = str(name)
         self.q = check_configurations(q, self.name)
         P = np.asarray(poses, dtype=float)
@@ -109,17 +115,40 @@ class PoseMeasurement(MeasurementModel):
             raise KincalError(f"measurements {self.name!r}: pose in row {row} is not finite")
         self.poses = P
         N = self.q.shape[0]
-        self.sigma_position = sigma_array(sigma_position, (N,), f"{self.name}: sigma_position")
-        self.sigma_orientation = sigma_array(sigma_orientation, (N,),
-                                        f"{self.name}: sigma_orientation")
+        self.sigma_position = _row_or_axis_sigma(sigma_position, N,
+                                                 f"{self.name}: sigma_position")
+        self.sigma_orientation = _row_or_axis_sigma(sigma_orientation, N,
+                                                    f"{self.name}: sigma_orientation")
+        self.orientation_axes = _orientation_axes(orientation_axes, self.sigma_orientation,
+                                                  self.name)
+        self._weights: tuple[Array, Array | None, Array | None] | None = None
+
+    def _whitening(self) -> tuple[Array, Array | None, Array | None]:
+        """``(wp, wo, Wo)``: position weights ``1 / sigma`` per row and axis (N, 3);
+        rotation weights ``1 / sigma_o`` per row (N,) with one orientation sigma per row,
+        else None and ``Wo`` (N, 3, 3) = ``L^-1`` with ``L L^T = E diag(s^2) E^T`` (the
+        rotation error's covariance; ``E`` = ``orientation_axes``, identity without),
+        so that ``Wo^T Wo`` is its inverse.  Computed once."""
+        if self._weights is None:
+            sp, so = self.sigma_position, self.sigma_orientation
+            wp = 1.0 / (sp if sp.ndim == 2 else sp[:, None] * np.ones((1, 3)))
+            if so.ndim == 1:
+                self._weights = (wp, 1.0 / so, None)
+            else:
+                E = self.orientation_axes if self.orientation_axes is not None \
+                    else np.broadcast_to(np.eye(3), (self.N, 3, 3))
+                C = (E * so[:, None, :] ** 2) @ np.swapaxes(E, 1, 2)
+                L = np.linalg.cholesky(C)
+                self._weights = (wp, None, np.linalg.inv(L))
+        return self._weights
 
     @property
     def N(self) -> int:
         return int(self.q.shape[0])
 
     def measurement_sigma(self) -> Array:
-        """Stated standard deviation of each position [m]: (N,) (orientations:
-        ``sigma_orientation`` [rad])."""
+        """Stated standard deviation of each position [m]: (N,), or (N, 3) one per
+        instrument axis (orientations: ``sigma_orientation`` [rad])."""
         return self.sigma_position
 
     def parameters(self) -> ParamSpec:
@@ -131,8 +160,9 @@ class PoseMeasurement(MeasurementModel):
     def subset(self, rows: ArrayLike) -> PoseMeasurement:
         """A block with the same name holding only ``rows``."""
         rows = np.asarray(rows)
+        axes = self.orientation_axes[rows] if self.orientation_axes is not None else None
         return PoseMeasurement(self.q[rows], self.poses[rows], self.sigma_position[rows],
-                               self.sigma_orientation[rows], self.name)
+                               self.sigma_orientation[rows], self.name, axes)
 
     def predict(self, robot: Robot, extra: ArrayLike) -> Array:
         """Predicted target poses in the instrument frame (N, 4, 4)."""
@@ -170,8 +200,13 @@ class PoseMeasurement(MeasurementModel):
         extra = np.asarray(extra, dtype=float)
         if not jacobian:
             dy, e, _, _ = self._raw(robot.fk(self.q), self._frames(extra), slice(None))
-            wp, wo = 1.0 / self.sigma_position, 1.0 / self.sigma_orientation
-            return np.concatenate([dy * wp[:, None], e * wo[:, None]], 1).reshape(-1), None, None
+            wp, wo, Wo = self._whitening()
+            if wo is not None:
+                eo = e * wo[:, None]
+            else:
+                assert Wo is not None                             # per-angle sigmas
+                eo = (Wo @ e[:, :, None])[:, :, 0]
+            return np.concatenate([dy * wp, eo], 1).reshape(-1), None, None
         M, P = self.num_residuals(), robot.num_params
         r, Jr, Je = np.empty(M), np.empty((M, P)), np.empty((M, 12))
         ws, frames = ChainWorkspace(), self._frames(extra)
@@ -205,15 +240,19 @@ class PoseMeasurement(MeasurementModel):
         * instrument: position ``[-R_I^T, y x E'_c]``, rotation ``[0, -L E'_c]``;
         * target: position ``[R_I^T R_e, 0]``, rotation ``[0, L R_I^T R_e F_c]``;
 
-        position rows divided by ``sigma_position``, rotation rows by ``sigma_orientation``.
+        position rows divided by ``sigma_position`` (per row or per axis), rotation rows
+        by ``sigma_orientation``, or multiplied by the whitening ``Wo`` of per-angle ones
+        (:meth:`_whitening`).
         """
         T, _, Jp = robot.fk_with_jacobians(self.q[cs], joints=False, params=True, workspace=ws)
         n, P = T.shape[0], robot.num_params
         G = frames[0][:3, :3].T                                   # R_I^T
         dy, e, a, y = self._raw(T, frames, cs)
-        wp, wo = 1.0 / self.sigma_position[cs], 1.0 / self.sigma_orientation[cs]
+        wp_all, wo_all, Wo_all = self._whitening()
+        wp = wp_all[cs]
+        wo = wo_all[cs] if wo_all is not None else np.ones(n)
         rr = r.reshape(n, 6)
-        np.multiply(dy, wp[:, None], out=rr[:, :3])
+        np.multiply(dy, wp, out=rr[:, :3])
         np.multiply(e, wo[:, None], out=rr[:, 3:])
         L = inverse_left_jacobian_so3(e)                           # (n, 3, 3)
         assert Jp is not None                                      # params=True
@@ -228,7 +267,7 @@ class PoseMeasurement(MeasurementModel):
             np.multiply(W[l], ar[j], out=tmp)
             buf -= tmp
             buf += V[i]
-            buf *= wp
+            buf *= wp[:, i]
             out[:, i, :] = buf.T
             np.multiply(W[0], Lc[i, 0], out=buf)
             for c in (1, 2):
@@ -247,8 +286,13 @@ class PoseMeasurement(MeasurementModel):
         RiRe = G @ T[:, :3, :3]
         ex[:, :3, 6:9] = RiRe
         ex[:, 3:, 9:12] = L @ (RiRe @ frames[3])
-        ex[:, :3] *= wp[:, None, None]
+        ex[:, :3] *= wp[:, :, None]
         ex[:, 3:] *= wo[:, None, None]
+        if Wo_all is not None:                                    # per-angle sigmas
+            Wo = Wo_all[cs]
+            rr[:, 3:] = (Wo @ rr[:, 3:, None])[:, :, 0]
+            out[:, 3:] = Wo @ out[:, 3:]
+            ex[:, 3:] = Wo @ ex[:, 3:]
 
     def errors(self, robot: Robot, extra: Array) -> dict[str, Array]:
         frames = self._frames(np.asarray(extra, dtype=float))
@@ -299,6 +343,30 @@ class PoseMeasurement(MeasurementModel):
         return np.concatenate([frame_from_matrix(TI), frame_from_matrix(Tt)])
 
 
+def _row_or_axis_sigma(sigma: ArrayLike, N: int, what: str) -> Array:
+    """A standard deviation per row (scalar or (N,) -> (N,)) or per row and axis
+    ((N, 3) kept), positive and finite."""
+    s = np.asarray(sigma, dtype=float)
+    if s.ndim == 2 and s.shape == (N, 3):
+        return sigma_array(s, (N, 3), what)
+    return sigma_array(s, (N,), what)
+
+
+def _orientation_axes(axes: ArrayLike | None, sigma: Array, name: str) -> Array | None:
+    """The (N, 3, 3) rotation axes of per-angle orientation sigmas, checked."""
+    if axes is None:
+        return None
+    E = np.asarray(axes, dtype=float)
+    if sigma.ndim != 2 or E.shape != (sigma.shape[0], 3, 3) or not np.all(np.isfinite(E)):
+        raise KincalError(f"measurements {name!r}: orientation_axes must be finite (N, 3, 3) "
+                          "with one sigma_orientation per angle (N, 3)")
+    if np.any(np.abs(np.linalg.det(E)) < 1e-9):
+        raise KincalError(f"measurements {name!r}: orientation_axes are singular (an Euler "
+                          "angle set at gimbal lock): its per-angle sigmas do not bound the "
+                          "rotation")
+    return E
+
+
 # --------------------------------------------------------------------------- file columns
 POSE_FIELDS = (
     Field(r"[xyz]", "length", "x, y, z"),
@@ -331,8 +399,15 @@ def write_pose(blocks: Sequence[Any], path: str | Path, units: Mapping[str, str]
     rpy = matrix_to_rpy(P[:, :3, :3])
     obs = [(c, P[:, i, 3], "length") for i, c in enumerate("xyz")]
     obs += [(c, rpy[:, i], "angle") for i, c in enumerate(("rx", "ry", "rz"))]
-    obs += [("sigma", np.broadcast_to(b.sigma_position, (len(P),)), "length"),
-            ("sigma_rot", np.broadcast_to(b.sigma_orientation, (len(P),)), "angle")]
+    sp, so = np.asarray(b.sigma_position), np.asarray(b.sigma_orientation)
+    if sp.ndim == 2:                                     # per instrument axis
+        obs += [(f"sigma_{c}", sp[:, i], "length") for i, c in enumerate("xyz")]
+    else:
+        obs += [("sigma", np.broadcast_to(sp, (len(P),)), "length")]
+    # per-angle orientation sigmas of another convention: their RMS per row (the
+    # file's rpy angles are not the angles they were stated for)
+    so = np.sqrt(np.mean(so**2, axis=1)) if so.ndim == 2 else so
+    obs += [("sigma_rot", np.broadcast_to(so, (len(P),)), "angle")]
     write_table(path, b.q, obs, robot, {"instrument": "pose", "name": b.name},
                 angle_unit=angle, length_unit=length,
                 comments=["pose of the target frame in the instrument frame; rx, ry, rz "
@@ -347,10 +422,14 @@ def read_pose(path: str | Path, robot: Any, units: Mapping[str, str] | None = No
     P = pose_matrices(t)
     for b in ("sigma", "sigma_rot", *AXIS_SIGMAS[0], *AXIS_SIGMAS[1]):
         check_positive(t, b)
-    sp, so = row_sigmas(t)
-    block = PoseMeasurement(t.q, P, sigma_position=scalar_sigma(sp, tag_sigma(t, "sigma")),
-                            sigma_orientation=scalar_sigma(so, tag_sigma(t, "sigma_rot")),
-                            name=name or t.tags.get("name") or UNNAMED)
+    sig = pose_sigmas(t, pose_rotations(t)[1])
+    sp = sig.position if sig.position is not None and sig.position.ndim == 2 \
+        else scalar_sigma(sig.position, tag_sigma(t, "sigma"))
+    so = sig.orientation if sig.orientation is not None and sig.orientation.ndim == 2 \
+        else scalar_sigma(sig.orientation, tag_sigma(t, "sigma_rot"))
+    block = PoseMeasurement(t.q, P, sigma_position=sp, sigma_orientation=so,
+                            name=name or t.tags.get("name") or UNNAMED,
+                            orientation_axes=sig.orientation_axes)
     block.provenance = Provenance(str(path), t)
     return [block]
 
