@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from kincal.defaults import STAGE_TOLERANCE_M
 from kincal.errors import KincalError
 from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
+from kincal.identify.noise_floor import floored_blocks, noise_floors
 from kincal.workflow.options import (
     LOSSES,
     METHODS,
@@ -230,6 +231,11 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                "tolerance": tolerance, "prior": prior_s, "prefer": prefer}
     t0 = time.perf_counter()
     res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
+    floors = noise_floors(res)
+    if floors:                       # stated sigmas that vary, a residual they leave
+        blocks = floored_blocks(blocks, floors)
+        notes = [*notes, *(f.sentence() for f in floors)]
+        res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
     seconds = time.perf_counter() - t0
     cv = _cross_validation_summary(robot, blocks, selection, cross_validate, tols.sigma,
                                    {**solver_options, "prior": prior_s or None}, mapper)
