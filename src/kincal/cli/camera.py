@@ -245,11 +245,7 @@ def hand_eye_command(
         from kincal.identify.hand_eye_fit import leave_one_out
 
         lo = leave_one_out(r, blocks[0], read_image_labels(data), free or (), min_deg)
-        _print_loo(out, lo)
-        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
-                                "rms_3d_m": lo.rms_3d.tolist(),
-                                "position_spread_m": lo.position_spread,
-                                "rotation_spread_rad": lo.rotation_spread}
+        doc["leave_one_out"] = _print_loo(out, lo)
     if output:
         atomic_write_text(output, robot_yaml_text(fit.result.robot))
         out.print(f"robot (camera as tool frame) -> {escape(output)}")
@@ -380,11 +376,7 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
     if loo:
         lo = lens_leave_one_out(A, pts, uv, names, lens0, mount, fitted, 0.5, min_deg, r, q,
                                 free or (), model)
-        _print_loo(out, lo)
-        doc["leave_one_out"] = {"images": lo.images, "rms_px": lo.rms_px.tolist(),
-                                "rms_3d_m": lo.rms_3d.tolist(),
-                                "position_spread_m": lo.position_spread,
-                                "rotation_spread_rad": lo.rotation_spread}
+        doc["leave_one_out"] = _print_loo(out, lo)
     if output:
         from kincal.io import atomic_write_text
         from kincal.robots.files import robot_yaml_text
@@ -423,7 +415,8 @@ def _lens_files(out: Any, files: HandEyeFiles, fit: Any, found: Any, images: str
         write_lens_report(out, files.report, images, fit, found, A, pts, mount, summary)
 
 
-def _print_loo(out: Any, lo: Any) -> None:
+def _print_loo(out: Any, lo: Any) -> dict[str, Any]:
+    """Print the leave-one-out line; return its JSON part."""
     import numpy as np
 
     out.print(f"leave-one-out ({len(lo.images)} fits): held-out RMS "
@@ -432,6 +425,8 @@ def _print_loo(out: Any, lo: Any) -> None:
               f"{escape(lo.images[int(np.argmax(lo.rms_px))])} {lo.rms_px.max():.2f} px; "
               f"hand-eye spread (jackknife) {lo.position_spread * 1e3:.2f} mm, "
               f"{np.degrees(lo.rotation_spread):.3f} deg")
+    return {"images": lo.images, "rms_px": lo.rms_px.tolist(), "rms_3d_m": lo.rms_3d.tolist(),
+            "position_spread_m": lo.position_spread, "rotation_spread_rad": lo.rotation_spread}
 
 
 def _print_lens_fit(out: Any, fit: Any, found: Any, intr: Any, frame: str, mount: str) -> None:

@@ -47,10 +47,10 @@ from kincal.identify.hand_eye import average_pose, hand_eye
 from kincal.identify.names import match_names
 from kincal.identify.prior import tolerance_prior
 from kincal.identify.solver import calibrate
-from kincal.measure.base import MeasurementModel, ParamSpec
+from kincal.measure.base import ParamSpec
 from kincal.measure.camera_board import board_pose
-from kincal.measure.instruments.camera import check_intrinsics, project
-from kincal.measure.instruments.common import as_q, as_sigma, check_shapes, frame_spec, to_local
+from kincal.measure.instruments.camera import PixelRowsMeasurement, project
+from kincal.measure.instruments.common import frame_spec, to_local
 from kincal.robots.chain import Robot
 from kincal.spatial import frame_from_matrix, inverse, matrix_from_frame
 
@@ -61,7 +61,7 @@ TOOL = tuple(f"tool.{f}" for f in ("x", "y", "z", "rz", "ry", "rx"))
 __all__ = ["BoardOnFlangeMeasurement", "FixedStart", "fixed_camera_robot_start"]
 
 
-class BoardOnFlangeMeasurement(MeasurementModel):
+class BoardOnFlangeMeasurement(PixelRowsMeasurement):
     """Pixels of board corners on the flange (the robot's tool frame) seen by a fixed
     camera (module docstring).
 
@@ -74,23 +74,7 @@ class BoardOnFlangeMeasurement(MeasurementModel):
         intrinsics: ``(fx, fy, cx, cy)`` [px].
     """
 
-    SIGMA_UNIT = "px"
-
-    def __init__(self, name: str, q: ArrayLike, board_points: ArrayLike, uv: ArrayLike,
-                 sigma: ArrayLike, intrinsics: Sequence[float]) -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.s = np.asarray(board_points, dtype=float).reshape(-1, 3)
-        self.obs = np.asarray(uv, dtype=float).reshape(-1, 2)
-        check_shapes("camera", name, N, board_points=self.s, uv=self.obs)
-        self.sigma = as_sigma(sigma, N, name)
-        self.intrinsics = tuple(float(v) for v in intrinsics)
-        self.K = np.broadcast_to(check_intrinsics(np.array(self.intrinsics), name), (N, 4))
-
-    def measurement_sigma(self) -> Array:
-        """Stated standard deviation of each image coordinate [px]: (N,)."""
-        return self.sigma
+    POINTS = "board_points"
 
     def parameters(self) -> ParamSpec:
         return frame_spec(f"{self.name}.camera")

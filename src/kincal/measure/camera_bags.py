@@ -43,9 +43,8 @@ from kincal.measure.bags import read_bag_streams
 from kincal.measure.camera_board import Board
 from kincal.measure.camera_images import (
     MIN_SHARPNESS,
-    Detection,
     ImageSet,
-    detect_gray,
+    add_detection,
     require_opencv,
 )
 
@@ -186,12 +185,7 @@ def _images(reader: Any, path: str, image_topic: str, board: Board, s: Any,
         if gray is None:
             out.dropped.append((label, f"cannot be decoded ({msg.format})"))
             continue
-        out.size = (int(gray.shape[1]), int(gray.shape[0]))
-        found = detect_gray(cv2, gray, board, min_corners, min_sharpness)
-        if isinstance(found, str):
-            out.dropped.append((label, found))
-        else:
-            out.detections.append(Detection(label, *found, q))
+        add_detection(cv2, out, label, gray, q, board, min_corners, min_sharpness)
     if not out.detections and not out.dropped:
         raise MeasurementFileError(f"--image-topic {image_topic}: no images", source=path)
     return out

@@ -448,6 +448,19 @@ def drop_oblique(images: ImageSet, board: Board, intr: Intrinsics,
     return ImageSet(keep, dropped, images.size, images.intrinsics, images.notes)
 
 
+def add_detection(cv2: Any, out: Any, label: str, gray: Any, q: Any, board: Board,
+                  min_corners: int, min_sharpness: float) -> None:
+    """Detect the board in one grey image and put it into ``out`` (an :class:`ImageSet`):
+    a :class:`Detection` with the joint values ``q``, or the image's label with the
+    reason it was dropped; ``out.size`` becomes the image's (width, height) [px]."""
+    out.size = (int(gray.shape[1]), int(gray.shape[0]))
+    found = detect_gray(cv2, gray, board, min_corners, min_sharpness)
+    if isinstance(found, str):
+        out.dropped.append((label, found))
+    else:
+        out.detections.append(Detection(label, *found, q))
+
+
 def detect_gray(cv2: Any, gray: Any, board: Board, min_corners: int = 6,
                 min_sharpness: float = MIN_SHARPNESS) -> tuple[NDArray[np.int64], Array] | str:
     """The corner ids and pixels [px] of ``board`` in one grey image, or why it is dropped:
@@ -500,12 +513,7 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
         if gray is None:
             out.dropped.append((label, "cannot be read as an image"))
             continue
-        out.size = (int(gray.shape[1]), int(gray.shape[0]))
-        found = detect_gray(cv2, gray, board, min_corners, min_sharpness)
-        if isinstance(found, str):
-            out.dropped.append((label, found))
-        else:
-            out.detections.append(Detection(label, *found, q))
+        add_detection(cv2, out, label, gray, q, board, min_corners, min_sharpness)
     if given:
         first = given[0]
         if any(g.pinhole != first.pinhole or g.dist != first.dist for g in given[1:]):

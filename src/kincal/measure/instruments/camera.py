@@ -170,7 +170,42 @@ class CameraMeasurement(PointBlock):
         return {"image_px": np.hypot(r[:, 0], r[:, 1]) * self.sigma}
 
 
-class HandCameraMeasurement(MeasurementModel):
+class PixelRowsMeasurement(MeasurementModel):
+    """Rows of known points, each seen at a pixel by a pinhole camera (the shared part of
+    the camera-on-the-hand and board-on-the-flange blocks).
+
+    Args:
+        name: block name (parameter prefix).
+        q: (N, n) joint readings [rad / m].
+        points: (N, 3) the observed point of each row, in the frame the block's
+            parameters hold (target or board) [m].
+        uv: (N, 2) measured (undistorted) pixel coordinates [px].
+        sigma: standard deviation of each coordinate [px], scalar or (N,).
+        intrinsics: ``(fx, fy, cx, cy)`` [px].
+    """
+
+    SIGMA_UNIT = "px"
+    #: How the points are called in a shape error.
+    POINTS = "points"
+
+    def __init__(self, name: str, q: ArrayLike, points: ArrayLike, uv: ArrayLike,
+                 sigma: ArrayLike, intrinsics: Sequence[float]) -> None:
+        self.name = name
+        self.q = as_q(q)
+        N = self.q.shape[0]
+        self.s = np.asarray(points, dtype=float).reshape(-1, 3)
+        self.obs = np.asarray(uv, dtype=float).reshape(-1, 2)
+        check_shapes("camera", name, N, **{self.POINTS: self.s, "uv": self.obs})
+        self.sigma = as_sigma(sigma, N, name)
+        self.intrinsics = tuple(float(v) for v in intrinsics)
+        self.K = np.broadcast_to(check_intrinsics(np.array(self.intrinsics), name), (N, 4))
+
+    def measurement_sigma(self) -> Array:
+        """Stated standard deviation of each image coordinate [px]: (N,)."""
+        return self.sigma
+
+
+class HandCameraMeasurement(PixelRowsMeasurement):
     """Pixel coordinates of known target points seen by a camera on the flange.
 
     Args:
@@ -182,23 +217,7 @@ class HandCameraMeasurement(MeasurementModel):
         intrinsics: ``(fx, fy, cx, cy)`` [px] of the camera (the robot's tool frame).
     """
 
-    SIGMA_UNIT = "px"
-
-    def __init__(self, name: str, q: ArrayLike, target_points: ArrayLike, uv: ArrayLike,
-                 sigma: ArrayLike, intrinsics: Sequence[float]) -> None:
-        self.name = name
-        self.q = as_q(q)
-        N = self.q.shape[0]
-        self.s = np.asarray(target_points, dtype=float).reshape(-1, 3)
-        self.obs = np.asarray(uv, dtype=float).reshape(-1, 2)
-        check_shapes("camera", name, N, target_points=self.s, uv=self.obs)
-        self.sigma = as_sigma(sigma, N, name)
-        self.intrinsics = tuple(float(v) for v in intrinsics)
-        self.K = np.broadcast_to(check_intrinsics(np.array(self.intrinsics), name), (N, 4))
-
-    def measurement_sigma(self) -> Array:
-        """Stated standard deviation of each image coordinate [px]: (N,)."""
-        return self.sigma
+    POINTS = "target_points"
 
     def parameters(self) -> ParamSpec:
         return frame_spec(f"{self.name}.target", role="target")
