@@ -131,6 +131,22 @@ def _calibrate(robot: Any, blocks: list[Any], free_names: list[str] | None, fixe
                      prefer=options.get("prefer") or ())
 
 
+def _calibrate_with_floor(robot: Any, blocks: list[Any], notes: list[str],
+                          free_names: list[str] | None, fixed: list[str], procedure: str,
+                          progress: Callable[[Any], Any] | None,
+                          options: Mapping[str, Any]) -> tuple[Any, list[Any], list[str]]:
+    """:func:`_calibrate`, then again with the unmodelled floor added to the stated
+    variances of the blocks whose stated sigmas vary and leave a residual
+    (:mod:`kincal.identify.noise_floor`): the result, the blocks it used, the notes."""
+    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
+    floors = noise_floors(res)
+    if not floors:
+        return res, blocks, notes
+    blocks = floored_blocks(blocks, floors)
+    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
+    return res, blocks, [*notes, *(f.sentence() for f in floors)]
+
+
 def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              free: str | None = None, fix: str | None = None, stages: list[str] | None = None,
              method: str = "lm", loss: str = "linear", loss_scale: float = 3.0,
@@ -230,12 +246,8 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
                "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
                "tolerance": tolerance, "prior": prior_s, "prefer": prefer}
     t0 = time.perf_counter()
-    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
-    floors = noise_floors(res)
-    if floors:                       # stated sigmas that vary, a residual they leave
-        blocks = floored_blocks(blocks, floors)
-        notes = [*notes, *(f.sentence() for f in floors)]
-        res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
+    res, blocks, notes = _calibrate_with_floor(robot, blocks, notes, free_names, fixed,
+                                               procedure, progress, options)
     seconds = time.perf_counter() - t0
     cv = _cross_validation_summary(robot, blocks, selection, cross_validate, tols.sigma,
                                    {**solver_options, "prior": prior_s or None}, mapper)
