@@ -159,3 +159,23 @@ def test_select_table_follows_si(capsys, tmp_path, sim):
     assert code == 0, err
     table = out[out.index("Model selection"):]
     assert "[m]" in table.split("<- chosen")[0] and "[mm]" not in out
+
+
+def test_split_option_chooses_what_a_fold_holds_out(tmp_path, capsys):
+    """Two files of one tracker set-up: ``--split auto`` (default) holds out one file per
+    fold, ``--split random`` random rows; anything else is one line, exit 2."""
+    for seed, name in ((1, "a.csv"), (2, "b.csv")):
+        code, _, err = run(capsys, "simulate", "puma560", "-o", tmp_path / name, "-n", "30",
+                           "--seed", str(seed))
+        assert code == 0, err
+    base = ["calibrate", "puma560", "--data", tmp_path / "a.csv", "--data", tmp_path / "b.csv",
+            "--select", "auto", "--folds", "2", "--prior", "none", "--json", "-"]
+    code, out, err = run(capsys, *base)
+    assert code == 0, err
+    assert json.loads(out)["selection"]["split"].startswith("split by file: 2 folds")
+    code, out, err = run(capsys, *base, "--split", "random")
+    assert code == 0, err
+    assert json.loads(out)["selection"]["split"].startswith("random 2-fold split")
+    code, out, err = run(capsys, *base, "--split", "regions")
+    assert code == 2 and err.strip().splitlines() == [
+        "error: option --split: 'regions' is not auto or random"], err

@@ -194,6 +194,10 @@ SelectOpt = Annotated[str, typer.Option(
     "it. none (default): fit the model as given.")]
 FoldsOpt = Annotated[int, typer.Option("--folds", min=2, help="K of --select auto "
                                        "(permutation seed 0).")]
+SplitOpt = Annotated[str, typer.Option(
+    "--split", metavar="auto|random", help="What each fold of --select auto holds out: "
+    "auto (files sharing a name, else artifact placements, else workspace regions; random "
+    "folds only when none applies) or random (random folds of rows and placements).")]
 SharedMarkerOpt = Annotated[bool, typer.Option(
     "--shared-marker", help="The --data (and --validate) files see one physical tool "
     "point (the same reflector, the same ball): estimate it once, as the robot's tool "
@@ -224,8 +228,9 @@ def calibrate_cmd(
     cycles: CyclesOpt = None, tolerance_text: ToleranceOpt = None, free: FreeOpt = None,
     fix: FixOpt = None, max_iter: MaxIterOpt = None, prior: PriorOpt = None,
     joint_model: JointModelOpt = None, cross_validate: CrossValidateOpt = None,
-    select: SelectOpt = "none", folds: FoldsOpt = 10, shared_marker: SharedMarkerOpt = False,
-    scheduler: SchedulerOpt = None, workers: WorkersOpt = None, units: UnitsOpt = None,
+    select: SelectOpt = "none", folds: FoldsOpt = 10, split: SplitOpt = "auto",
+    shared_marker: SharedMarkerOpt = False, scheduler: SchedulerOpt = None,
+    workers: WorkersOpt = None, units: UnitsOpt = None,
     ignore: IgnoreOpt = None, validation_frames: CalibrationFramesOpt = "auto",
     truth: TruthOpt = None, all_parameters: AllParametersOpt = False, force: ForceOpt = False,
     base_link: BaseLink = None, tip_link: TipLink = None, si: SiOpt = False,
@@ -243,13 +248,7 @@ def calibrate_cmd(
     report add its record and a comparison with one-stage Levenberg-Marquardt on the same
     data."""
     from kincal.measure.joints.terms import parse_joint_model
-    from kincal.workflow.flow import (
-        check_flow_options,
-        parse_stages,
-        run_flow,
-        truth_values,
-        write_outputs,
-    )
+    from kincal.workflow import flow as wf
     from kincal.workflow.inputs import calibration_inputs
     from kincal.workflow.session import available_masses, read_session
 
@@ -268,10 +267,10 @@ def calibrate_cmd(
     from kincal.workflow.options import parse_prior_text
 
     prior_value = parse_prior_text(prior)            # the typed prior of the library
-    check_flow_options(procedure=procedure, method=method, loss=loss,
-                       stages=parse_stages(stages), validation_frames=validation_frames,
-                       condition_growth=condition_growth, cycles=cycles, tolerance=tolerance,
-                       prior=prior_value)
+    wf.check_flow_options(procedure=procedure, method=method, loss=loss,
+                          stages=wf.parse_stages(stages), validation_frames=validation_frames,
+                          condition_growth=condition_growth, cycles=cycles,
+                          tolerance=tolerance, prior=prior_value)
     if not (math.isfinite(loss_scale) and loss_scale > 0):
         raise KincalError(f"option --loss-scale: {loss_scale!r} is not a positive finite "
                           "number of standard deviations")
@@ -295,19 +294,19 @@ def calibrate_cmd(
     if auto:
         models = [parse_joint_model(joint_model)] if joint_model else None
         masses = available_masses(robot, base_link, tip_link)
-    truth_vals = truth_values(truth) if truth else None
+    truth_vals = wf.truth_values(truth) if truth else None
     bar_total = max_iter or max_iter_for(procedure)
     with Progress(bar_total, json_out != "-") as bar, fold_engine(scheduler, workers) as eng:
-        flow = run_flow(r, session.blocks, session.holdouts, free=free, fix=fix,
-                        stages=parse_stages(stages), method=method, loss=loss,
-                        loss_scale=loss_scale, max_iter=max_iter,
-                        validation_frames=validation_frames, procedure=procedure,
-                        condition_growth=condition_growth, cycles=cycles,
-                        tolerance=tolerance, prior=prior_value,
-                        cross_validate=cross_validate,
-                        progress=bar, select=select, folds=folds, masses=masses,
-                        joint_models=models, mapper=bar.mapper_on(eng),
-                        shared_marker=shared_marker)
+        flow = wf.run_flow(r, session.blocks, session.holdouts, free=free, fix=fix,
+                           stages=wf.parse_stages(stages), method=method, loss=loss,
+                           loss_scale=loss_scale, max_iter=max_iter,
+                           validation_frames=validation_frames, procedure=procedure,
+                           condition_growth=condition_growth, cycles=cycles,
+                           tolerance=tolerance, prior=prior_value,
+                           cross_validate=cross_validate, progress=bar, select=select,
+                           folds=folds, masses=masses, joint_models=models,
+                           mapper=bar.mapper_on(eng), shared_marker=shared_marker,
+                           split=split)
     for n in flow.notes:
         out.print(f"[dim]{escape(n)}[/dim]")
     if flow.selection is not None:
@@ -325,8 +324,8 @@ def calibrate_cmd(
     extra: dict[str, Any] = {"seconds": flow.seconds}
     if shifts is not None:
         extra["controller_zero_shifts"] = [z.to_dict() for z in shifts]
-    written = write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals, extra,
-                            force=force)
+    written = wf.write_outputs(flow, output, urdf, json_out, report, inputs, truth_vals,
+                               extra, force=force)
     _print_calibration(out, flow, terms, prior, all_parameters)
     for z in shifts or []:
         out.print(escape(z.line()))

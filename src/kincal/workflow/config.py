@@ -94,6 +94,8 @@ def _calibration_keys() -> dict[str, Key]:
         "select": Key("choice", "choose the joint model and prior scale by cross-validation "
                                 "on the training files", ("auto", "none")),
         "folds": Key("int", "folds of select: auto"),
+        "split": Key("choice", "what a fold of select: auto holds out (files, placements or "
+                               "workspace regions; or random rows)", ("auto", "random")),
         "shared_marker": Key("bool", "the data files see one tool point: estimate it once"),
         "validation_frames": Key("choice", "instrument frames on held-out files",
                                  ("auto", "training", "register")),

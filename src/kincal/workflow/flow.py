@@ -157,7 +157,8 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
              progress: Callable[[Any], Any] | None = None, select: str | None = None,
              folds: int = 10, masses: Sequence[Any] | None = None,
              joint_models: Sequence[Sequence[str]] | None = None,
-             mapper: Callable[..., Any] = map, shared_marker: bool = False) -> FlowResult:
+             mapper: Callable[..., Any] = map, shared_marker: bool = False,
+             split: str = "auto") -> FlowResult:
     """Calibrate, then compute the errors before/after on the training and held-out data.
 
     Args:
@@ -198,7 +199,7 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
             candidate wraps them in its own.  ``masses`` (link masses) adds the
             compliance candidates; ``joint_models`` restricts the joint models tried; a
             ``--prior`` with ``none`` or ``scale=K`` pins the prior scale.
-        folds: K of ``select`` (default 10).
+        folds, split: K of ``select`` (default 10), what a fold holds out (``auto``, ``random``).
         shared_marker: the training (and held-out) files see one physical tool point:
             it becomes the robot's tool origin, one set of parameters
             (:func:`~kincal.workflow.shared.share_tool_point`).
@@ -228,19 +229,18 @@ def run_flow(robot: Any, blocks: list[Any], holdouts: Sequence[Any] = (), *,
     check_flow_options(procedure=procedure, method=method, loss=loss, stages=stages,
                        validation_frames=validation_frames, condition_growth=condition_growth,
                        cycles=cycles, tolerance=tolerance, prior=prior)
-    _check_validation_options(procedure, cross_validate, select)
+    _check_validation_options(procedure, cross_validate, select, split)
     robot, blocks, holdouts, notes = _share_marker(robot, blocks, holdouts, shared_marker)
     free_names, fixed, tols = _selection_and_tolerances(robot, blocks, free, fix, prior)
     prefer = [f"tool.{c}" for c in "xyz"] if shared_marker else []
     solver_options = {"free": free_names, "fixed": fixed, "method": method, "stages": stages,
                       "loss": loss, "loss_scale": loss_scale, "max_iter": max_iter or 100,
                       "prefer": prefer}
-    selection = None
-    warnings: list[str] = []
+    selection, warnings = None, list[str]()
     if select == "auto":
         selection, blocks, holdouts, tols = _select_model(
             robot, blocks, list(holdouts), tols, prior, folds, masses, joint_models, mapper,
-            solver_options, warnings)
+            solver_options, warnings, split)
     prior_s = tols.prior() if procedure == "lm" else {}
     options = {"method": method, "stages": stages, "loss": loss, "loss_scale": loss_scale,
                "max_iter": max_iter, "condition_growth": condition_growth, "cycles": cycles,
@@ -316,8 +316,13 @@ def _selection_and_tolerances(robot: Any, blocks: Sequence[Any], free: str | Non
 
 
 def _check_validation_options(procedure: str, cross_validate: int | None,
-                              select: str | None) -> None:
-    """``--cross-validate`` (lm only, at least 2 folds) and ``--select`` (auto or none)."""
+                              select: str | None, split: str = "auto") -> None:
+    """``--cross-validate`` (lm only, at least 2 folds), ``--select`` (auto or none) and
+    ``--split`` (auto or random)."""
+    from kincal.identify.region_folds import SPLITS
+
+    if split not in SPLITS:
+        raise KincalError(f"option --split: {split!r} is not {' or '.join(SPLITS)}")
     if cross_validate is not None:
         if procedure != "lm":
             raise KincalError("--cross-validate works with --procedure lm")
@@ -429,7 +434,7 @@ def _accuracy_outside(robot: Any, blocks: list[Any], res: Any, accuracy: Any,
 def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
                   prior: Prior, folds: int, masses: Sequence[Any] | None,
                   joint_models: Sequence[Sequence[str]] | None, mapper: Callable[..., Any],
-                  options: Mapping[str, Any], warnings: list[str]
+                  options: Mapping[str, Any], warnings: list[str], split: str = "auto"
                   ) -> tuple[Any, list[Any], list[Any], Any]:
     """``--select auto``: the selection, the blocks inside the chosen joint model, and the
     tolerances with the chosen prior scale (appends to ``warnings``)."""
@@ -451,7 +456,7 @@ def _select_model(robot: Any, blocks: list[Any], holdouts: list[Any], tols: Any,
     if not cands:
         raise KincalError("--select auto: no candidate model (compliance needs link masses)")
     sel = select_model(robot, blocks, tols.sigma, cands, masses=masses, folds=folds,
-                       mapper=mapper, **dict(options))
+                       mapper=mapper, split=split, **dict(options))
     choice = sel.choice
     if choice is None:
         choice = cands[0]
