@@ -55,7 +55,7 @@ def test_ur10_masses_give_the_gravity_load_of_the_dh_table():
     assert np.abs(tau[:, 1]).max() > 50.0                  # the shoulder carries ~ 100 N m
 
 
-@pytest.mark.parametrize("name", ["ur3", "ur3e", "ur5", "ur5e", "ur10", "ur10e"])
+@pytest.mark.parametrize("name", ["ur3", "ur3e", "ur5", "ur5e", "ur10", "ur10e", "ur20"])
 def test_built_in_urs_state_their_masses(name):
     masses = joint_masses(name)
     assert len(masses) == 6 and all(m.mass > 0 for m in masses)
