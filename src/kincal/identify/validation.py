@@ -430,12 +430,17 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     socket points fitted with the robot fixed (:func:`~kincal.identify.validation.validate`).
     """
     from kincal.identify.checks import judge
+    from kincal.identify.noise_floor import floored_blocks, noise_floors
     from kincal.identify.solver import calibrate
+
     train = [b if u is None else _subset(b, u) for b, u in zip(spec.blocks, spec.train,
                                                                 strict=True)
              if u is None or len(u)]              # a file held out whole is not fitted
     try:
         res = calibrate(spec.robot, train, **dict(spec.options))
+        floors = noise_floors(res)        # as the final fit: stated sigmas that vary
+        if floors:
+            res = calibrate(spec.robot, floored_blocks(train, floors), **dict(spec.options))
     except KincalError as exc:
         return FoldResult(spec.candidate, spec.fold, {}, False, False, f"failed: {exc}")
     errors: dict[str, list[Array]] = {}
