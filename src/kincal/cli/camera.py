@@ -86,6 +86,10 @@ def import_images(
                                          "joint states this near on both sides.")] = "20ms",
     max_speed: Annotated[str, typer.Option("--max-speed", help="ROS bag: drop an image taken "
                                            "while a joint moves faster.")] = "0.01rad/s",
+    camera_info_topic: Annotated[str | None, typer.Option("--camera-info-topic", help="ROS "
+                                                          "bag: the sensor_msgs/CameraInfo "
+                                                          "topic (default: the image topic's "
+                                                          "sibling camera_info).")] = None,
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
@@ -115,9 +119,12 @@ def import_images(
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
     tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
+    if intrinsics and camera_info_topic:
+        raise KincalError("--intrinsics and --camera-info-topic: give one of them")
     if image_topic is not None or (joints is None and is_bag(folder)):
         images = bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
-                            joints, min_corners, min_sharpness)
+                            joints, min_corners, min_sharpness,
+                            "" if intrinsics else camera_info_topic)
     else:
         images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)

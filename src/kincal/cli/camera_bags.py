@@ -15,7 +15,8 @@ __all__ = ["bag_images", "is_bag"]
 
 def bag_images(bag: str, board: Board, image_topic: str | None, joint_topic: str,
                max_gap: str, max_speed: str, robot: Any, joints: str | None,
-               min_corners: int, min_sharpness: float) -> ImageSet:
+               min_corners: int, min_sharpness: float,
+               info_topic: str | None = None) -> ImageSet:
     """``kincal import images BAG --image-topic T``: :mod:`kincal.measure.camera_bags`."""
     from kincal.cli.importers import _speed
     from kincal.measure.camera_bags import ImageBagOptions, read_image_bag
@@ -30,4 +31,4 @@ def bag_images(bag: str, board: Board, image_topic: str | None, joint_topic: str
                           _speed(max_speed, "--max-speed"))
     return read_image_bag(bag, board, image_topic, joint_topic, opt,
                           list(robot.joint_names) if robot is not None else None,
-                          min_corners, min_sharpness)
+                          min_corners, min_sharpness, info_topic)
