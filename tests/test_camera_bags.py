@@ -56,8 +56,9 @@ def session():
     return _session(None)
 
 
-def _session(dist: np.ndarray | None):
-    """:func:`session`, the images rendered through the lens distortion ``dist``."""
+def _session(dist: np.ndarray | None, n: int = 5, spread: float = 0.25):
+    """:func:`session`, the images rendered through the lens distortion ``dist``; ``n``
+    postures within ``spread`` [rad] of ``Q0`` on every joint."""
     robot = load_serial_robot("panda")
     rng = np.random.default_rng(4)
     Z = robot.fk(Q0) @ X_HAND @ matrix_from_frame([-0.085, -0.12, 0.42, 0.2, 0.1, -0.1])
@@ -66,8 +67,8 @@ def _session(dist: np.ndarray | None):
         return inverse(X_HAND) @ inverse(robot.fk(q)) @ Z
 
     postures: list[np.ndarray] = []
-    while len(postures) < 5:
-        q = Q0 + rng.uniform(-0.25, 0.25, 7)
+    while len(postures) < n:
+        q = Q0 + rng.uniform(-spread, spread, 7)
         uv = _pixels(view(q))
         if uv.min() > 40 and uv[:, 0].max() < W - 40 and uv[:, 1].max() < H - 40:
             postures.append(q)
@@ -336,3 +337,34 @@ def test_image_bag_camera_info_refusals(tmp_path, capsys, distorted) -> None:
         assert not (tmp_path / "m.csv").exists()
     code, out, err = run(capsys, *base, "--intrinsics", cam)         # given: the topic unread
     assert code == 0 and "distortion 0 0 0 0 0 removed" in out, err
+
+
+@pytest.fixture(scope="module")
+def wide():
+    """12 postures turning the flange up to 0.45 rad per joint: a hand-eye can be seen."""
+    return _session(None, 12, 0.45)
+
+
+def test_hand_eye_straight_from_a_bag(tmp_path, capsys, wide) -> None:
+    """``hand-eye panda --images BAG``: the joint values and the intrinsics (CameraInfo)
+    from the bag, the images taken at a standstill; the hand-eye within 3 stated expected
+    errors of the simulated one; --joints with a bag refused in one line."""
+    images = wide[4]
+    bag = tmp_path / "cal"
+    write_image_bag(bag, "ros2", wide, info=[(K, np.zeros(5), "plumb_bob")] * len(images))
+    board, _ = _files(tmp_path)
+    base = ["hand-eye", "panda", "--images", bag, "--board", board, "--image-topic",
+            "/camera/image"]
+    code, out, err = run(capsys, *base, "--lens", "none", "--json", tmp_path / "h.json")
+    assert code == 0, err
+    assert "intrinsics from the bag's /camera/camera_info" in out, out
+    assert f"{[im[2] for im in images].count('still')} images with the board" in out, out
+    fit = json.loads((tmp_path / "h.json").read_text())
+    X = np.array(fit["camera"]["matrix"])
+    e = fit["expected_error"]
+    assert np.linalg.norm(X[:3, 3] - X_HAND[:3, 3]) < 3 * e["position_m"], (X, e)
+    R = X[:3, :3].T @ X_HAND[:3, :3]
+    assert math.acos(min(1.0, (np.trace(R) - 1) / 2)) < 3 * e["rotation_rad"], e
+    (tmp_path / "j.csv").write_text("image,q1_rad\n")
+    code, out, err = run(capsys, *base, "--joints", tmp_path / "j.csv")
+    assert code == 2 and err.count("\n") == 1 and "joint values come from the bag" in err, err
