@@ -39,10 +39,26 @@ def _pixels(B: np.ndarray) -> np.ndarray:
     return x[:, :2] / x[:, 2:] * K[[0, 1], [0, 1]] + K[:2, 2]
 
 
+def _rays(dist: np.ndarray | None) -> np.ndarray:
+    """Each pixel's ray on z = 1 through the pinhole ``K``, or through ``K`` with the
+    radial-tangential ``dist`` (OpenCV's undistortPoints of every pixel)."""
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    uv = np.column_stack([u.ravel(), v.ravel()])
+    xy = ((uv - K[:2, 2]) / K[[0, 1], [0, 1]] if dist is None else
+          cv2.undistortPoints(uv.reshape(-1, 1, 2), K, dist).reshape(-1, 2))
+    return np.column_stack([xy, np.ones(W * H)])
+
+
 @pytest.fixture(scope="module")
 def session():
     """Postures, joint states (t, q, qdot) and the images ``(t, grey, label)``: one in
     each standstill, one mid-move, one in a hole of the joint states, one after them."""
+    return _session(None)
+
+
+def _session(dist: np.ndarray | None, n: int = 5, spread: float = 0.25):
+    """:func:`session`, the images rendered through the lens distortion ``dist``; ``n``
+    postures within ``spread`` [rad] of ``Q0`` on every joint."""
     robot = load_serial_robot("panda")
     rng = np.random.default_rng(4)
     Z = robot.fk(Q0) @ X_HAND @ matrix_from_frame([-0.085, -0.12, 0.42, 0.2, 0.1, -0.1])
@@ -51,8 +67,8 @@ def session():
         return inverse(X_HAND) @ inverse(robot.fk(q)) @ Z
 
     postures: list[np.ndarray] = []
-    while len(postures) < 5:
-        q = Q0 + rng.uniform(-0.25, 0.25, 7)
+    while len(postures) < n:
+        q = Q0 + rng.uniform(-spread, spread, 7)
         uv = _pixels(view(q))
         if uv.min() > 40 and uv[:, 0].max() < W - 40 and uv[:, 1].max() < H - 40:
             postures.append(q)
@@ -81,12 +97,10 @@ def session():
     shots[-1] = (hole, "hole", len(postures) - 1)
     shots.append((jt[-1] + 0.5, "after", len(postures) - 1))
     images = []
+    rays = _rays(dist)
     for t_img, what, k in shots:
         q = postures[k] if what != "moving" else np.array(
             [np.interp(t_img, jt, jq[:, j]) for j in range(7)])
-        u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-        rays = np.column_stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1],
-                                np.ones(W * H)])
         images.append((t_img, _render(cv2, view(q), rays, rng).reshape(H, W), what, q))
     truth = {k: (postures[k], _pixels(view(postures[k]))) for k in range(len(postures))}
     return robot, jt, jq, jv, images, truth
@@ -99,10 +113,12 @@ def _header(ts, kind: str, t: float):
     return T["std_msgs/msg/Header"](stamp=stamp, frame_id="camera", **kw)
 
 
-def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
+def write_image_bag(path: Path, kind: str, session, encodings=None, info=None) -> None:
     """ROS 1: /joint_states without velocities, raw Image in the four encodings in turn
     (or ``encodings``); ROS 2 MCAP: joint velocities, PNG and JPEG CompressedImage.  The joint
-    states name one more joint (a gripper finger) than the arm has."""
+    states name one more joint (a gripper finger) than the arm has.  ``info``: a
+    ``(K 3x3, D, distortion_model)`` per image, written as CameraInfo on
+    /camera/camera_info just before it."""
     robot, jt, jq, jv, images, _ = session
     ts = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
     T = ts.types
@@ -123,6 +139,8 @@ def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
     with writer:
         cj = writer.add_connection("/joint_states", js, typestore=ts)
         ci = writer.add_connection("/camera/image", img_t, typestore=ts)
+        cc = (writer.add_connection("/camera/camera_info", "sensor_msgs/msg/CameraInfo",
+                                    typestore=ts) if info else None)
         for t, which, i in events:
             ns = T0 * 1_000_000_000 + int(round(t * 1e9))
             if which == 0:
@@ -132,6 +150,9 @@ def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
                 writer.write(cj, ns, ser(msg, js))
                 continue
             grey = images[i][1]
+            if info:
+                writer.write(cc, ns - 1000, ser(_camera_info(ts, kind, t, *info[i]),
+                                                "sensor_msgs/msg/CameraInfo"))
             if kind != "ros1":                        # PNG and JPEG (quality 95) in turn
                 fmt = ("png", "jpeg")[i % 2]
                 data = cv2.imencode(".png" if fmt == "png" else ".jpg", grey,
@@ -147,6 +168,20 @@ def write_image_bag(path: Path, kind: str, session, encodings=None) -> None:
                 msg = T[img_t](header=_header(ts, kind, t), height=H, width=W, encoding=enc,
                                is_bigendian=0, step=data.size // H, data=data)
             writer.write(ci, ns, ser(msg, img_t))
+
+
+def _camera_info(ts, kind: str, t: float, Km: np.ndarray, D: np.ndarray, model: str):
+    """A sensor_msgs/CameraInfo (ROS 1 spells its arrays K, D, R, P; ROS 2 k, d, r, p)."""
+    T = ts.types
+    P = np.hstack([Km, np.zeros((3, 1))])
+    arrays = dict(zip("dkrp" if kind != "ros1" else "DKRP",
+                      [np.asarray(D, float), Km.ravel(), np.eye(3).ravel(), P.ravel()],
+                      strict=True))
+    roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                do_rectify=False)
+    return T["sensor_msgs/msg/CameraInfo"](header=_header(ts, kind, t), height=H, width=W,
+                                           distortion_model=model, binning_x=0, binning_y=0,
+                                           roi=roi, **arrays)
 
 
 def _files(tmp_path: Path) -> tuple[Path, Path]:
@@ -243,3 +278,93 @@ def test_joints_at_interpolates_and_checks_gap_and_speed() -> None:
     jv[:, 1] = 0.5
     q, why = joints_at(0.035, jt, jq, ImageBagOptions(0.02, 0.01), jv)
     assert why is not None and "robot moving (0.5 " in why
+
+
+#: A radial-tangential lens (k1 k2 p1 p2 k3) the distorted images are rendered through.
+DIST = np.array([-0.12, 0.09, 0.0012, -0.0008, -0.02])
+
+
+@pytest.fixture(scope="module")
+def distorted():
+    return _session(DIST)
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_image_bag_camera_info_gives_the_intrinsics(kind, tmp_path, capsys, distorted) -> None:
+    """Images rendered through a distorting lens, its K and D in the bag's CameraInfo (no
+    --intrinsics): the file carries them, and the corners undistorted with them are the
+    pinhole projections of the board (as in the undistorted bag above)."""
+    images, truth = distorted[4], distorted[5]
+    bag = tmp_path / ("cal.bag" if kind == "ros1" else "cal")
+    write_image_bag(bag, kind, distorted, info=[(K, DIST, "plumb_bob")] * len(images))
+    board, _ = _files(tmp_path)
+    code, out, err = run(capsys, "import", "images", bag, "--board", board, "--image-topic",
+                         "/camera/image", "-o", tmp_path / "m.csv", "--json", tmp_path / "m.json")
+    assert code == 0, err
+    assert f"intrinsics from the bag's /camera/camera_info ({len(images)} messages)" in out
+    doc = json.loads((tmp_path / "m.json").read_text())["intrinsics"]
+    assert [doc[k] for k in ("fx", "fy", "cx", "cy")] == [500.0, 500.0, 320.0, 240.0]
+    assert doc["dist"] == DIST.tolist() and doc["distortion_model"] == "plumb_bob"
+    rows = [r for r in csv.DictReader(line for line in (tmp_path / "m.csv").read_text()
+                                      .splitlines() if not line.startswith("#"))]
+    assert {float(r["fx_px"]) for r in rows} == {500.0}
+    still = [im for im in images if im[2] == "still"]
+    for (_, _, _, q), label in zip(still, sorted({r["image"] for r in rows}), strict=True):
+        mine = [r for r in rows if r["image"] == label]
+        k = [j for j, (p, _) in truth.items() if np.array_equal(p, q)][0]
+        uv = np.array([[float(r["u_px"]), float(r["v_px"])] for r in mine])
+        err_px = np.linalg.norm(uv - truth[k][1][[int(r["corner"]) for r in mine]], axis=1)
+        assert np.sqrt(np.mean(err_px**2)) < 0.15 and err_px.max() < 0.3, err_px
+
+
+def test_image_bag_camera_info_refusals(tmp_path, capsys, distorted) -> None:
+    """CameraInfo messages that disagree (another K in one of them), a --camera-info-topic
+    the bag does not have: one line naming the topic, exit 2, no file written."""
+    board, cam = _files(tmp_path)
+    n = len(distorted[4])
+    K2 = K.copy()
+    K2[0, 0] = 510.0
+    bag = tmp_path / "cal.bag"
+    write_image_bag(bag, "ros1", distorted, info=[(K, DIST, "plumb_bob")] * (n - 1)
+                    + [(K2, DIST, "plumb_bob")])
+    base = ["import", "images", bag, "--board", board, "--image-topic", "/camera/image",
+            "-o", tmp_path / "m.csv"]
+    for extra, match in [([], f"camera info topic /camera/camera_info: message {n - 1} has "
+                              "another K than message 0 (510 0 320"),
+                         (["--camera-info-topic", "/cam/info"], "no topic '/cam/info'")]:
+        code, out, err = run(capsys, *base, *extra)
+        assert code == 2 and err.count("\n") == 1 and match in err and str(bag) in err, err
+        assert not (tmp_path / "m.csv").exists()
+    code, out, err = run(capsys, *base, "--intrinsics", cam)         # given: the topic unread
+    assert code == 0 and "distortion 0 0 0 0 0 removed" in out, err
+
+
+@pytest.fixture(scope="module")
+def wide():
+    """12 postures turning the flange up to 0.45 rad per joint: a hand-eye can be seen."""
+    return _session(None, 12, 0.45)
+
+
+def test_hand_eye_straight_from_a_bag(tmp_path, capsys, wide) -> None:
+    """``hand-eye panda --images BAG``: the joint values and the intrinsics (CameraInfo)
+    from the bag, the images taken at a standstill; the hand-eye within 3 stated expected
+    errors of the simulated one; --joints with a bag refused in one line."""
+    images = wide[4]
+    bag = tmp_path / "cal"
+    write_image_bag(bag, "ros2", wide, info=[(K, np.zeros(5), "plumb_bob")] * len(images))
+    board, _ = _files(tmp_path)
+    base = ["hand-eye", "panda", "--images", bag, "--board", board, "--image-topic",
+            "/camera/image"]
+    code, out, err = run(capsys, *base, "--lens", "none", "--json", tmp_path / "h.json")
+    assert code == 0, err
+    assert "intrinsics from the bag's /camera/camera_info" in out, out
+    assert f"{[im[2] for im in images].count('still')} images with the board" in out, out
+    fit = json.loads((tmp_path / "h.json").read_text())
+    X = np.array(fit["camera"]["matrix"])
+    e = fit["expected_error"]
+    assert np.linalg.norm(X[:3, 3] - X_HAND[:3, 3]) < 3 * e["position_m"], (X, e)
+    R = X[:3, :3].T @ X_HAND[:3, :3]
+    assert math.acos(min(1.0, (np.trace(R) - 1) / 2)) < 3 * e["rotation_rad"], e
+    (tmp_path / "j.csv").write_text("image,q1_rad\n")
+    code, out, err = run(capsys, *base, "--joints", tmp_path / "j.csv")
+    assert code == 2 and err.count("\n") == 1 and "joint values come from the bag" in err, err

@@ -13,7 +13,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
@@ -32,6 +32,9 @@ from kincal.cli.camera_outputs import (
 )
 from kincal.cli.importers import import_app
 from kincal.errors import KincalError
+
+if TYPE_CHECKING:
+    from kincal.cli.camera_bags import BagTopics
 
 
 def _quality(fit: Any) -> dict[str, Any]:
@@ -86,6 +89,10 @@ def import_images(
                                          "joint states this near on both sides.")] = "20ms",
     max_speed: Annotated[str, typer.Option("--max-speed", help="ROS bag: drop an image taken "
                                            "while a joint moves faster.")] = "0.01rad/s",
+    camera_info_topic: Annotated[str | None, typer.Option("--camera-info-topic", help="ROS "
+                                                          "bag: the sensor_msgs/CameraInfo "
+                                                          "topic (default: the image topic's "
+                                                          "sibling camera_info).")] = None,
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
@@ -115,9 +122,12 @@ def import_images(
     table = read_joints_csv(joints) if joints else None
     given = read_intrinsics(intrinsics) if intrinsics else None
     tilt = float(np.degrees(parse_quantity(max_tilt, "angle", "--max-tilt", minimum=0.0)))
+    if intrinsics and camera_info_topic:
+        raise KincalError("--intrinsics and --camera-info-topic: give one of them")
     if image_topic is not None or (joints is None and is_bag(folder)):
         images = bag_images(folder, b, image_topic, joint_topic, max_gap, max_speed, r,
-                            joints, min_corners, min_sharpness)
+                            joints, min_corners, min_sharpness,
+                            "" if intrinsics else camera_info_topic)
     else:
         images = detect_images(folder, b, table, min_corners, min_sharpness=min_sharpness)
     intr = given or images.intrinsics or estimate_intrinsics(images, b)
@@ -200,6 +210,16 @@ def hand_eye_command(
     urdf_joint: UrdfJointOpt = None, camera_info: CameraInfoOpt = None,
     report: ReportOpt = None, parent_frame: ParentFrameOpt = None,
     child_frame: ChildFrameOpt = "camera_optical_frame",
+    image_topic: Annotated[str | None, typer.Option("--image-topic", help="--images is a ROS "
+                                                    "bag: its Image or CompressedImage "
+                                                    "topic (joint values from the bag).")
+                           ] = None,
+    joint_topic: Annotated[str, typer.Option("--joint-topic", help="ROS bag: the JointState "
+                                             "topic.")] = "/joint_states",
+    camera_info_topic: Annotated[str | None, typer.Option("--camera-info-topic", help="ROS "
+                                                          "bag: the CameraInfo topic "
+                                                          "(default: the image topic's "
+                                                          "sibling camera_info).")] = None,
     json_out: JsonOpt = None,
 ) -> None:
     """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
@@ -220,9 +240,14 @@ def hand_eye_command(
     files = HandEyeFiles(ros_yaml, ros_launch, urdf_joint, camera_info, report, parent_frame,
                          child_frame)
     if images is not None or data is None:
+        from kincal.cli.camera_bags import BagTopics
+
         _hand_eye_images(out, robot, images, board, joints, poses, intrinsics, mount, lens,
-                         holdout, free, min_rotation, loo, output, json_out, data, files)
+                         holdout, free, min_rotation, loo, output, json_out, data, files,
+                         BagTopics(image_topic, joint_topic, camera_info_topic))
         return
+    if image_topic is not None:
+        raise KincalError("--image-topic: the bag is given with --images BAG, not --data")
     if mount != "hand":
         raise KincalError("--mount fixed: give the images (--images FOLDER --board ...); "
                           "the measurement file is for a camera on the hand")
@@ -295,11 +320,13 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                      joints: str | None, poses: str | None, intrinsics: str | None,
                      mount: str, lens: str, holdout: float, free: list[str] | None,
                      min_rotation: str, loo: bool, output: str | None, json_out: str | None,
-                     data: str | None, files: HandEyeFiles) -> None:
+                     data: str | None, files: HandEyeFiles,
+                     bag: BagTopics) -> None:
     """``kincal hand-eye --images``: detect, closed-form start, one fit of the hand-eye,
     the board and the intrinsics on the raw pixels (:mod:`kincal.identify.hand_eye_lens`)."""
     import numpy as np
 
+    from kincal.cli.camera_bags import hand_eye_bag
     from kincal.identify.hand_eye_lens import calibrate_board_camera, lens_leave_one_out, lens_start
     from kincal.io import check_outputs, write_json
     from kincal.measure.camera_board import read_board
@@ -337,7 +364,9 @@ def _hand_eye_images(out: Any, robot: str | None, images: str | None, board: str
                    "--poses": poses, "--intrinsics": intrinsics})
     b = read_board(board)
     table = read_joints_csv(joints) if joints else None
-    found = detect_images(images, b, table, require_joints=poses is None)
+    found = (hand_eye_bag(images, b, bag, robot, joints, poses, intrinsics)
+             if bag.wanted(images) else detect_images(images, b, table,
+                                                      require_joints=poses is None))
     if len(found.detections) < 3:
         raise KincalError(f"the board was found in {len(found.detections)} images; a "
                           "hand-eye needs 3 at least (better 10 or more)", source=images)

@@ -26,31 +26,43 @@ found as in a folder (:func:`kincal.measure.camera_images.detect_gray`: not foun
 few corners, blurred), and the result is the same :class:`ImageSet` the folder import
 makes, written as the same measurement file.  Images are named ``NNNN@STAMP`` (their
 order on the topic, and the stamp in s).
+
+**Intrinsics from the bag.**  When the bag holds ``sensor_msgs/CameraInfo`` on
+``camera_info_topic`` (default: the image topic's sibling ``camera_info``, e.g.
+``/camera/image_raw`` -> ``/camera/camera_info``), its ``K`` (fx, fy, cx, cy [px]) and
+``D`` with ``distortion_model`` (plumb_bob, rational_polynomial, equidistant; as a
+``camera_info`` YAML is read) become the set's intrinsics.  Messages whose ``K``, ``D``
+or model differ are refused in one line naming the topic; an all-zero ``K`` (ROS's
+"uncalibrated") is not used.  A topic named explicitly must exist.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from kincal.errors import MeasurementFileError
+from kincal.errors import KincalError, MeasurementFileError
 from kincal.measure.bags import read_bag_streams
 from kincal.measure.camera_board import Board
 from kincal.measure.camera_images import (
     MIN_SHARPNESS,
     ImageSet,
+    Intrinsics,
+    _distortion_model,
+    _intrinsics_from,
     add_detection,
     require_opencv,
 )
 
 Array = NDArray[np.float64]
 
-__all__ = ["ImageBagOptions", "ENCODINGS", "is_bag", "read_image_bag", "joints_at"]
+__all__ = ["ImageBagOptions", "ENCODINGS", "is_bag", "read_image_bag", "joints_at",
+           "camera_info_topic"]
 
 #: ``sensor_msgs/Image`` encodings read: (channels, bytes per channel).
 ENCODINGS = {"mono8": (1, 1), "8UC1": (1, 1), "mono16": (1, 2), "16UC1": (1, 2),
@@ -149,6 +161,52 @@ def _velocities(reader: Any, joint_topic: str, names: Sequence[str]) -> Array | 
     return np.array([v for _, v in vel]) if vel else None
 
 
+def camera_info_topic(image_topic: str) -> str:
+    """The image topic's sibling ``camera_info``: ``/camera/image_raw`` ->
+    ``/camera/camera_info`` (``image`` -> ``camera_info`` at the top level)."""
+    head = image_topic.rsplit("/", 1)[0] if "/" in image_topic else ""
+    return f"{head}/camera_info" if head or image_topic.startswith("/") else "camera_info"
+
+
+def _bag_intrinsics(reader: Any, path: str, topic: str, explicit: bool) -> Intrinsics | None:
+    """The intrinsics of the ``CameraInfo`` messages on ``topic`` (module docstring), None
+    when the bag has no such topic (refused if ``explicit``) or its ``K`` is all zero."""
+    topics = {c.topic: c.msgtype for c in reader.connections}
+    if topic not in topics:
+        if explicit:
+            raise MeasurementFileError(f"--camera-info-topic: no topic {topic!r} (topics: "
+                                       f"{', '.join(sorted(topics))})", source=path)
+        return None
+    if topics[topic].replace("/msg/", "/") != "sensor_msgs/CameraInfo":
+        raise MeasurementFileError(f"camera info topic {topic}: its messages are "
+                                   f"{topics[topic]}, expected sensor_msgs/msg/CameraInfo",
+                                   source=path)
+    seen: list[tuple[tuple[float, ...], tuple[float, ...], str]] = []
+    conns = [c for c in reader.connections if c.topic == topic]
+    for conn, _, raw in reader.messages(connections=conns):
+        msg: Any = reader.deserialize(raw, conn.msgtype)
+        k = tuple(float(v) for v in getattr(msg, "k", getattr(msg, "K", ())))
+        d = tuple(float(v) for v in getattr(msg, "d", getattr(msg, "D", ())))
+        seen.append((k, d, str(msg.distortion_model)))
+        if seen[-1] != seen[0]:
+            i = next(j for j in range(3) if seen[-1][j] != seen[0][j])
+            what = ("K", "D", "distortion_model")[i]
+            raise MeasurementFileError(
+                f"camera info topic {topic}: message {len(seen) - 1} has another {what} than "
+                f"message 0 ({_show(seen[-1][i])} against {_show(seen[0][i])}); give the "
+                "intrinsics with --intrinsics", source=path)
+    if not seen or not any(seen[0][0]):
+        return None
+    where = f"{path}: camera info topic {topic}"
+    k, d, model = seen[0]
+    intr = _intrinsics_from(k, d, where, _distortion_model(model, where))
+    return replace(intr, source=f"from the bag's {topic} ({len(seen)} messages)")
+
+
+def _show(v: tuple[float, ...] | str) -> str:
+    return repr(v) if isinstance(v, str) else " ".join(f"{x:.6g}" for x in v)
+
+
 def _images(reader: Any, path: str, image_topic: str, board: Board, s: Any,
             jv: Array | None, opt: ImageBagOptions, min_corners: int,
             min_sharpness: float) -> ImageSet:
@@ -194,11 +252,14 @@ def _images(reader: Any, path: str, image_topic: str, board: Board, s: Any,
 def read_image_bag(path: str | Path, board: Board, image_topic: str,
                    joint_topic: str = "/joint_states", opt: ImageBagOptions = ImageBagOptions(),
                    joint_names: Sequence[str] | None = None, min_corners: int = 6,
-                   min_sharpness: float = MIN_SHARPNESS) -> ImageSet:
+                   min_sharpness: float = MIN_SHARPNESS,
+                   info_topic: str | None = None) -> ImageSet:
     """Detect ``board`` in every image of ``image_topic`` and give each the joint values
     at its time (module docstring); errors name the bag and the topic or encoding.  The
     joint positions come from :func:`~kincal.measure.bags.read_bag_streams`; the bag is
-    then read twice more, for the joint velocities and for the images one at a time."""
+    then read twice more, for the joint velocities and for the images one at a time; the
+    intrinsics come from ``info_topic`` (default :func:`camera_info_topic`) if the bag
+    has it (``""``: not read)."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -219,7 +280,11 @@ def read_image_bag(path: str | Path, board: Board, image_topic: str,
             jv = None
         out = _images(reader, src, image_topic, board, s, jv, opt, min_corners,
                       min_sharpness)
-    except MeasurementFileError:
+        if info_topic != "":
+            out.intrinsics = _bag_intrinsics(reader, src, info_topic or
+                                             camera_info_topic(image_topic),
+                                             info_topic is not None)
+    except KincalError:
         raise
     except Exception as exc:                            # noqa: BLE001 - a damaged chunk
         raise MeasurementFileError(f"damaged ROS bag: reading its images failed "
