@@ -37,6 +37,12 @@ if TYPE_CHECKING:
     from kincal.cli.camera_bags import BagTopics
 
 
+#: A ROS bag's sensor_msgs/CameraInfo topic (import images, hand-eye).
+CameraInfoTopicOpt = Annotated[str | None, typer.Option(
+    "--camera-info-topic", help="ROS bag: the sensor_msgs/CameraInfo topic (default: the "
+    "image topic's sibling camera_info).")]
+
+
 def _quality(fit: Any) -> dict[str, Any]:
     """The quality part of a hand-eye JSON, the same for every mount: expected error
     (covariance and unmodelled floor, m / rad) and reprojection RMS (px, and m at the
@@ -89,10 +95,7 @@ def import_images(
                                          "joint states this near on both sides.")] = "20ms",
     max_speed: Annotated[str, typer.Option("--max-speed", help="ROS bag: drop an image taken "
                                            "while a joint moves faster.")] = "0.01rad/s",
-    camera_info_topic: Annotated[str | None, typer.Option("--camera-info-topic", help="ROS "
-                                                          "bag: the sensor_msgs/CameraInfo "
-                                                          "topic (default: the image topic's "
-                                                          "sibling camera_info).")] = None,
+    camera_info_topic: CameraInfoTopicOpt = None,
     json_out: JsonOpt = None,
 ) -> None:
     """Detect a calibration board in every image and write a camera measurement file
@@ -216,10 +219,7 @@ def hand_eye_command(
                            ] = None,
     joint_topic: Annotated[str, typer.Option("--joint-topic", help="ROS bag: the JointState "
                                              "topic.")] = "/joint_states",
-    camera_info_topic: Annotated[str | None, typer.Option("--camera-info-topic", help="ROS "
-                                                          "bag: the CameraInfo topic "
-                                                          "(default: the image topic's "
-                                                          "sibling camera_info).")] = None,
+    camera_info_topic: CameraInfoTopicOpt = None,
     json_out: JsonOpt = None,
 ) -> None:
     """Hand-eye of a camera on the flange (--data), or from the images (--images, camera on
