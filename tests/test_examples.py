@@ -54,6 +54,18 @@ def test_every_example_has_expectations():
     assert sorted(p.stem for p in EXAMPLES.glob("*.yaml")) == sorted(EXPECTED)
 
 
+#: Held-out files whose own registration fits them far better than the training frames
+#: (the frames add more error than everything else): kincal must say so.  The IPA UR10's
+#: series C (the data set says one tracker set-up): 0.62 against 1.24 mm; the TIAGo's
+#: validation day with the full model (FIGAROH's protocol keeps the mocap frame and the
+#: markers): 1.84 against 2.87 mm.  The other setups' held-out files agree with their
+#: training frames.
+WARNINGS = {"ipa_ur10": "measurements_random_poses.csv: with the training frames the held-out "
+                        "RMS is",
+            "tiago_mocap": "validation_2021-11-26.csv: with the training frames the held-out "
+                           "RMS is"}
+
+
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_example_setup_reproduces_the_readme(name, tmp_path, capsys):
     if not DATA.is_dir():
@@ -73,3 +85,8 @@ def test_example_setup_reproduces_the_readme(name, tmp_path, capsys):
         value = doc["metrics"][section][key]
         assert lo <= value <= hi, f"{name}: {section}.{key} = {value * 1e3:.4f} mm"
     assert out["-o"].is_file() and out["--report"].is_file()
+    said = " ".join(doc["warnings"])
+    if name in WARNINGS:
+        assert WARNINGS[name] in said and "probably moved between the files" in said, said
+    else:
+        assert "probably moved between the files" not in said, said

@@ -191,3 +191,4 @@ def test_positioner_region_split_is_not_marked_worse_than_nominal():
           f"{worse} of 93 marked worse than nominal")
     assert rms["calibrated"] < rms["nominal"]
     assert worse < 93 / 2
+

@@ -12,11 +12,12 @@ done
 
 # --8<-- [start:ur10]
 kincal calibrate --config examples/setups/ipa_ur10.yaml > ur10.txt
-sed -n '/the stated sigmas vary/,/variance components)/p' ur10.txt
+sed -n '/the stated sigmas vary/,/components)/p' ur10.txt
 grep -E "^converged" ur10.txt
 sed -n '/Errors before/,/^train:/p' ur10.txt | grep -v '^train:'
 sed -n '/Held-out files: errors before/,/before (same session)/p' ur10.txt \
     | grep -v 'before (same session)'
+sed -n '/^warning: measurements_random_poses/,/(frames: register)/p' ur10.txt
 # --8<-- [end:ur10]
 
 # --8<-- [start:ur10-compliance]
