@@ -211,34 +211,37 @@ def _fixed_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
     """The nominal joints of targets that prescribe some joints (``fixed`` (N, n), NaN
     free; six free joints): Newton on the free joints from the seed, then from the middle
     of the limits, the first solution inside the limits and the configuration's axis
-    intervals."""
+    intervals; batched over the targets that free the same joints."""
     N, n = fixed.shape
     q = np.zeros((N, n))
     ok = np.zeros(N, bool)
     reason = [""] * N
     lim = nominal.joint_limits
-    starts = [seeds, np.broadcast_to(lim.mean(axis=1), (N, n))]
-    for i in range(N):
-        free = np.isnan(fixed[i])
-        if int(free.sum()) != 6:
-            reason[i] = (f"unreachable: {n - int(free.sum())} prescribed joints leave "
-                         f"{int(free.sum())} free, the pose needs 6")
-            continue
-        for start in starts:
-            q0 = np.where(free, start[i], fixed[i])
-            qi, conv = refine(nominal, F[i][None], q0[None], max_iter=100, free=free,
-                              max_move=np.inf)
-            inside = bool(np.all((qi[0] >= lim[:, 0] - 1e-9) & (qi[0] <= lim[:, 1] + 1e-9)))
-            if conv[0] and inside and _in_intervals(cmap, qi[0], confs[i]):
-                q[i], ok[i] = qi[0], True
+    free_all = np.isnan(fixed)
+    counts = free_all.sum(axis=1)
+    for i in np.flatnonzero(counts != 6):
+        reason[i] = (f"unreachable: {n - int(counts[i])} prescribed joints leave "
+                     f"{int(counts[i])} free, the pose needs 6")
+    six = counts == 6
+    for mask in np.unique(free_all[six], axis=0):      # one batch per set of free joints
+        rows = np.flatnonzero(six & np.all(free_all == mask, axis=1))
+        for start in (seeds, np.broadcast_to(lim.mean(axis=1), (N, n))):
+            todo = rows[~ok[rows]]
+            if not todo.size:
                 break
-        if not ok[i]:
-            conf = confs[i]
-            reason[i] = ("unreachable: no joint solution with the prescribed "
-                         + ", ".join(nm for nm, f in zip(nominal.joint_names, free, strict=True)
-                                     if not f)
-                         + (f" and configuration {conf.text}" if conf is not None else "")
-                         + " inside the joint limits found from the previous joints")
+            q0 = np.where(mask, start[todo], fixed[todo])
+            qi, conv = refine(nominal, F[todo], q0, max_iter=100, free=mask, max_move=np.inf)
+            inside = np.all((qi >= lim[:, 0] - 1e-9) & (qi <= lim[:, 1] + 1e-9), axis=1)
+            good = conv & inside & np.array([_in_intervals(cmap, qi[j], confs[int(i)])
+                                             for j, i in enumerate(todo)], dtype=bool)
+            q[todo[good]], ok[todo[good]] = qi[good], True
+    for i in np.flatnonzero(six & ~ok):
+        conf = confs[i]
+        reason[i] = ("unreachable: no joint solution with the prescribed "
+                     + ", ".join(nm for nm, f in zip(nominal.joint_names, free_all[i],
+                                                     strict=True) if not f)
+                     + (f" and configuration {conf.text}" if conf is not None else "")
+                     + " inside the joint limits found from the previous joints")
     return q, ok, reason
 
 
