@@ -236,7 +236,7 @@ def _fixed_solutions(nominal: Robot, cmap: ControllerMap, F: Array,
                                              for j, i in enumerate(todo)], dtype=bool)
             q[todo[good]], ok[todo[good]] = qi[good], True
     for i in np.flatnonzero(six & ~ok):
-        conf = confs[i]
+        conf = confs[int(i)]
         reason[i] = ("unreachable: no joint solution with the prescribed "
                      + ", ".join(nm for nm, f in zip(nominal.joint_names, free_all[i],
                                                      strict=True) if not f)
