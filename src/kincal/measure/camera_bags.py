@@ -53,9 +53,9 @@ from kincal.measure.camera_images import (
     MIN_SHARPNESS,
     ImageSet,
     Intrinsics,
-    _distortion_model,
-    _intrinsics_from,
     add_detection,
+    distortion_model_named,
+    intrinsics_from,
     require_opencv,
 )
 
@@ -199,7 +199,7 @@ def _bag_intrinsics(reader: Any, path: str, topic: str, explicit: bool) -> Intri
         return None
     where = f"{path}: camera info topic {topic}"
     k, d, model = seen[0]
-    intr = _intrinsics_from(k, d, where, _distortion_model(model, where))
+    intr = intrinsics_from(k, d, where, distortion_model_named(model, where))
     return replace(intr, source=f"from the bag's {topic} ({len(seen)} messages)")
 
 

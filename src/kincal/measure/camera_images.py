@@ -101,7 +101,10 @@ class Intrinsics:
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
 
 
-def _intrinsics_from(K: Any, dist: Any, source: str, model: str = "plumb_bob") -> Intrinsics:
+def intrinsics_from(K: Any, dist: Any, source: str, model: str = "plumb_bob") -> Intrinsics:
+    """:class:`Intrinsics` from a 3x3 camera matrix ``K`` (9 numbers, row-major, px) and
+    the distortion coefficients of the ROS ``model`` (plumb_bob / rational_polynomial:
+    k1 k2 p1 p2 [k3 ...]; equidistant: k1..k4), checked; errors name ``source``."""
     k = np.asarray(K, dtype=float).reshape(-1)
     d = np.asarray(dist if dist is not None else [], dtype=float).reshape(-1)
     if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0:
@@ -119,7 +122,7 @@ def _intrinsics_from(K: Any, dist: Any, source: str, model: str = "plumb_bob") -
                       tuple(float(v) for v in d), source, model)
 
 
-def _distortion_model(value: Any, source: str) -> str:
+def distortion_model_named(value: Any, source: str) -> str:
     """The ROS ``distortion_model`` named in a file, or one line refusing it."""
     if value is None or value == "":
         return "plumb_bob"
@@ -146,12 +149,12 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
         fs = cv2.FileStorage(src, cv2.FILE_STORAGE_READ)
         K, d = fs.getNode("camera_matrix").mat(), fs.getNode("distortion_coefficients").mat()
         named, fish = fs.getNode("distortion_model"), fs.getNode("fisheye_model")
-        model = (_distortion_model(named.string(), src) if not named.empty() else
+        model = (distortion_model_named(named.string(), src) if not named.empty() else
                  "equidistant" if not fish.empty() and fish.real() != 0 else "plumb_bob")
         fs.release()
         if K is None:
             raise KincalError("no camera_matrix in this OpenCV YAML", source=src)
-        return _intrinsics_from(K, d, src, model)
+        return intrinsics_from(K, d, src, model)
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError:
@@ -163,13 +166,13 @@ def read_intrinsics(path: str | Path) -> Intrinsics:
             fx, fy, cx, cy = (float(ic[k]) for k in ("fx", "fy", "cx", "cy"))
         except (TypeError, ValueError):
             raise KincalError("intrinsics: fx, fy, cx, cy must be numbers", source=src) from None
-        return _intrinsics_from([fx, 0, cx, 0, fy, cy, 0, 0, 1], None, src)
+        return intrinsics_from([fx, 0, cx, 0, fy, cy, 0, 0, 1], None, src)
     if not isinstance(cm, dict) or "data" not in cm:
         raise KincalError("expected camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}",
                           source=src)
     dc = data.get("distortion_coefficients", {})
-    return _intrinsics_from(cm["data"], dc.get("data") if isinstance(dc, dict) else None, src,
-                            _distortion_model(data.get("distortion_model"), src))
+    return intrinsics_from(cm["data"], dc.get("data") if isinstance(dc, dict) else None, src,
+                            distortion_model_named(data.get("distortion_model"), src))
 
 
 @dataclass
@@ -500,7 +503,7 @@ def detect_images(folder: str | Path, board: Board, joints: Mapping[str, Array] 
             if "joint_pose" in d:
                 q = np.asarray(d["joint_pose"], dtype=float)
             if "camera_intrinsics" in d:
-                given.append(_intrinsics_from(d["camera_intrinsics"], d.get("dist_coeffs"),
+                given.append(intrinsics_from(d["camera_intrinsics"], d.get("dist_coeffs"),
                                               str(data)))
         if joints is not None:
             q = joints.get(label, joints.get(image.name))
@@ -545,12 +548,12 @@ def estimate_intrinsics(images: ImageSet, board: Board,
             raise KincalError("cv2.fisheye.calibrate failed on these images ("
                               + " ".join(str(exc).split())[-100:] + "); give the "
                               "intrinsics with --intrinsics") from None
-        return _intrinsics_from(K, dist, f"estimated (cv2.fisheye.calibrate, RMS {rms:.3g} "
+        return intrinsics_from(K, dist, f"estimated (cv2.fisheye.calibrate, RMS {rms:.3g} "
                                 "px)", "equidistant")
     obj = [board.corner_points(d.ids).astype(np.float32) for d in images.detections]
     img = [d.uv.astype(np.float32).reshape(-1, 1, 2) for d in images.detections]
     rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, images.size, None, None)
-    return _intrinsics_from(K, dist, f"estimated (cv2.calibrateCamera, RMS {rms:.3g} px)")
+    return intrinsics_from(K, dist, f"estimated (cv2.calibrateCamera, RMS {rms:.3g} px)")
 
 
 def undistort(uv: Array, intr: Intrinsics) -> Array:
