@@ -305,33 +305,28 @@ def judge(result: Any, tolerances: Mapping[str, float], bound: float = PLAUSIBLE
                                                          "change", True)))
     bad.sort(key=lambda x: -x[0])
     moved.sort(key=lambda x: -x[0])
-    refusals = _refusals(result, tolerances, data)
+    refusals, dof = _refusals(result, tolerances, data)
     return Verdict(bool(result.converged), str(result.message), [b for _, b in bad], bound,
-                   [m for _, m in moved], refusals, _understated_noise(result, refusals))
+                   [m for _, m in moved], refusals,
+                   None if refusals else _understated_noise(result, dof))
 
 
-def _understated_noise(result: Any, refusals: Sequence[Refusal]
-                       ) -> tuple[float, float] | None:
+def _understated_noise(result: Any, dof: float | None) -> tuple[float, float] | None:
     """``(sigma0, noise-only bound)`` when the residual exceeds the noise-only chi-square
-    bound ``sqrt(chi2_d^-1(1 - RESIDUAL_TAIL) / d)`` by :data:`UNDERSTATED_NOISE`, with
-    no refusal already said about the residual; else None."""
-    if refusals or not result.estimated:
-        return None
-    equations, _ = distinct_equations(result.problem.blocks, result.residuals)
-    p_eff = result.effective_parameters
-    p = len(result.estimated)
-    dof = equations - (p if p_eff is None else min(float(p_eff), p))
+    bound ``sqrt(chi2_d^-1(1 - RESIDUAL_TAIL) / d)`` with ``dof`` degrees of freedom (the
+    residual check's) by :data:`UNDERSTATED_NOISE`; else None."""
     sigma0 = float(result.sigma0)
-    if dof < 1 or not math.isfinite(sigma0):
+    if dof is None or dof < 1 or not math.isfinite(sigma0):
         return None
     alone = math.sqrt(float(chi2.isf(RESIDUAL_TAIL, dof)) / dof)
     return (sigma0, alone) if sigma0 > UNDERSTATED_NOISE * alone else None
 
 
 def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] | None
-              ) -> list[Refusal]:
+              ) -> tuple[list[Refusal], float | None]:
     """The data the model cannot explain (module docstring), in the order they explain
-    each other: joint data, nothing estimated, no redundancy, the residual."""
+    each other: joint data, nothing estimated, no redundancy, the residual; and the
+    residual's degrees of freedom (None when nothing was estimated)."""
     if data is None:
         from kincal.measure.data_checks import block_joint_problems, joint_data_line
 
@@ -346,7 +341,7 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
         out.append(Refusal("nothing", "no parameter was estimated (every candidate was "
                            "fixed or not identifiable from the data): the result is the "
                            "nominal robot", "nothing estimated"))
-        return out
+        return out, None
     equations, configurations = distinct_equations(result.problem.blocks,
                                                    result.residuals)
     p_eff = result.effective_parameters
@@ -362,7 +357,7 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
             "checks nothing (measure more, different poses, or estimate fewer parameters)",
             "no redundancy", {"equations": equations, "configurations": configurations,
                               "estimated": p, "effective": fixed_by_data}))
-        return out
+        return out, dof
     sigma0 = float(result.sigma0)
     limit = residual_bound(result, tolerances, dof)
     if limit is not None and not sigma0 <= limit:
@@ -372,7 +367,7 @@ def _refusals(result: Any, tolerances: Mapping[str, float], data: Sequence[str] 
             f"the tolerances allow can explain ({dof:.4g} degrees of freedom); likely causes: "
             f"{UNEXPLAINED_CAUSES}", f"sigma0 {sigma0:.3g} > {limit:.3g}",
             {"sigma0": sigma0, "bound": limit, "dof": dof}))
-    return out
+    return out, dof
 
 
 #: A compliance estimate is refused when it is below zero by more than this many of its
