@@ -61,7 +61,7 @@ def _held_rms(flow) -> float:
 
 
 def test_floor_explains_the_residual_and_beats_the_stated_weights(puma, monkeypatch):
-    import kincal.workflow.flow as flow_module
+    import kincal.identify.noise_floor as floor_module
 
     floored, stated, sizes = [], [], []
     for seed in range(4):
@@ -70,7 +70,7 @@ def test_floor_explains_the_residual_and_beats_the_stated_weights(puma, monkeypa
         assert any("unmodelled floor" in n for n in flow.notes), flow.notes
         floored.append(_held_rms(flow))
         with monkeypatch.context() as m:
-            m.setattr(flow_module, "noise_floors", lambda res: [])
+            m.setattr(floor_module, "noise_floors", lambda res: [])
             stated.append(_held_rms(run_flow(puma, [train], [held],
                                              validation_frames="training")))
         # the floor: what the rows of the precise instrument leave beyond their 5 um

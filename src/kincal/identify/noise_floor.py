@@ -28,7 +28,7 @@ keep their stated sigmas.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from kincal.measure.instruments.pose import PoseMeasurement
 from kincal.measure.instruments.position import PositionMeasurement
 
-__all__ = ["NoiseFloor", "noise_floors", "floored_blocks"]
+__all__ = ["NoiseFloor", "noise_floors", "floored_blocks", "fit_with_floor"]
 
 Array = NDArray[np.float64]
 
@@ -146,3 +146,15 @@ def floored_blocks(blocks: Sequence[Any], floors: Sequence[NoiseFloor]) -> list[
     """``blocks`` with each one's floor (by name) added to its stated variances."""
     by_name = {f.block: f for f in floors}
     return [_with_floor(b, by_name[b.name]) if b.name in by_name else b for b in blocks]
+
+
+def fit_with_floor(fit: Callable[[list[Any]], Any], blocks: Sequence[Any]
+                   ) -> tuple[Any, list[Any], list[NoiseFloor]]:
+    """``fit(blocks)``, then again on :func:`floored_blocks` when :func:`noise_floors`
+    finds a floor: the result, the blocks it was fitted on, the floors (empty: one fit)."""
+    res = fit(list(blocks))
+    floors = noise_floors(res)
+    if not floors:
+        return res, list(blocks), []
+    floored = floored_blocks(blocks, floors)
+    return fit(floored), floored, floors

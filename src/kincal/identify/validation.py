@@ -430,17 +430,15 @@ def run_fold(spec: FoldSpec) -> FoldResult:
     socket points fitted with the robot fixed (:func:`~kincal.identify.validation.validate`).
     """
     from kincal.identify.checks import judge
-    from kincal.identify.noise_floor import floored_blocks, noise_floors
+    from kincal.identify.noise_floor import fit_with_floor
     from kincal.identify.solver import calibrate
 
     train = [b if u is None else _subset(b, u) for b, u in zip(spec.blocks, spec.train,
                                                                 strict=True)
              if u is None or len(u)]              # a file held out whole is not fitted
     try:
-        res = calibrate(spec.robot, train, **dict(spec.options))
-        floors = noise_floors(res)        # as the final fit: stated sigmas that vary
-        if floors:
-            res = calibrate(spec.robot, floored_blocks(train, floors), **dict(spec.options))
+        res, _, _ = fit_with_floor(       # as the final fit: stated sigmas that vary
+            lambda bs: calibrate(spec.robot, bs, **dict(spec.options)), train)
     except KincalError as exc:
         return FoldResult(spec.candidate, spec.fold, {}, False, False, f"failed: {exc}")
     errors: dict[str, list[Array]] = {}

@@ -43,7 +43,7 @@ from numpy.typing import NDArray
 from kincal.defaults import STAGE_TOLERANCE_M
 from kincal.errors import KincalError
 from kincal.identify.identifiability import NON_GEOMETRIC_ROLES
-from kincal.identify.noise_floor import floored_blocks, noise_floors
+from kincal.identify.noise_floor import fit_with_floor
 from kincal.workflow.options import (
     LOSSES,
     METHODS,
@@ -138,12 +138,9 @@ def _calibrate_with_floor(robot: Any, blocks: list[Any], notes: list[str],
     """:func:`_calibrate`, then again with the unmodelled floor added to the stated
     variances of the blocks whose stated sigmas vary and leave a residual
     (:mod:`kincal.identify.noise_floor`): the result, the blocks it used, the notes."""
-    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
-    floors = noise_floors(res)
-    if not floors:
-        return res, blocks, notes
-    blocks = floored_blocks(blocks, floors)
-    res = _calibrate(robot, blocks, free_names, fixed, procedure, progress, options)
+    res, blocks, floors = fit_with_floor(
+        lambda bs: _calibrate(robot, bs, free_names, fixed, procedure, progress, options),
+        blocks)
     return res, blocks, [*notes, *(f.sentence() for f in floors)]
 
 
