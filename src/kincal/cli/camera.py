@@ -37,6 +37,9 @@ if TYPE_CHECKING:
     from kincal.cli.camera_bags import BagTopics
 
 
+#: A ROS bag's sensor_msgs/JointState topic (import images, hand-eye).
+JointTopicOpt = Annotated[str, typer.Option("--joint-topic", help="ROS bag: the "
+                                            "sensor_msgs/JointState topic.")]
 #: A ROS bag's sensor_msgs/CameraInfo topic (import images, hand-eye).
 CameraInfoTopicOpt = Annotated[str | None, typer.Option(
     "--camera-info-topic", help="ROS bag: the sensor_msgs/CameraInfo topic (default: the "
@@ -88,9 +91,7 @@ def import_images(
     image_topic: Annotated[str | None, typer.Option("--image-topic", help="ROS bag: the "
                                                     "sensor_msgs/Image or CompressedImage "
                                                     "topic.")] = None,
-    joint_topic: Annotated[str, typer.Option("--joint-topic", help="ROS bag: the "
-                                             "sensor_msgs/JointState topic.")
-                           ] = "/joint_states",
+    joint_topic: JointTopicOpt = "/joint_states",
     max_gap: Annotated[str, typer.Option("--max-gap", help="ROS bag: drop an image without "
                                          "joint states this near on both sides.")] = "20ms",
     max_speed: Annotated[str, typer.Option("--max-speed", help="ROS bag: drop an image taken "
@@ -217,8 +218,7 @@ def hand_eye_command(
                                                     "bag: its Image or CompressedImage "
                                                     "topic (joint values from the bag).")
                            ] = None,
-    joint_topic: Annotated[str, typer.Option("--joint-topic", help="ROS bag: the JointState "
-                                             "topic.")] = "/joint_states",
+    joint_topic: JointTopicOpt = "/joint_states",
     camera_info_topic: CameraInfoTopicOpt = None,
     json_out: JsonOpt = None,
 ) -> None:
