@@ -11,13 +11,14 @@ errors are still found.  Without ``T`` the same robots are flagged by the dozen.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 from scipy.stats import binom
 
-from kincal.fleet.drift import compare, fleet_reproducibility, z_threshold
+from kincal.fleet.drift import EVIDENCE, compare, fleet_reproducibility, z_threshold
 from kincal.fleet.reproducibility import (
     ReproducibilityPool,
     estimate_reproducibility,
@@ -35,9 +36,12 @@ def _record(serial, i, est, C):
                             "estimated": True} for n, v in zip(NAMES, est, strict=True)]}
 
 
-def _fleet(rng, n, tau, correlated=False, drift=None):
+def _fleet(rng, n, tau, correlated=False, drift=None, design=None):
     """``n`` robots x two sessions; ``drift = (robot, parameter, k)`` moves one parameter
-    of one robot by ``k`` total standard errors of its change."""
+    of one robot by ``k`` total standard errors of its change; ``design`` (``lambda_i``
+    per parameter): the placement effect is the design effect instead, each session's
+    error ``N(0, C)`` scaled by ``lambda_i`` (larger where the session fixes a parameter
+    worse), and ``tau`` is not used."""
     mix = rng.standard_normal((P, P)) / math.sqrt(P) if correlated else np.eye(P)
     out = []
     for r in range(n):
@@ -46,8 +50,12 @@ def _fleet(rng, n, tau, correlated=False, drift=None):
         theta = rng.standard_normal(P) * 1e-3
         recs = []
         for _ in range(2):
+            e = rng.multivariate_normal(np.zeros(P), C)
+            if design is not None:
+                recs.append(theta + design * e)
+                continue
             u = mix @ (tau * rng.standard_normal(P))
-            recs.append(theta + u + rng.multivariate_normal(np.zeros(P), C))
+            recs.append(theta + u + e)
         if drift is not None and drift[0] == r:
             k = drift[1]
             sd = math.sqrt(2 * C[k, k] + 2 * np.sum((mix[k] * tau) ** 2))
@@ -81,6 +89,37 @@ def test_false_alarm_rate_holds_with_a_placement_effect(robots, alpha, correlate
         n += len(drifts)
     # at most the stated rate, within the binomial spread of n robots (one-sided 99.9 %)
     assert flagged <= binom.ppf(0.999, n, alpha), (flagged, n)
+
+
+def test_false_alarm_rate_holds_when_the_placement_effect_is_a_design_effect():
+    # the MUKCa Pandas' case: the placement effect grows with how weakly a session fixes
+    # a parameter (each session's error scaled by lambda = 2-8); an additive T alone,
+    # estimated from robots that fix the parameter better, flags the others
+    rng = np.random.default_rng(11)
+    alpha, robots, fleets = 0.01, 50, 20
+    flagged = additive_only = n = 0
+    for _ in range(fleets):
+        fleet = _fleet(rng, robots, None, design=rng.uniform(2, 8, P))
+        repro = fleet_reproducibility([pair_terms(a, b) for a, b in fleet], alpha)
+        for a, b in fleet:
+            r = repro[b["serial"]]
+            flagged += compare(a, b, alpha, r).flagged
+            additive_only += compare(a, b, alpha, dataclasses.replace(
+                r, inflation=None, evidence=None)).flagged
+            n += 1
+    assert flagged <= binom.ppf(0.999, n, alpha), (flagged, n)
+    assert additive_only > binom.ppf(0.999, n, alpha) * 3, (additive_only, n)
+
+
+def test_the_evidence_picks_the_model_the_fleet_follows():
+    rng = np.random.default_rng(12)
+    additive = estimate_reproducibility([pair_terms(a, b) for a, b in _fleet(
+        rng, 200, _tau(rng))])
+    design = estimate_reproducibility([pair_terms(a, b) for a, b in _fleet(
+        rng, 200, None, design=rng.uniform(2, 8, P))])
+    assert additive is not None and design is not None
+    assert sum(additive.support(n) for n in NAMES) > 10 * EVIDENCE
+    assert sum(design.support(n) for n in NAMES) < -10 * EVIDENCE
 
 
 def test_without_the_placement_error_unchanged_robots_are_flagged():

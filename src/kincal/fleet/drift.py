@@ -42,6 +42,15 @@ Hotelling's ``chi2 (nu' - dof + 1) / (nu' dof) ~ F(dof, nu' - dof + 1)`` with ``
 (tr C / tr wT)^2`` (the chi-square itself when ``T = 0``; with ``nu' <= 2 dof`` the
 estimated correlations are too uncertain and only the per-parameter test runs).
 
+The additive ``T`` is one of two models of the placement error; the other, a design
+effect, grows it with each session's own variance, ``Var(delta_i) = lambda_i^2 V_ii``
+(:mod:`kincal.fleet.reproducibility`, "Two models").  Per parameter the test uses the
+model the other robots' changes support (cross-validated log-likelihood ratio beyond
+:data:`EVIDENCE`) and otherwise the smaller of the two ``|z_i|``; the chi-square test is
+the additive one where the evidence over all parameters supports it, otherwise the
+larger of the two p-values (each counts only if both models reject, so the stated
+false-alarm rate holds whichever model is true).
+
 The parameters beyond ``z_crit`` are the ones that moved; each gets a sentence
 (``d[3] +0.42 mm, 11σ: joint 3 hit something?``).
 """
@@ -112,13 +121,13 @@ class ParameterChange:
 
 def _normal_equivalent(t: np.ndarray, dof: np.ndarray) -> np.ndarray:
     """``sign(t) Phi^-1(F_t,dof(|t|))`` element-wise; ``t`` where ``dof`` is infinite."""
-    from scipy.stats import norm
-    from scipy.stats import t as student
+    from scipy.special import ndtri, stdtr  # the ufuncs behind scipy.stats' norm and t
 
     out = np.array(t, dtype=float)
     fin = np.isfinite(dof) & np.isfinite(out) & (out != 0)
     if fin.any():
-        out[fin] = np.sign(out[fin]) * norm.isf(student.sf(np.abs(out[fin]), dof[fin]))
+        tail = stdtr(dof[fin], -np.abs(out[fin]))         # P(T > |t|)
+        out[fin] = -np.sign(out[fin]) * ndtri(tail)       # Phi^-1(1 - tail)
     return out
 
 
@@ -211,11 +220,10 @@ def z_threshold(p: int, false_alarm: float, nu: int | None = None) -> float:
     threshold holding half of the false-alarm budget over ``p`` parameters; with ``nu``
     (the pairs behind an estimated reproducibility variance) the Student-t quantile
     ``t_nu^-1(1 - false_alarm / (4 p))``."""
-    from scipy.stats import norm
-    from scipy.stats import t as student
+    from scipy.special import ndtri, stdtrit  # normal and Student-t quantiles (ufuncs)
 
     q = false_alarm / (4.0 * max(p, 1))
-    return float(norm.isf(q) if nu is None else student.isf(q, nu))
+    return float(-ndtri(q) if nu is None else -stdtrit(nu, q))
 
 
 def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], np.ndarray,
@@ -239,8 +247,7 @@ def joint_test(delta: np.ndarray, C: np.ndarray, nu: float | None
     """``(chi2, dof, p)``: ``delta^T C^+ delta`` on the identifiable set and its p-value,
     chi-square, or Hotelling's F with ``nu`` pairs behind ``C`` (1 when ``nu <= 2 dof``:
     too few pairs to trust the estimated correlations)."""
-    from scipy.stats import chi2 as chi2_dist
-    from scipy.stats import f as f_dist
+    from scipy.special import chdtrc, fdtrc  # chi-square and F upper tails (ufuncs)
 
     chi2, dof = 0.0, 0
     if delta.size:
@@ -251,10 +258,9 @@ def joint_test(delta: np.ndarray, C: np.ndarray, nu: float | None
     if not dof:
         return chi2, dof, 1.0
     if nu is None:
-        return chi2, dof, float(chi2_dist.sf(chi2, dof))
+        return chi2, dof, float(chdtrc(dof, chi2))
     if nu > 2 * dof:            # Hotelling: chi2 (nu - dof + 1) / (nu dof) ~ F(dof, nu - dof + 1)
-        return chi2, dof, float(f_dist.sf(chi2 * (nu - dof + 1) / (nu * dof), dof,
-                                          nu - dof + 1))
+        return chi2, dof, float(fdtrc(dof, nu - dof + 1, chi2 * (nu - dof + 1) / (nu * dof)))
     return chi2, dof, 1.0       # too few pairs for T's correlations: per-parameter test only
 
 
@@ -294,6 +300,64 @@ def fleet_reproducibility(pairs: Sequence[PairTerms], false_alarm: float = 1e-3,
             for p in pairs}
 
 
+#: Log-likelihood ratio (20:1) from which the other robots' changes are taken to settle
+#: which model of placement error holds (below it both are used, the milder verdict wins).
+EVIDENCE = math.log(20.0)
+
+
+def _both_models(delta: np.ndarray, V: np.ndarray, names: Sequence[str],
+                 repro: Reproducibility, weight: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float]]:
+    """Per parameter the standard error and degrees of freedom of the model of placement
+    error the other robots support (log-likelihood ratio beyond :data:`EVIDENCE`), else of
+    the one that finds the change smaller; the additive joint test where the evidence over
+    all parameters at once supports it, else the one that rejects less
+    (:mod:`kincal.fleet.reproducibility`, "Two models"): ``(sd, dof, z, (chi2, dof, p))``
+    (``z`` the normal equivalents of ``delta / sd``).  Additive: ``V + w T``; design
+    effect: ``lambda V lambda`` (``lambda = diag(lambda_i)``); both with Satterthwaite
+    degrees of freedom for their estimated parts ``w T`` and ``(lambda^2 - 1) V`` (``n``
+    pairs behind each)."""
+    n = repro.pairs
+    var = repro.variance
+    t2 = np.array([weight * var.get(k, 0.0) for k in names])
+    v = np.maximum(np.diag(V), 0.0)
+    sd_add = np.sqrt(v + t2)
+    dof_add = np.array([_satterthwaite(v[k] + t2[k], t2[k], n) for k in range(len(names))])
+    T2 = weight * repro.block(names)
+    nu = _satterthwaite(float(np.trace(V + T2)), float(np.trace(T2)), n)
+    additive = joint_test(delta, V + T2, nu if math.isfinite(nu) else None)
+    lam2 = np.array([repro.factor(k) for k in names])
+    sd_de = np.sqrt(lam2 * v)
+    # the estimated part is (lambda^2 - 1) V, behind it n pairs (Satterthwaite, as T)
+    dof_de = np.array([_satterthwaite(lam2[k] * v[k], (lam2[k] - 1.0) * v[k], n)
+                       for k in range(len(names))])
+    nu_de = _satterthwaite(float(np.sum(lam2 * v)), float(np.sum((lam2 - 1.0) * v)), n)
+    z_add = _normal_equivalent(_ratio(delta, sd_add), dof_add)
+    z_de = _normal_equivalent(_ratio(delta, sd_de), dof_de)
+    ev = np.array([repro.support(k) for k in names])
+    use_de = np.where(ev > EVIDENCE, False,
+                      np.where(ev < -EVIDENCE, True, np.abs(z_de) < np.abs(z_add)))
+    sd = np.where(use_de, sd_de, sd_add)
+    dofs = np.where(use_de, dof_de, dof_add)
+    zs = np.where(use_de, z_de, z_add)
+    # the joint test: the additive one where the evidence over all parameters at once
+    # (correlations included) supports it, else the milder of the two (a diagonal design
+    # effect keeps V's correlations and carries none of its own: never trusted alone)
+    if (repro.joint_evidence or 0.0) > EVIDENCE:
+        return sd, dofs, zs, additive
+    lam = np.sqrt(lam2)
+    design = joint_test(delta, V * np.outer(lam, lam), nu_de if math.isfinite(nu_de)
+                        else None)
+    return sd, dofs, zs, (design if design[2] > additive[2] else additive)
+
+
+def _ratio(delta: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """``delta / sd`` (infinite where ``sd`` is zero and ``delta`` is not)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(sd > 0, delta / np.where(sd > 0, sd, 1.0),
+                        np.inf * np.sign(delta))
+
+
 def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
             false_alarm: float = 1e-3, reproducibility: Reproducibility | None = None,
             weight: float | None = None) -> Drift:
@@ -311,30 +375,21 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
     ia = [ea.index(n) for n in common]
     ib = [eb.index(n) for n in common]
     C = Ca[np.ix_(ia, ia)] + Cb[np.ix_(ib, ib)]
-    nu: float | None = None
-    dofs = [math.inf] * len(common)
+    delta = np.array([float(pb[n]["estimate"]) - float(pa[n]["estimate"]) for n in common])
+    sd = np.sqrt(np.maximum(np.diag(C), 0.0))
+    dofs = np.full(len(common), math.inf)
     if reproducibility is not None:
         if weight is None:
             weight = 1.0 / placements(previous) + 1.0 / placements(latest)
-        var = reproducibility.variance
-        t2 = np.array([weight * var.get(n, 0.0) for n in common])
-        dofs = [_satterthwaite(C[k, k] + t2[k], t2[k], reproducibility.pairs)
-                for k in range(len(common))]
-        sd = np.sqrt(np.maximum(np.diag(C), 0.0) + t2)
-        T2 = weight * reproducibility.block(common)
-        nu = _satterthwaite(float(np.trace(C + T2)), float(np.trace(T2)),
-                            reproducibility.pairs)
-        C = C + T2
+        sd, dofs, zs, (chi2, dof, p_value) = _both_models(delta, C, common,
+                                                          reproducibility, weight)
     else:
-        sd = np.sqrt(np.maximum(np.diag(C), 0.0))
+        zs = _ratio(delta, sd)
+        chi2, dof, p_value = joint_test(delta, C, None)
     changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
-                               float(pb[n]["estimate"]), float(sd[k]), dofs[k])
+                               float(pb[n]["estimate"]), float(sd[k]), float(dofs[k]),
+                               float(zs[k]))
                for k, n in enumerate(common)]
-    zs = _normal_equivalent(np.array([c.t for c in changes]), np.array(dofs))
-    for c, z in zip(changes, zs, strict=True):
-        c._z = float(z)
-    chi2, dof, p_value = joint_test(np.array([c.change for c in changes]), C,
-                                    None if nu is None or not math.isfinite(nu) else nu)
     z_crit = z_threshold(len(common), false_alarm)
     changes.sort(key=lambda c: -abs(c.z))
     moved = [c for c in changes if abs(c.z) > z_crit]
@@ -381,8 +436,11 @@ class FleetDrift:
         nus = sorted({r.pairs for r in used})
         return (f"session-to-session (placement-to-placement) error estimated from "
                 f"{nus[0] if len(nus) == 1 else f'{nus[0]}-{nus[-1]}'} other robot(s) of "
-                f"the model and added to each change's covariance ({len(used)} of "
-                f"{len(self.robots)} robot(s); the thresholds allow for its uncertainty)")
+                f"the model ({len(used)} of {len(self.robots)} robot(s)), added to each "
+                "change's covariance or grown with it (design effect): the model the "
+                "other robots' changes support, else the milder verdict of the two; the "
+                "thresholds allow for its uncertainty, and p = 1 where too few robots "
+                "stand behind the joint test")
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON document of ``kincal fleet drift --json``."""
