@@ -55,7 +55,39 @@ def test_ur10_masses_give_the_gravity_load_of_the_dh_table():
     assert np.abs(tau[:, 1]).max() > 50.0                  # the shoulder carries ~ 100 N m
 
 
-@pytest.mark.parametrize("name", ["ur3", "ur3e", "ur5", "ur5e", "ur10", "ur10e", "ur20"])
+#: Universal_Robots_ROS2_Description, config/ur16e/physical_parameters.yaml: masses and
+#: centres of mass in its URDF link frames, with the rule beside each that maps UR's DH
+#: table ("model") into them; written out here, not read from the library file.
+UR16E_URDF = {"m": [7.369, 10.450, 4.321, 2.180, 2.033, 0.907],
+              "c": [[0.0, -0.030, -0.016], [-0.1764, 0.0, 0.16], [-0.166, 0.0, 0.065],
+                    [0.0, -0.011, -0.009], [0.0, 0.012, -0.018], [0.0, 0.0, -0.044]]}
+
+
+def _urdf_frame(i: int, c: list[float], a: list[float]) -> list[float]:
+    """The description's rules: shoulder and wrist 1 ``(x, -z, y)``, upper arm and
+    forearm ``(x - link length, y, z)``, wrist 2 ``(x, z, -y)``, wrist 3 as is."""
+    x, y, z = c
+    if i in (0, 3):
+        return [x, -z, y]
+    if i in (1, 2):
+        return [x + a[i], y, z]          # a[i] is minus the link length
+    if i == 4:
+        return [x, z, -y]
+    return [x, y, z]
+
+
+def test_ur16e_masses_are_the_ros_description_s_in_the_dh_frames():
+    robot = load_serial_robot("ur16e")
+    masses = robot.meta["masses"]["links"]
+    a = [robot.params()[f"a[{i + 1}]"] for i in range(6)]
+    assert [row["mass"] for row in masses] == UR16E_URDF["m"]
+    for i, row in enumerate(masses):
+        np.testing.assert_allclose(_urdf_frame(i, row["com"], a), UR16E_URDF["c"][i],
+                                   atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["ur3", "ur3e", "ur5", "ur5e", "ur10", "ur10e", "ur16e",
+                                  "ur20"])
 def test_built_in_urs_state_their_masses(name):
     masses = joint_masses(name)
     assert len(masses) == 6 and all(m.mass > 0 for m in masses)
