@@ -142,10 +142,13 @@ def test_mukca_placements_of_one_campaign_are_not_drift(tmp_path, capsys):
     assert len(with_t["robots"]) == 5 and code == 1
     # the calibrations' own standard errors alone flag two robots that did not change
     # (panda_4 by the chi-square test, panda_7 by one parameter); with the fleet's
-    # placement-to-placement error one is left (measured: panda_7, whose pseudo-sessions
-    # hold one placement each, panda_joint2.origin.y +1.53 mm at 5.1 normal-equivalent σ
-    # against 4.24: the error of a parameter its one placement barely fixes is larger
-    # than the other robots' placements show; docs/tutorials/fleet.md)
+    # placement-to-placement error none is: panda_7's pseudo-sessions hold one placement
+    # each and fix panda_joint2.origin.y worse than the other robots' sessions, and the
+    # other robots' changes support a placement effect that grows with that (the design
+    # effect; with the additive T alone panda_7 was flagged at 5.1 sigma against 4.24:
+    # docs/tutorials/fleet.md)
     assert own["flagged"] >= 2
-    assert with_t["flagged"] < own["flagged"] and with_t["flagged"] <= 1
+    panda_7 = next(r for r in with_t["robots"] if r["serial"] == "panda_7")
+    assert panda_7["z_max"] < panda_7["z_crit"] and panda_7["p_value"] > 1e-3 / 2
+    assert with_t["flagged"] == 0, [r["serial"] for r in with_t["robots"] if r["flagged"]]
     assert all(r["z_max"] < 6 for r in with_t["robots"])

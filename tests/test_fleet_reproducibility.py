@@ -113,13 +113,21 @@ def test_false_alarm_rate_holds_when_the_placement_effect_is_a_design_effect():
 
 def test_the_evidence_picks_the_model_the_fleet_follows():
     rng = np.random.default_rng(12)
-    additive = estimate_reproducibility([pair_terms(a, b) for a, b in _fleet(
-        rng, 200, _tau(rng))])
-    design = estimate_reproducibility([pair_terms(a, b) for a, b in _fleet(
-        rng, 200, None, design=rng.uniform(2, 8, P))])
-    assert additive is not None and design is not None
-    assert sum(additive.support(n) for n in NAMES) > 10 * EVIDENCE
-    assert sum(design.support(n) for n in NAMES) < -10 * EVIDENCE
+    fleets = {"additive": _fleet(rng, 200, _tau(rng)),
+              "design effect": _fleet(rng, 200, None, design=rng.uniform(2, 8, P))}
+    for model, fleet in fleets.items():
+        terms = [pair_terms(a, b) for a, b in fleet]
+        est = estimate_reproducibility(terms)
+        assert est is not None
+        evidence = sum(est.support(n) for n in NAMES)
+        assert (evidence > 10 * EVIDENCE) if model == "additive" else (
+            evidence < -10 * EVIDENCE), (model, evidence)
+        # and each change of a robot is judged by that model (the JSON says which)
+        a, b = fleet[0]
+        d = compare(a, b, 1e-3, fleet_reproducibility(terms)[b["serial"]])
+        labels = [c.placement for c in d.changes]
+        assert labels.count(model) >= 0.8 * P, (model, labels)
+        assert d.to_dict()["changes"][0]["placement"] in ("additive", "design effect")
 
 
 def test_without_the_placement_error_unchanged_robots_are_flagged():

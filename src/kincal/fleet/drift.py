@@ -92,6 +92,9 @@ class ParameterChange:
     after: float
     sigma: float          # combined standard error of the change
     dof: float = math.inf  # degrees of freedom of sigma (finite: T estimated, Satterthwaite)
+    #: the model of placement error ``sigma`` comes from: ``"additive"``, ``"design
+    #: effect"``, or ``""`` without one (the calibrations' own covariances alone)
+    placement: str = ""
     _z: float | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
@@ -212,7 +215,8 @@ class Drift:
                                     if self.reproducibility is not None else None),
                 "changes": [{"name": c.name, "unit": c.unit, "role": c.role,
                              "before": c.before, "after": c.after, "change": c.change,
-                             "sigma": c.sigma, "z": c.z} for c in self.changes]}
+                             "sigma": c.sigma, "z": c.z, "placement": c.placement}
+                            for c in self.changes]}
 
 
 def z_threshold(p: int, false_alarm: float, nu: int | None = None) -> float:
@@ -307,13 +311,16 @@ EVIDENCE = math.log(20.0)
 
 def _both_models(delta: np.ndarray, V: np.ndarray, names: Sequence[str],
                  repro: Reproducibility, weight: float
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, int, float]]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                            tuple[float, int, float]]:
     """Per parameter the standard error and degrees of freedom of the model of placement
     error the other robots support (log-likelihood ratio beyond :data:`EVIDENCE`), else of
     the one that finds the change smaller; the additive joint test where the evidence over
     all parameters at once supports it, else the one that rejects less
-    (:mod:`kincal.fleet.reproducibility`, "Two models"): ``(sd, dof, z, (chi2, dof, p))``
-    (``z`` the normal equivalents of ``delta / sd``).  Additive: ``V + w T``; design
+    (:mod:`kincal.fleet.reproducibility`, "Two models"): ``(sd, dof, z, design, (chi2,
+    dof, p))``
+    (``z`` the normal equivalents of ``delta / sd``, ``design`` True where the design
+    effect gave them).  Additive: ``V + w T``; design
     effect: ``lambda V lambda`` (``lambda = diag(lambda_i)``); both with Satterthwaite
     degrees of freedom for their estimated parts ``w T`` and ``(lambda^2 - 1) V`` (``n``
     pairs behind each)."""
@@ -344,11 +351,11 @@ def _both_models(delta: np.ndarray, V: np.ndarray, names: Sequence[str],
     # (correlations included) supports it, else the milder of the two (a diagonal design
     # effect keeps V's correlations and carries none of its own: never trusted alone)
     if (repro.joint_evidence or 0.0) > EVIDENCE:
-        return sd, dofs, zs, additive
+        return sd, dofs, zs, use_de, additive
     lam = np.sqrt(lam2)
     design = joint_test(delta, V * np.outer(lam, lam), nu_de if math.isfinite(nu_de)
                         else None)
-    return sd, dofs, zs, (design if design[2] > additive[2] else additive)
+    return sd, dofs, zs, use_de, (design if design[2] > additive[2] else additive)
 
 
 def _ratio(delta: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -381,14 +388,16 @@ def compare(previous: Mapping[str, Any], latest: Mapping[str, Any],
     if reproducibility is not None:
         if weight is None:
             weight = 1.0 / placements(previous) + 1.0 / placements(latest)
-        sd, dofs, zs, (chi2, dof, p_value) = _both_models(delta, C, common,
-                                                          reproducibility, weight)
+        sd, dofs, zs, design, (chi2, dof, p_value) = _both_models(delta, C, common,
+                                                                  reproducibility, weight)
+        models = ["design effect" if d else "additive" for d in design]
     else:
         zs = _ratio(delta, sd)
+        models = [""] * len(common)
         chi2, dof, p_value = joint_test(delta, C, None)
     changes = [ParameterChange(n, pb[n]["unit"], pb[n]["role"], float(pa[n]["estimate"]),
                                float(pb[n]["estimate"]), float(sd[k]), float(dofs[k]),
-                               float(zs[k]))
+                               models[k], _z=float(zs[k]))
                for k, n in enumerate(common)]
     z_crit = z_threshold(len(common), false_alarm)
     changes.sort(key=lambda c: -abs(c.z))
