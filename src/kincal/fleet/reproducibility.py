@@ -200,13 +200,15 @@ class ReproducibilityPool:
         # p(p+1)/2 entries of T do not buy their fit), summed per parameter and jointly
         self.evidence: dict[str, np.ndarray] = {}
         self.joint_evidence: dict[str, float] = {}
-        self._own: dict[int, tuple[list[int], np.ndarray, float]] = {}
+        # each pair's own terms, to subtract when it is left out (kept with the pair, so
+        # that an id reused by another object cannot match)
+        self._own: dict[int, tuple[PairTerms, list[int], np.ndarray, float]] = {}
         for model, names in self.names.items():
             self.evidence[model] = np.zeros(len(names))
             self.joint_evidence[model] = 0.0
         for p in pairs:
             idx, ev, joint = self._evidence(p)
-            self._own[id(p)] = (idx, ev, joint)
+            self._own[id(p)] = (p, idx, ev, joint)
             self.evidence[p.model][idx] += ev
             self.joint_evidence[p.model] += joint
 
@@ -265,7 +267,9 @@ class ReproducibilityPool:
         ev = self.evidence[model].copy()
         joint = self.joint_evidence[model]
         if pair is not None and pair.model == model:
-            own_idx, own_ev, own_joint = self._own.get(id(pair)) or self._evidence(pair)
+            cached = self._own.get(id(pair))
+            own_idx, own_ev, own_joint = (cached[1:] if cached is not None and cached[0] is pair
+                                          else self._evidence(pair))
             ev[own_idx] -= own_ev
             joint -= own_joint
         T, lam = self._fit_without(pair, model)
