@@ -253,9 +253,10 @@ def drift_cmd(
     all_robots: Annotated[bool, typer.Option("--all", help="List every robot, not only the "
                                              "flagged ones.")] = False,
     reproducibility: Annotated[str, typer.Option(
-        "--reproducibility", help="fleet: add the session-to-session (placement-to-"
-        "placement) error estimated from the other robots of the model to each change's "
-        "covariance; none: the calibrations' own standard errors alone.")] = "fleet",
+        "--reproducibility", help="fleet: allow for the session-to-session (placement-to-"
+        "placement) error estimated from the other robots of the model, added to each "
+        "change's covariance or grown with the calibrations' own (the model their changes "
+        "support); none: the calibrations' own standard errors alone.")] = "fleet",
     json_out: JsonOpt = None,
 ) -> None:
     """Compare each robot's latest calibration with its previous one: per-parameter change
