@@ -189,29 +189,28 @@ def _write_pose(path, T: np.ndarray) -> None:
                             zip(("x", "y", "z", "qx", "qy", "qz", "qw"), v, strict=True)))
 
 
-def test_cli_eye_to_hand_from_rendered_images_and_pose_files(tmp_path, capsys) -> None:
-    """A fixed camera (pinhole 900 px) photographs a ChArUco board on the flange: 9 images
-    rendered by a perspective warp (blur, noise), flange poses as pose files; the command
-    detects, starts from intrinsics 2 % off and finds the camera within its stated error."""
-    cv2 = pytest.importorskip("cv2")
-    import json
+#: The fixed camera in the base and the board on the flange of
+#: :func:`render_fixed_camera_set`.
+FIXED_CAMERA = matrix_from_frame([0.0, 1.27, 0.28, -1.6, 0.1, -2.0])
+FIXED_BOARD = matrix_from_frame([0.06, 0.12, 0.21, 0.5, 0.2, 0.3])
 
-    from cli_helpers import run
+
+def render_fixed_camera_set(cv2, folder, rng: np.random.Generator, n: int = 9) -> np.ndarray:
+    """A fixed camera (pinhole 900 px, 1280 x 720) photographs the ChArUco board on the
+    flange: ``folder/board.yaml``, ``n`` images rendered by a perspective warp (blur,
+    noise) in ``folder/img`` and the flange poses in ``folder/poses``; returns the
+    camera's true pose in the base."""
     from test_camera_images import MARGIN, PX, _render
 
-    board_file = tmp_path / "board.yaml"
-    board_file.write_text("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\nmarker: 28 mm\n"
-                          "dictionary: DICT_6X6_250\n")
+    (folder / "board.yaml").write_text("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\n"
+                                       "marker: 28 mm\ndictionary: DICT_6X6_250\n")
     Kt = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
     S = np.array([[PX / BOARD.square, 0, MARGIN - 0.5], [0, PX / BOARD.square, MARGIN - 0.5],
                   [0, 0, 1]])
-    camera = matrix_from_frame([0.0, 1.27, 0.28, -1.6, 0.1, -2.0])     # in the base
-    board = matrix_from_frame([0.06, 0.12, 0.21, 0.5, 0.2, 0.3])       # on the flange
-    rng = np.random.default_rng(3)
-    (tmp_path / "img").mkdir()
-    (tmp_path / "poses").mkdir()
+    (folder / "img").mkdir()
+    (folder / "poses").mkdir()
     k = 0
-    while k < 9:
+    while k < n:
         # the board's z axis away from the camera (printed face seen, not mirrored)
         seen = matrix_from_frame(np.r_[rng.uniform(-0.2, 0.05, 2), rng.uniform(0.5, 0.7),
                                        rng.uniform(-0.5, 0.5, 3)])
@@ -220,9 +219,23 @@ def test_cli_eye_to_hand_from_rendered_images_and_pose_files(tmp_path, capsys) -
         if uv.min() < 40 or uv[:, 0].max() > 1240 or uv[:, 1].max() > 680:
             continue
         H = Kt @ np.column_stack([seen[:3, 0], seen[:3, 1], seen[:3, 3]]) @ np.linalg.inv(S)
-        cv2.imwrite(str(tmp_path / "img" / f"{k}.png"), _render(cv2, BOARD, H / H[2, 2], rng))
-        _write_pose(tmp_path / "poses" / f"{k}.yaml", camera @ seen @ inverse(board))
+        cv2.imwrite(str(folder / "img" / f"{k}.png"), _render(cv2, BOARD, H / H[2, 2], rng))
+        _write_pose(folder / "poses" / f"{k}.yaml", FIXED_CAMERA @ seen @ inverse(FIXED_BOARD))
         k += 1
+    return FIXED_CAMERA
+
+
+def test_cli_eye_to_hand_from_rendered_images_and_pose_files(tmp_path, capsys) -> None:
+    """A fixed camera (pinhole 900 px) photographs a ChArUco board on the flange: 9 images
+    rendered by a perspective warp (blur, noise), flange poses as pose files; the command
+    detects, starts from intrinsics 2 % off and finds the camera within its stated error."""
+    cv2 = pytest.importorskip("cv2")
+    import json
+
+    from cli_helpers import run
+
+    board_file = tmp_path / "board.yaml"
+    camera = render_fixed_camera_set(cv2, tmp_path, np.random.default_rng(3))
     (tmp_path / "cam.yaml").write_text("camera_matrix: {rows: 3, cols: 3, data: [918, 0, 646,"
                                        " 0, 882, 355, 0, 0, 1]}\n")
     args = ["hand-eye", "--images", tmp_path / "img", "--board", board_file, "--poses",

@@ -55,32 +55,10 @@ def run_dir(tmp_path_factory):
     """9 rendered images (1280 x 720), flange poses, one ``kincal hand-eye`` run writing
     every output."""
     cv2 = pytest.importorskip("cv2")
-    from test_camera_images import MARGIN, PX, _render
-    from test_camera_lens import _write_pose
+    from test_camera_lens import render_fixed_camera_set
 
     d = tmp_path_factory.mktemp("outputs")
-    (d / "board.yaml").write_text("type: charuco\nsquares: [5, 7]\nsquare: 34 mm\n"
-                                  "marker: 28 mm\ndictionary: DICT_6X6_250\n")
-    Kt = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
-    S = np.array([[PX / BOARD.square, 0, MARGIN - 0.5], [0, PX / BOARD.square, MARGIN - 0.5],
-                  [0, 0, 1]])
-    camera = matrix_from_frame([0.0, 1.27, 0.28, -1.6, 0.1, -2.0])
-    board = matrix_from_frame([0.06, 0.12, 0.21, 0.5, 0.2, 0.3])
-    rng = np.random.default_rng(5)
-    (d / "img").mkdir()
-    (d / "poses").mkdir()
-    k = 0
-    while k < 9:
-        seen = matrix_from_frame(np.r_[rng.uniform(-0.2, 0.05, 2), rng.uniform(0.5, 0.7),
-                                       rng.uniform(-0.5, 0.5, 3)])
-        x = BOARD.corner_points(np.arange(24)) @ seen[:3, :3].T + seen[:3, 3]
-        uv = x[:, :2] / x[:, 2:] * 900 + [640, 360]
-        if uv.min() < 40 or uv[:, 0].max() > 1240 or uv[:, 1].max() > 680:
-            continue
-        H = Kt @ np.column_stack([seen[:3, 0], seen[:3, 1], seen[:3, 3]]) @ np.linalg.inv(S)
-        cv2.imwrite(str(d / "img" / f"{k}.png"), _render(cv2, BOARD, H / H[2, 2], rng))
-        _write_pose(d / "poses" / f"{k}.yaml", camera @ seen @ inverse(board))
-        k += 1
+    render_fixed_camera_set(cv2, d, np.random.default_rng(5))
     code = invoke("hand-eye", "--images", d / "img", "--board", d / "board.yaml", "--poses",
                   d / "poses", "--mount", "fixed", "--lens", "pinhole",
                   "--ros-yaml", d / "he.yaml", "--ros-launch", d / "he.launch",
