@@ -56,6 +56,14 @@ def stamp(seconds: float) -> object:
                                             nanosec=int(seconds % 1 * 1e9))
 
 
+def write(bag: Writer, connection: object, seconds: float, kind: str, frame: str,
+          **fields: object) -> None:
+    """One message of type ``kind``, stamped ``seconds`` into the session."""
+    header = T["std_msgs/msg/Header"](stamp=stamp(seconds), frame_id=frame)
+    bag.write(connection, int((1_700_000_000 + seconds) * 1e9),
+              store.serialize_cdr(T[kind](header=header, **fields), kind))
+
+
 events = sorted([(s, 0, i) for i, s in enumerate(t_joint)]
                 + [(s, 1, i) for i, s in enumerate(t_track)])
 with Writer("session", version=9, storage_plugin=StoragePlugin.MCAP) as bag:
@@ -63,19 +71,14 @@ with Writer("session", version=9, storage_plugin=StoragePlugin.MCAP) as bag:
     point = bag.add_connection("/tracker/point", "geometry_msgs/msg/PointStamped",
                                typestore=store)
     for s, topic, i in events:
-        header = T["std_msgs/msg/Header"](stamp=stamp(s), frame_id="tracker")
         if topic == 0:
-            msg = T["sensor_msgs/msg/JointState"](
-                header=header, name=list(nominal.joint_names), position=q_joint[i],
-                velocity=np.zeros(0), effort=np.zeros(0))
-            bag.write(joints, int((1_700_000_000 + s) * 1e9),
-                      store.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+            write(bag, joints, s, "sensor_msgs/msg/JointState", "tracker",
+                  name=list(nominal.joint_names), position=q_joint[i],
+                  velocity=np.zeros(0), effort=np.zeros(0))
         else:
             x, y, z = p_track[i]
-            msg = T["geometry_msgs/msg/PointStamped"](
-                header=header, point=T["geometry_msgs/msg/Point"](x=x, y=y, z=z))
-            bag.write(point, int((1_700_000_000 + s) * 1e9),
-                      store.serialize_cdr(msg, "geometry_msgs/msg/PointStamped"))
+            write(bag, point, s, "geometry_msgs/msg/PointStamped", "tracker",
+                  point=T["geometry_msgs/msg/Point"](x=x, y=y, z=z))
 print(f"session: {len(t_joint)} joint states, {len(t_track)} tracker points, {t:.0f} s")
 # --8<-- [end:record]
 
@@ -147,20 +150,14 @@ with Writer("images_session", version=9, storage_plugin=StoragePlugin.MCAP) as b
     joints = bag.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=store)
     image = bag.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=store)
     for s, topic, i in events:
-        header = T["std_msgs/msg/Header"](stamp=stamp(s), frame_id="camera")
         if topic == 0:
-            msg = T["sensor_msgs/msg/JointState"](
-                header=header, name=list(panda.joint_names), position=q_joint[i],
-                velocity=np.zeros(0), effort=np.zeros(0))
-            bag.write(joints, int((1_700_000_000 + s) * 1e9),
-                      store.serialize_cdr(msg, "sensor_msgs/msg/JointState"))
+            write(bag, joints, s, "sensor_msgs/msg/JointState", "camera",
+                  name=list(panda.joint_names), position=q_joint[i],
+                  velocity=np.zeros(0), effort=np.zeros(0))
         else:
-            pixels = picture(shots[i][1])
-            msg = T["sensor_msgs/msg/Image"](header=header, height=480, width=640,
-                                             encoding="mono8", is_bigendian=0, step=640,
-                                             data=pixels.reshape(-1))
-            bag.write(image, int((1_700_000_000 + s) * 1e9),
-                      store.serialize_cdr(msg, "sensor_msgs/msg/Image"))
+            write(bag, image, s, "sensor_msgs/msg/Image", "camera", height=480, width=640,
+                  encoding="mono8", is_bigendian=0, step=640,
+                  data=picture(shots[i][1]).reshape(-1))
 print(f"images_session: {len(t_joint)} joint states, {len(shots)} images, {t:.0f} s")
 # --8<-- [end:images-record]
 
