@@ -237,13 +237,14 @@ def _robot_block(record: Mapping[str, Any]) -> tuple[dict[str, dict[str, Any]], 
     return params, np.asarray(record["covariance"], dtype=float), list(record["estimated"])
 
 
-def _satterthwaite(total: float, estimated: float, nu: int) -> float:
+def _satterthwaite(total: Any, estimated: Any, nu: int) -> Any:
     """Degrees of freedom of ``total = known + estimated`` when ``estimated`` comes from
     ``nu`` degrees of freedom (Welch-Satterthwaite): ``nu (total / estimated)^2``,
-    infinite when nothing is estimated."""
-    if estimated <= 0 or total <= 0:
-        return math.inf
-    return nu * (total / estimated) ** 2
+    infinite when nothing is estimated; element-wise on arrays, a float for numbers."""
+    total, estimated = np.asarray(total, dtype=float), np.asarray(estimated, dtype=float)
+    some = (estimated > 0) & (total > 0)
+    out = np.where(some, nu * (total / np.where(some, estimated, 1.0)) ** 2, math.inf)
+    return float(out) if out.ndim == 0 else out
 
 
 def joint_test(delta: np.ndarray, C: np.ndarray, nu: float | None
@@ -329,15 +330,14 @@ def _both_models(delta: np.ndarray, V: np.ndarray, names: Sequence[str],
     t2 = np.array([weight * var.get(k, 0.0) for k in names])
     v = np.maximum(np.diag(V), 0.0)
     sd_add = np.sqrt(v + t2)
-    dof_add = np.array([_satterthwaite(v[k] + t2[k], t2[k], n) for k in range(len(names))])
+    dof_add = _satterthwaite(v + t2, t2, n)
     T2 = weight * repro.block(names)
     nu = _satterthwaite(float(np.trace(V + T2)), float(np.trace(T2)), n)
     additive = joint_test(delta, V + T2, nu if math.isfinite(nu) else None)
     lam2 = np.array([repro.factor(k) for k in names])
     sd_de = np.sqrt(lam2 * v)
     # the estimated part is (lambda^2 - 1) V, behind it n pairs (Satterthwaite, as T)
-    dof_de = np.array([_satterthwaite(lam2[k] * v[k], (lam2[k] - 1.0) * v[k], n)
-                       for k in range(len(names))])
+    dof_de = _satterthwaite(lam2 * v, (lam2 - 1.0) * v, n)
     nu_de = _satterthwaite(float(np.sum(lam2 * v)), float(np.sum((lam2 - 1.0) * v)), n)
     z_add = _normal_equivalent(_ratio(delta, sd_add), dof_add)
     z_de = _normal_equivalent(_ratio(delta, sd_de), dof_de)

@@ -194,7 +194,6 @@ class ReproducibilityPool:
             ok, z2 = _squared_z(p)
             self.ratios[p.model][np.asarray(idx)[ok]] += z2[ok]
             self.ratio_counts[p.model][np.asarray(idx)[ok]] += 1
-        # which model of placement error the pairs support, per parameter (evidence)
         # which model of placement error the pairs support: each pair's change judged by
         # both models estimated without it (cross-validated, so that the additive model's
         # p(p+1)/2 entries of T do not buy their fit), summed per parameter and jointly
@@ -222,8 +221,8 @@ class ReproducibilityPool:
         T, lam2 = self._fit_without(p, p.model)
         T = _denoise(T)[np.ix_(idx, idx)]
         lam2 = lam2[idx]
-        ok = np.diag(p.V) > 0
         v = np.diag(p.V)
+        ok = v > 0
         s_add = v + p.weight * np.diag(T)
         s_de = lam2 * v
         with np.errstate(divide="ignore", invalid="ignore"):
