@@ -301,17 +301,15 @@ def _edge_refine(gray: Any, quad: Array, bits: int) -> Array:
         p = quad[a] + np.linspace(0.15, 0.85, 21)[:, None] * d
         prof = _bilinear(img, p[:, None, 0] + s * n[0], p[:, None, 1] + s * n[1])
         mid = 0.5 * (prof[:, :3].mean(axis=1) + prof[:, -3:].mean(axis=1))
-        pts = []
-        for k in range(len(p)):
-            above = np.flatnonzero(prof[k] >= mid[k])
-            if len(above) == 0 or above[0] == 0:
-                continue
-            j = above[0]
-            f = (mid[k] - prof[k, j - 1]) / max(prof[k, j] - prof[k, j - 1], 1e-9)
-            pts.append(p[k] + (s[j - 1] + 0.1 * f) * n)
-        if len(pts) < 5:
+        above = prof >= mid[:, None]
+        j = np.argmax(above, axis=1)                # first sample at or past the midpoint
+        ok = above.any(axis=1) & (j > 0)
+        if np.count_nonzero(ok) < 5:
             return quad
-        P = np.array(pts)
+        rows, j = np.flatnonzero(ok), j[ok]
+        lo, hi = prof[rows, j - 1], prof[rows, j]
+        f = (mid[rows] - lo) / np.maximum(hi - lo, 1e-9)
+        P = p[rows] + (s[j - 1] + 0.1 * f)[:, None] * n
         c = P.mean(axis=0)
         normal = np.linalg.svd(P - c)[2][-1]
         lines.append((normal, float(normal @ c)))
